@@ -1,0 +1,23 @@
+# The README's two commands: `make demo` and `make test`. Both set up .venv themselves.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+# pytorch-kinematics imports matplotlib, which wants a writable config folder.
+export MPLCONFIGDIR := $(CURDIR)/.mplconfig
+
+.PHONY: install demo test
+
+install: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml constraints.txt
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -c constraints.txt torch==2.13.0
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev]'
+	touch $@
+
+demo: install
+	$(BIN)/priortrack replay cmu:07_01 --scenario occlusion --out walk.rrd
+
+test: install
+	$(BIN)/python -m pytest -n 2 -q

@@ -1,0 +1,135 @@
+"""The articulated skeleton: a tree of joints, their rest offsets and their channels.
+
+One representation serves ASF and BVH. Joint ``j`` sits at
+
+    p_j = p_parent + G_parent · (o_j + T_j),        G_j = G_parent · L_j,
+
+with ``o_j`` the rest offset (metres, in the parent's rest frame, which for ASF and BVH
+is the world frame of the rest pose), ``T_j`` the joint's translation channels along the
+parent's axes (only the root has them in practice) and the local rotation
+
+    L_j = R_{a_1}(θ_1) · R_{a_2}(θ_2) · R_{a_3}(θ_3),
+
+a product of rotations about unit axes ``a_k`` (leftmost first), each angle read from one
+channel of the pose vector. An ASF bone with axis matrix C and dofs rz ry rx gives
+C·Rz·Ry·Rx·Cᵀ = R_{C·z} · R_{C·y} · R_{C·x}, so its axes are the columns of C; a BVH
+joint's axes are the coordinate axes in its channel order. Unused slots have a zero axis.
+
+A pose is one vector of channels ``(C,)``: root translation in metres and every rotation
+in radians, in the order of ``channel_names``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from priortrack.errors import PriortrackError
+
+#: Rotation slots per joint (three Euler angles at most).
+SLOTS = 3
+
+
+@dataclass(frozen=True, eq=False)
+class Skeleton:
+    """A joint tree with per-joint channels.
+
+    Attributes:
+        name: where the skeleton came from (file stem).
+        names: (J,) joint names; parents come before children.
+        parents: (J,) int, parent index, -1 for the root (index 0).
+        offsets: (J, 3) rest offset o_j from the parent, metres.
+        rot_axes: (J, 3, 3) unit rotation axis a_k for slot k (zero where unused).
+        rot_channels: (J, 3) int, channel index of slot k's angle, -1 where unused.
+        trans_channels: (J, 3) int, channel index of the translation along the parent's
+            x, y, z axes, -1 where unused.
+        channel_names: (C,) names such as ``root.tx`` or ``lfemur.rz``.
+        source: ``"asf"`` or ``"bvh"``.
+        length_unit: metres per length unit of the source file (ASF ``:units length``,
+            BVH offsets), to convert translation channels read from or written to files.
+        angle_unit: radians per angle unit of the source file (π/180 for degrees).
+    """
+
+    name: str
+    names: tuple[str, ...]
+    parents: np.ndarray
+    offsets: np.ndarray
+    rot_axes: np.ndarray
+    rot_channels: np.ndarray
+    trans_channels: np.ndarray
+    channel_names: tuple[str, ...]
+    source: str
+    length_unit: float = 1.0
+    angle_unit: float = np.pi / 180.0
+
+    def __post_init__(self) -> None:
+        J = len(self.names)
+        C = len(self.channel_names)
+        if J == 0:
+            raise PriortrackError(f"skeleton {self.name!r} has no joints")
+        expected = {
+            "parents": (J,),
+            "offsets": (J, 3),
+            "rot_axes": (J, SLOTS, 3),
+            "rot_channels": (J, SLOTS),
+            "trans_channels": (J, 3),
+        }
+        for field, shape in expected.items():
+            if getattr(self, field).shape != shape:
+                raise PriortrackError(
+                    f"skeleton {self.name!r}: {field} has shape {getattr(self, field).shape}, expected {shape}"
+                )
+        if self.parents[0] != -1 or np.any(self.parents[1:] >= np.arange(1, J)) or np.any(self.parents[1:] < 0):
+            raise PriortrackError(f"skeleton {self.name!r}: joints must be ordered parents first with one root at 0")
+        used = np.concatenate([self.rot_channels.ravel(), self.trans_channels.ravel()])
+        used = used[used >= 0]
+        if len(np.unique(used)) != len(used) or (len(used) and (used.max() >= C)):
+            raise PriortrackError(f"skeleton {self.name!r}: channel indices must be distinct and < {C}")
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.names)
+
+    @property
+    def num_channels(self) -> int:
+        return len(self.channel_names)
+
+    def index(self, joint: str) -> int:
+        """Index of a joint by name; a clear error listing the names if absent."""
+        try:
+            return self.names.index(joint)
+        except ValueError:
+            raise PriortrackError(
+                f"skeleton {self.name!r} has no joint {joint!r}; joints: {', '.join(self.names)}"
+            ) from None
+
+    def children(self, j: int) -> list[int]:
+        return [int(c) for c in np.flatnonzero(self.parents == j)]
+
+    def bone_lengths(self) -> np.ndarray:
+        """(J,) rest distance from each joint to its parent, metres (0 for the root)."""
+        lengths = np.linalg.norm(self.offsets, axis=1)
+        lengths[0] = 0.0
+        return lengths
+
+    def channel_scale(self) -> np.ndarray:
+        """(C,) factor from file units to metres/radians for each channel."""
+        scale = np.full(self.num_channels, self.angle_unit)
+        translations = self.trans_channels[self.trans_channels >= 0]
+        scale[translations] = self.length_unit
+        return scale
+
+    def rest_pose(self) -> np.ndarray:
+        """(C,) all channels zero: the rest pose at the origin."""
+        return np.zeros(self.num_channels)
+
+
+def check_channels(channels, skeleton: Skeleton, argument: str = "channels") -> None:
+    """Raise a PriortrackError unless ``channels`` is (..., C) for this skeleton."""
+    shape = tuple(channels.shape)
+    if len(shape) < 1 or shape[-1] != skeleton.num_channels:
+        raise PriortrackError(
+            f"{argument} has shape {shape}; expected (..., {skeleton.num_channels}) "
+            f"channels for skeleton {skeleton.name!r}"
+        )

@@ -1,0 +1,136 @@
+"""The CMU motion-capture clips shipped with priortrack, and the subject-35 walk/jog set.
+
+The data was obtained from mocap.cs.cmu.edu. The database was created with funding from
+NSF EIA-0196217.
+
+Bundled names:
+- ``cmu:SS_TT``: an original ASF+AMC trial at 120 Hz (``cmu:07_01``);
+- ``walkjog:35_TT``: a trial of the subject-35 walk/jog set at 30 fps (``walkjog:35_29``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from priortrack.body.skeleton import Skeleton
+from priortrack.data.amc import read_amc
+from priortrack.data.asf import read_asf
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+
+DATA_DIR = Path(__file__).parent / "cmu"
+ASF_AMC_DIR = DATA_DIR / "asf_amc"
+WALKJOG_PATH = DATA_DIR / "subject35_walkjog" / "cmu35_walkjog_30fps.npz"
+CMU_FPS = 120.0
+
+_DESCRIPTIONS = {
+    "07": "walk", "35": "walk", "01": "playground: forward jumps, turn around",
+    "11": "soccer kick", "13": "jump", "49": "balance on one leg, arms out",
+    "131": "stylised dance", "135": "martial arts",
+}
+
+
+@dataclass(frozen=True)
+class BundledClip:
+    """One bundled clip: its name for :func:`load_motion`, subject, motion and frame rate."""
+
+    name: str
+    subject: str
+    description: str
+    fps: float
+    frames: int
+
+
+@dataclass(frozen=True)
+class WalkJogSet:
+    """CMU subject 35's walk and jog trials at 30 fps with the literature's train/test split.
+
+    Attributes:
+        train: 31 motions (trial names ``35_01`` …), test: 2 motions (35_18 jog, 35_29 walk).
+        actions: trial name → "walk" or "jog".
+    """
+
+    train: tuple[Motion, ...]
+    test: tuple[Motion, ...]
+    actions: dict[str, str]
+
+    def walks(self, split: str = "train") -> tuple[Motion, ...]:
+        """The walking trials of one split ("train" or "test")."""
+        return tuple(m for m in getattr(self, split) if self.actions[m.name] == "walk")
+
+
+def _amc_frames(path: Path) -> int:
+    return sum(1 for line in path.read_text().splitlines() if line.strip().isdigit())
+
+
+@lru_cache(maxsize=None)
+def cmu_skeleton(subject: str) -> Skeleton:
+    """The bundled ASF skeleton of a CMU subject ("07")."""
+    path = ASF_AMC_DIR / f"{subject}.asf"
+    if not path.exists():
+        known = sorted(p.stem for p in ASF_AMC_DIR.glob("*.asf"))
+        raise PriortrackError(f"no bundled skeleton for CMU subject {subject!r}; subjects: {', '.join(known)}")
+    return read_asf(path)
+
+
+def bundled_clips() -> list[BundledClip]:
+    """Every bundled clip, ``cmu:`` trials first, then the ``walkjog:`` set."""
+    clips = [
+        BundledClip(f"cmu:{p.stem}", p.stem.split("_")[0], _DESCRIPTIONS.get(p.stem.split("_")[0], ""),
+                    CMU_FPS, _amc_frames(p))
+        for p in sorted(ASF_AMC_DIR.glob("*.amc"))
+    ]
+    data = walkjog_arrays()
+    for split in ("train", "test"):
+        for s, trial in enumerate(data[f"trial_{split}"]):
+            clips.append(BundledClip(f"walkjog:{trial}", "35", f"{data[f'action_{split}'][s]} ({split})",
+                                     float(data["fps"]), int(np.sum(data[f"seq_index_{split}"] == s))))
+    return clips
+
+
+@lru_cache(maxsize=1)
+def walkjog_arrays() -> dict[str, np.ndarray]:
+    """The raw arrays of the subject-35 walk/jog npz (no pickle)."""
+    with np.load(WALKJOG_PATH, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def load_walkjog() -> WalkJogSet:
+    """Load the subject-35 walk/jog set as :class:`Motion` objects at 30 fps."""
+    data = walkjog_arrays()
+    skeleton = cmu_skeleton("35")
+    if list(data["channel_names"]) != list(skeleton.channel_names):
+        raise PriortrackError(f"{WALKJOG_PATH}: channel_names do not match skeleton 35.asf")
+    scale = skeleton.channel_scale()
+    splits = {}
+    actions = {}
+    for split in ("train", "test"):
+        Y, index = data[f"Y_{split}"].astype(np.float64), data[f"seq_index_{split}"]
+        motions = []
+        for s, trial in enumerate(data[f"trial_{split}"]):
+            motions.append(Motion(skeleton, Y[index == s] * scale, float(data["fps"]), str(trial), "35"))
+            actions[str(trial)] = str(data[f"action_{split}"][s])
+        splits[split] = tuple(motions)
+    return WalkJogSet(splits["train"], splits["test"], actions)
+
+
+def load_bundled(name: str) -> Motion:
+    """Load a bundled clip by name (``cmu:07_01`` or ``walkjog:35_29``)."""
+    kind, _, trial = name.partition(":")
+    if kind == "cmu":
+        path = ASF_AMC_DIR / f"{trial}.amc"
+        if path.exists():
+            subject = trial.split("_")[0]
+            skeleton = cmu_skeleton(subject)
+            return Motion(skeleton, read_amc(path, skeleton), CMU_FPS, trial, subject)
+    elif kind == "walkjog":
+        walkjog = load_walkjog()
+        for motion in walkjog.train + walkjog.test:
+            if motion.name == trial:
+                return motion
+    names = [c.name for c in bundled_clips()]
+    raise PriortrackError(f"unknown bundled motion {name!r}; bundled: {', '.join(names)}")

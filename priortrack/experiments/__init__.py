@@ -1,0 +1,1 @@
+"""Experiment helpers: error metrics and their summaries."""
