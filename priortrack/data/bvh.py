@@ -13,9 +13,11 @@ c_k is the coordinate axis of the k-th rotation channel *in the order the file l
 "Zrotation Xrotation Yrotation" gives L = Rz·Rx·Ry. Lengths are converted with
 ``length_unit`` (metres per BVH unit), angles are degrees.
 
-Reading keeps the file's joints (parents first, depth-first in file order), names each
-``End Site`` ``<parent>_end`` and keeps every channel in the file's column order, named
-``<joint>.tx|ty|tz|rx|ry|rz``.
+Reading keeps the file's joints (parents first, depth-first in file order), joins a
+ROOT/JOINT name of several words with "_" (as Blender does), names each ``End Site``
+``<parent>_end`` and keeps every channel in the file's column order, named
+``<joint>.tx|ty|tz|rx|ry|rz``. Keywords and channel names are matched case-insensitively;
+``{`` and ``}`` may share a line with other statements.
 
 Writing normalises the channel layout so that any :class:`~priortrack.data.motion.Motion`
 (ASF- or BVH-derived) becomes a file Blender and MotionBuilder import:
@@ -32,8 +34,8 @@ Writing normalises the channel layout so that any :class:`~priortrack.data.motio
 * a joint without channels gets ``CHANNELS 0``;
 * a childless joint named ``<parent>_end`` without channels becomes an ``End Site`` (so it
   reads back under the same name); any other childless joint keeps its ``JOINT`` block
-  and gets an ``End Site`` with ``OFFSET 0 0 0`` (BVH requires every branch to end in
-  one), which reads back as an extra joint ``<joint>_end`` at the joint's own position.
+  and gets an ``End Site`` with ``OFFSET 0 0 0`` (importers expect every branch to end
+  in one), which reads back as an extra joint ``<joint>_end`` at the joint's own position.
 
 Numbers are written as the shortest decimal that reads back to the same float64 (no
 exponent notation), so a write → read round trip reproduces positions to rounding error.
@@ -90,10 +92,10 @@ def zxy_angles(R: np.ndarray) -> np.ndarray:
         z = atan2(−R01, R11),
         y = atan2(cos z·R02 + sin z·R12, cos z·R00 + sin z·R10).
 
-    y is taken from the matrix with the computed z undone, so it absorbs any error in z
-    and R is recomposed to rounding error even near gimbal lock (cos x ≈ 0), where z is ill
-    defined; at lock (cos x < 1e-12) z is set to 0 and y carries the whole rotation about
-    the vertical axis.
+    Near gimbal lock (cos x ≈ 0) only z ± y is defined and z, read from entries of size
+    cos x, carries an error δ ~ 1e-16 / cos x; y is read from R with the computed z undone,
+    so it absorbs δ and Rz·Rx·Ry recomposes R to ~δ·cos x, i.e. rounding error, however
+    close to lock. At lock (cos x < 1e-12) z is set to 0 and y takes the whole z ± y.
 
     Args:
         R: (..., 3, 3) rotation matrices.
@@ -280,8 +282,10 @@ def _skeleton(name: str, joints: list[_Joint], length_unit: float) -> Skeleton:
     )
 
 
-def _header_value(lines: _Lines, items: list[tuple[int, str]], i: int, label: str, after: int) -> tuple[int, str]:
-    """Line number and value text of the MOTION header line ``label`` (e.g. "Frames:")."""
+def _header_value(lines: _Lines, items: list[tuple[int, str]], i: int, label: str,
+                  after: int) -> tuple[int, str]:
+    """Line number and value text of the MOTION header line ``label`` (e.g. "Frames:"),
+    expected at ``items[i]``; ``after`` is the line to blame if the file ends first."""
     if i >= len(items):
         raise lines.fail(after, f"file ends before the {label!r} line (truncated?)")
     n, text = items[i]
@@ -293,8 +297,10 @@ def _header_value(lines: _Lines, items: list[tuple[int, str]], i: int, label: st
     return n, value
 
 
-def _parse_motion(lines: _Lines, start: int, num_channels: int, motion_line: int) -> tuple[np.ndarray, float]:
-    """(T, C) channel values in file units and the frame time from the MOTION section."""
+def _parse_motion(lines: _Lines, start: int, num_channels: int,
+                  motion_line: int) -> tuple[np.ndarray, float]:
+    """(T, C) channel values in file units and the frame time (s) of the MOTION section,
+    whose header starts at ``lines.items[start]``."""
     items = lines.items
     n, value = _header_value(lines, items, start, "Frames:", motion_line)
     try:
@@ -381,7 +387,7 @@ def _check_name(skeleton: Skeleton, name: str) -> None:
 def write_bvh(motion: Motion, path: str | Path, length_unit: float = 0.01) -> None:
     """Write a Motion as a BVH file with a normalised channel layout (see the module doc).
 
-    Every frame's local rotations L_j (B=T, J, 3, 3) come from
+    The local rotations L_j of every frame, (T, J, 3, 3), come from
     :meth:`ForwardKinematics.local_rotations` in float64 and are written as the ZXY angles
     of :func:`zxy_angles` in degrees; a joint with translation channels is written with
     OFFSET 0 and positions (o_j + T_j) / length_unit, others with OFFSET o_j / length_unit.
@@ -403,6 +409,7 @@ def write_bvh(motion: Motion, path: str | Path, length_unit: float = 0.01) -> No
     fk = ForwardKinematics(skeleton, dtype=torch.float64)
     L = fk.local_rotations(torch.as_tensor(channels)).numpy() if T else np.zeros((0, J, 3, 3))
     degrees = np.degrees(zxy_angles(L))                                        # (T, J, 3) z, x, y
+    # Index -1 (no translation channel) picks the appended zero column.
     translation = np.concatenate([channels, np.zeros((T, 1))], axis=1)[:, skeleton.trans_channels]  # (T, J, 3)
     positions = (skeleton.offsets + translation) / length_unit                 # (T, J, 3)
 

@@ -358,7 +358,8 @@ def karcher_mean(
     highest-weight point (the first on ties) where that sum has norm below sqrt(eps).
     It stops after the first step whose product-space norm sqrt(sum_k |step_k|^2) is
     below ``tol`` for every batch element (that step is applied), or after
-    ``max_iter`` steps, logging a warning. ``tol`` must exceed the dtype's rounding
+    ``max_iter`` steps, logging a warning. The iterate is renormalised to unit rows
+    after every step. ``tol`` must exceed the dtype's rounding
     level (the default 1e-12 suits float64; use ~1e-6 for float32). The mean is unique
     and the iteration converges when the points lie in a geodesic ball of radius
     below pi/2 on every sphere.
@@ -391,7 +392,10 @@ def karcher_mean(
 
     for _ in range(max_iter):
         step = (point_weights * _log(mean, x)).sum(dim=0)
+        # log_map and exp_map assume unit rows; renormalising keeps rounding in the
+        # iterate's norm from feeding back into the step and growing.
         mean = _exp(mean, step)
+        mean = mean / torch.linalg.vector_norm(mean, dim=-1, keepdim=True)
         step_norm = float(torch.linalg.vector_norm(step.flatten(-2), dim=-1).max())
         if step_norm < tol:
             return mean
