@@ -215,7 +215,8 @@ def _build(name, bones, children, root_order, root_axis, root_position, root_ori
         bone = bones[bone_name]
         C = euler_matrix(bone.axis * angle_scale, bone.order)
         j = add(bone_name, parent, offset, C, bone.order, bone.dofs)
-        vector = bone.length * length_unit * bone.direction / max(np.linalg.norm(bone.direction), 1e-300)
+        # As CMU's own joint positions: the file's direction as written, not renormalised.
+        vector = bone.length * length_unit * bone.direction
         kids = children.get(bone_name, [])
         for child in kids:
             visit(child, j, vector)

@@ -8,7 +8,7 @@ from priortrack.body.skeleton import Skeleton
 from priortrack.data.amc import read_amc
 from priortrack.data.asf import read_asf
 from priortrack.data.bundled import load_bundled
-# TEMP-BVH from priortrack.data.bvh import read_bvh
+from priortrack.data.bvh import read_bvh
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 
@@ -38,7 +38,6 @@ def load_motion(source: str | Path, skeleton: Skeleton | str | Path | None = Non
     if not path.exists():
         raise PriortrackError(f"motion file {path} does not exist")
     if suffix == ".bvh":
-        from priortrack.data.bvh import read_bvh  # TEMP-BVH
         return read_bvh(path)
     subject = path.stem.split("_")[0]
     if skeleton is None:

@@ -212,9 +212,9 @@ def exp_map(x: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
     which follows the great circle from x_k in direction v_k for arc length t.
     For t^2 < sqrt(eps) cos(t) and sin(t)/t are evaluated by their Taylor series
-    (1 - t^2/2 + t^4/24 and 1 - t^2/6 + t^4/120), so the result is exact to working
-    precision near v = 0 (exp_x(v) = x + v there), never NaN, and differentiable at
-    v = 0 with Jacobian d exp_x(v)/dv = I.
+    (1 - t^2/2 + t^4/24 and 1 - t^2/6 + t^4/120), so the result keeps working
+    precision near v = 0 (where exp_x(v) = x + v + O(|v|^2)), is never NaN, and is
+    differentiable at v = 0 with Jacobian d exp_x(v)/dv = I.
 
     Args:
         x: base point (..., K, 3), unit rows.

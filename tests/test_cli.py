@@ -1,0 +1,84 @@
+"""The command line: data list, replay to a rerun recording (read back), bench fk, errors."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import rerun as rr
+
+from priortrack.cli.main import main
+from priortrack.observation import Observations
+
+
+def _entities(path):
+    rows = {}
+    for chunk in rr.chunk.RrdReader(str(path)).stream().to_chunks():
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    return rows
+
+
+def test_data_list(capsys):
+    assert main(["data", "list", "--json"]) == 0
+    clips = json.loads(capsys.readouterr().out)
+    by_name = {c["name"]: c for c in clips}
+    assert by_name["cmu:07_01"]["frames"] == 316 and by_name["walkjog:35_29"]["fps"] == 30.0
+    assert main(["data", "list"]) == 0
+    assert "mocap.cs.cmu.edu" in capsys.readouterr().out
+
+
+def test_replay_writes_a_recording_with_every_frame(tmp_path, capsys):
+    out, obs = tmp_path / "walk.rrd", tmp_path / "obs.npz"
+    assert main(["replay", "cmu:07_01", "--scenario", "occlusion", "--out", str(out),
+                 "--observations", str(obs)]) == 0
+    assert "79 frames" in capsys.readouterr().out
+    rows = _entities(out)
+    assert rows["/world/truth"] == 79
+    assert rows["/world/camera/image/observations"] == 79
+    assert rows["/world/camera/image"] == 1 and rows["/world/camera"] == 1
+    observations = Observations.load(obs)
+    assert observations.scenario == "occlusion" and observations.uv.shape == (79, 15, 2)
+    # During the occlusion only the head is seen; the recording holds what was seen.
+    occluded = np.isnan(observations.uv[:, 0, 0])
+    assert occluded.any() and not np.isnan(observations.uv[occluded][:, 2]).any()
+
+
+def test_replay_points_are_the_projected_truth(tmp_path):
+    out, obs = tmp_path / "clean.rrd", tmp_path / "clean.npz"
+    assert main(["replay", "walkjog:35_29", "--fps", "30", "--out", str(out), "--observations", str(obs)]) == 0
+    observations = Observations.load(obs)
+    for chunk in rr.chunk.RrdReader(str(out)).stream().to_chunks():
+        if chunk.entity_path == "/world/camera/image/observations":
+            batch = chunk.to_record_batch()
+            first = np.array(batch.column("Points2D:positions")[0].as_py())
+            ids = np.array(batch.column("Points2D:keypoint_ids")[0].as_py())
+            break
+    np.testing.assert_allclose(first, observations.uv[0, ids], atol=1e-3)
+    assert len(ids) == 8
+
+
+def test_bench_fk_json(capsys):
+    assert main(["bench", "fk", "--batch", "300", "--repeats", "2", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result) >= {"batch", "priortrack_ms", "pytorch_kinematics_ms", "max_abs_err_m"}
+    assert result["batch"] == 300 and result["max_abs_err_m"] < 1e-9
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["replay", "cmu:99_01", "--out", "x.rrd"], "unknown bundled motion"),
+    (["replay", "cmu:07_01", "--scenario", "fog", "--out", "x.rrd"], "fog"),
+    (["replay", "cmu:07_01", "--scenario", "noise:sigma=3", "--out", "x.rrd"], "sigma"),
+    (["bench", "fk", "--batch", "0"], "positive"),
+])
+def test_errors_are_one_line_and_exit_2(argv, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("priortrack: error:") and message in err and "Traceback" not in err
+
+
+def test_console_script_runs():
+    result = subprocess.run([sys.executable, "-m", "priortrack.cli.main", "data", "list"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and "cmu:135_06" in result.stdout

@@ -1,0 +1,99 @@
+"""Batched FK against pytorch-kinematics (an independent implementation) and its own invariants."""
+
+import numpy as np
+import pytest
+import torch
+
+from priortrack import PriortrackError, load_motion
+from priortrack.body.chain import KinematicChain, to_urdf
+from priortrack.body.fk import ForwardKinematics, forward_kinematics
+from priortrack.data.bundled import load_bundled
+
+SUBJECTS = ["cmu:07_01", "cmu:35_01", "cmu:131_04", "cmu:135_06", "cmu:49_18"]
+
+
+def _poses(motion, n=64, spread=0.5, seed=0):
+    """Real frames plus large random perturbations of every angle (radians)."""
+    rng = np.random.default_rng(seed)
+    channels = motion.channels[rng.integers(0, len(motion), n)].copy()
+    channels[:, 3:] += rng.normal(0, spread, (n, motion.skeleton.num_channels - 3))
+    return channels
+
+
+@pytest.mark.parametrize("name", SUBJECTS)
+def test_fk_agrees_with_pytorch_kinematics_float64(name):
+    motion = load_bundled(name)
+    channels = _poses(motion)
+    ours = ForwardKinematics(motion.skeleton)(channels)
+    theirs = KinematicChain(motion.skeleton).positions(channels)
+    assert ours.shape == (64, motion.skeleton.num_joints, 3) and ours.dtype == torch.float64
+    assert (ours - theirs).abs().max().item() < 1e-9
+
+
+def test_float32_close_to_float64():
+    motion = load_bundled("cmu:07_01")
+    channels = _poses(motion, n=256)
+    p64 = ForwardKinematics(motion.skeleton)(channels)
+    p32 = ForwardKinematics(motion.skeleton, dtype=torch.float32)(channels)
+    assert p32.dtype == torch.float32
+    assert (p32.double() - p64).abs().max().item() < 1e-5
+
+
+def test_global_rotations_are_rotations_and_match_pytorch_kinematics():
+    motion = load_bundled("cmu:131_04")
+    channels = _poses(motion, n=16)
+    _, G = ForwardKinematics(motion.skeleton)(channels, rotations=True)
+    eye = torch.eye(3, dtype=torch.float64)
+    assert (G @ G.transpose(-1, -2) - eye).abs().max() < 1e-12
+    assert (torch.linalg.det(G) - 1).abs().max() < 1e-12
+    chain = KinematicChain(motion.skeleton)
+    transforms = chain.chain.forward_kinematics_tensor(chain.joint_values(channels))
+    theirs = transforms[chain.frame_index, :, :3, :3].transpose(0, 1)
+    assert (G - theirs).abs().max() < 1e-12
+
+
+def test_single_pose_and_batch_agree_and_gradients_flow():
+    motion = load_bundled("cmu:07_01")
+    fk = ForwardKinematics(motion.skeleton)
+    one = fk(motion.channels[5])
+    assert one.shape == (motion.skeleton.num_joints, 3)
+    torch.testing.assert_close(one, fk(motion.channels[:10])[5], rtol=0, atol=0)
+    x = torch.as_tensor(motion.channels[:4], dtype=torch.float64).requires_grad_()
+    fk(x).sum().backward()
+    assert torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0
+
+
+def test_root_translation_moves_everything_rigidly():
+    motion = load_bundled("cmu:07_01")
+    a = motion.channels[:3].copy()
+    b = a.copy()
+    b[:, :3] += [0.3, -0.2, 1.5]
+    pa, pb = forward_kinematics(motion.skeleton, a), forward_kinematics(motion.skeleton, b)
+    torch.testing.assert_close(pb - pa, torch.tensor([0.3, -0.2, 1.5], dtype=torch.float64).expand_as(pa))
+
+
+def test_urdf_text_builds_the_same_chain():
+    import pytorch_kinematics as pk
+
+    motion = load_bundled("cmu:07_01")
+    urdf = to_urdf(motion.skeleton)
+    assert urdf.count('type="revolute"') == 59 and urdf.count('type="prismatic"') == 3
+    chain = pk.build_chain_from_urdf(urdf).to(dtype=torch.float64)
+    names = chain.get_joint_parameter_names()
+    assert sorted(names) == sorted(motion.skeleton.channel_names)
+    channels = _poses(motion, n=8)
+    th = torch.as_tensor(channels[:, [motion.skeleton.channel_names.index(n) for n in names]])
+    frames = chain.forward_kinematics(th)
+    theirs = torch.stack([frames[n].get_matrix()[:, :3, 3] for n in motion.skeleton.names], 1)
+    ours = ForwardKinematics(motion.skeleton)(channels)
+    # pytorch-kinematics' URDF parser keeps float32 offsets: 1e-6 m, not 1e-9.
+    assert (ours - theirs).abs().max() < 1e-6
+
+
+def test_wrong_shapes_are_clear_errors():
+    motion = load_motion("cmu:07_01")
+    fk = ForwardKinematics(motion.skeleton)
+    with pytest.raises(PriortrackError, match=r"expected \(\.\.\., 62\)"):
+        fk(np.zeros((5, 61)))
+    with pytest.raises(PriortrackError, match="expected"):
+        fk(np.zeros((2, 5, 62)))
