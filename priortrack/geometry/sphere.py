@@ -311,16 +311,19 @@ def transport(x: torch.Tensor, y: torch.Tensor, v: torch.Tensor) -> torch.Tensor
 
         P(v) = v - (log_x(y)·v) / theta^2 (log_x(y) + log_y(x)),
 
-    the identity when x_k == y_k. For tangent v this equals the reflection
+    the identity when x_k == y_k. Substituting log_x(y) = theta w/|w| and
+    log_y(x) = theta (x - c y)/|w|, with c = x·y, w = y - c x and |w|^2 = 1 - c^2,
+    gives for tangent v the form that is evaluated:
 
-        P(v) = v - 2 (s·v) / |s|^2 s,   s = x_k + y_k,
+        P(v) = v - (w·v) (x + k w),   k = 1/(1 + c) = (1 - c)/|w|^2,
 
-    (substitute log_x(y) = theta (y - c x)/sin(theta), c = x·y), which is what is
-    evaluated: it needs no theta^2 division, so it is accurate down to theta = 0 and up
-    to the antipode. For antipodal rows (y_k = -x_k, same test as :func:`log_map`) the
+    where k uses 1/(1 + c) for c >= 0 and (1 - c)/|w|^2 for c < 0, and w is the
+    short-chord projection of :func:`log_map`. Nothing cancels, so this is accurate
+    from theta = 0 (where it is exactly v - (w·v) x = v for tangent v) right up to
+    the antipode. For antipodal rows (y_k = -x_k, same test as :func:`log_map`) the
     transport follows the geodesic that :func:`log_map` picks, in direction u_k:
     P(v) = v - 2 (u_k·v) u_k (the component along u_k flips, the one along x_k × u_k
-    is kept). Norms and inner products are preserved exactly (both are reflections).
+    is kept). Norms and inner products are preserved.
 
     Args:
         x: start point (..., K, 3), unit rows.
@@ -335,9 +338,14 @@ def transport(x: torch.Tensor, y: torch.Tensor, v: torch.Tensor) -> torch.Tensor
     _check_rows("v", v)
     _check_broadcast(x=x, y=y, v=v)
     w, cos = _chord_projection(x, y)
-    antipodal = _antipodal_mask(_dot(w, w), cos)
-    mirror = torch.where(antipodal, _antipodal_direction(x), x + y)
-    return v - 2 * _dot(mirror, v) / _dot(mirror, mirror) * mirror
+    sin_sq = _dot(w, w)
+    antipodal = _antipodal_mask(sin_sq, cos)
+    safe_sin_sq = torch.where(antipodal, torch.ones_like(sin_sq), sin_sq)
+    k = torch.where(cos >= 0, 1 / (1 + cos.clamp(min=0)), (1 - cos) / safe_sin_sq)
+    along_geodesic = v - _dot(w, v) * (x + k * w)
+    flip_direction = _antipodal_direction(x)
+    flipped = v - 2 * _dot(flip_direction, v) * flip_direction
+    return torch.where(antipodal, flipped, along_geodesic)
 
 
 def karcher_mean(

@@ -390,17 +390,17 @@ class Observations:
 
 # ---------------------------------------------------------------------------- synthesis
 def default_camera(positions: Any, margin: float = 0.1) -> PinholeCamera:
-    """A side-view camera that keeps the whole trajectory in a 1000x1000 image (f = 1000 px).
+    """A side-view camera that keeps the whole motion in a 1000x1000 image (f = 1000 px).
 
-    The camera sits on the +z side of the motion's bounding-box centre c, looking toward
-    -z (world x appears left -> right, world up is image up):
+    The camera looks horizontally at the centre c of the motion's bounding box, from eye
+    height 1.5 m, along the horizontal direction w perpendicular to the main direction of
+    travel of the pelvis (the first principal axis of its x-z track), so a walker crosses
+    the image from side to side; a motion that travels less than 0.5 m is seen along -z:
 
-        eye = (c_x, 1.5, c_z + d),  target = c,  PinholeCamera.look_at(eye, target)
+        eye = c + d·w (at y = 1.5 m),  PinholeCamera.look_at(eye, c)
 
-    with d = max(5 m, d_fit), d_fit the smallest distance (found from the analytic
-    estimate d0 = h_z + max(h_x, h_y + |1.5 - c_y|) / tan(half field of view), then grown by
-    5 % steps) at which all eight bounding-box corners project inside the image with a
-    ``margin`` fraction of the image size free on every side.
+    with d the smallest distance ≥ 5 m (grown by 5 % steps) at which every joint of every
+    frame projects inside the image with a ``margin`` fraction of its size free on each side.
 
     Args:
         positions: (T, 15, 3) metres, world Y-up.
@@ -414,21 +414,23 @@ def default_camera(positions: Any, margin: float = 0.1) -> PinholeCamera:
     if not 0.0 <= margin <= 0.45:
         raise PriortrackError(f"margin: expected a fraction in [0, 0.45], got {margin}")
     focal, size, eye_height = 1000.0, 1000, 1.5
-    lo = pos.reshape(-1, 3).min(axis=0)
-    hi = pos.reshape(-1, 3).max(axis=0)
-    c = (lo + hi) / 2.0
-    half = (hi - lo) / 2.0
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    tan_half = (0.5 - margin) * size / focal
-    d = max(5.0, half[2] + max(half[0], half[1] + abs(eye_height - c[1])) / tan_half + 0.1)
+    points = pos.reshape(-1, 3)
+    c = (points.min(axis=0) + points.max(axis=0)) / 2.0
+    track = pos[:, 0, [0, 2]] - pos[:, 0, [0, 2]].mean(axis=0)
+    w = np.array([0.0, 0.0, 1.0])
+    if np.ptp(track, axis=0).max() >= 0.5:
+        travel = np.linalg.svd(track, full_matrices=False)[2][0]       # unit (x, z)
+        w = np.array([-travel[1], 0.0, travel[0]])
     low_px, high_px = margin * size, (1.0 - margin) * size
+    d = 5.0
     for _ in range(200):
-        cam = PinholeCamera.look_at((c[0], eye_height, c[2] + d), c, focal_px=focal, width=size, height=size)
-        uv, in_front = cam.project(corners)
-        if in_front.all() and np.all(uv >= low_px - 1e-9) and np.all(uv <= high_px + 1e-9):
+        eye = np.array([c[0] + d * w[0], eye_height, c[2] + d * w[2]])
+        cam = PinholeCamera.look_at(eye, c, focal_px=focal, width=size, height=size)
+        uv, in_front = cam.project(points)
+        if in_front.all() and np.all(uv >= low_px) and np.all(uv <= high_px):
             return cam
         d *= 1.05
-    logger.warning("default_camera: could not fit the trajectory in the image; using d = %.2f m", d)
+    logger.warning("default_camera: could not fit the motion in the image; using d = %.2f m", d)
     return cam
 
 
