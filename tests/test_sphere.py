@@ -82,6 +82,13 @@ def t(array):
     return torch.as_tensor(np.asarray(array), dtype=torch.float64)
 
 
+def assert_close(actual, expected, atol):
+    """Elementwise |actual - expected| <= atol; a number as ``expected`` is broadcast."""
+    if not isinstance(expected, torch.Tensor):
+        expected = torch.full_like(actual, expected)
+    torch.testing.assert_close(actual, expected, rtol=0, atol=atol)
+
+
 def row_dot(a, b):
     return (a * b).sum(dim=-1)
 
@@ -101,14 +108,14 @@ def reference_angles(x, y):
 def test_exp_of_log_is_identity(pair):
     # All pairs, near-antipodal ones included (log_map keeps full precision up to -x).
     x, y = map(t, pair)
-    torch.testing.assert_close(exp_map(x, log_map(x, y)), y, rtol=0, atol=1e-10)
+    assert_close(exp_map(x, log_map(x, y)), y, 1e-10)
 
 
 @settings(max_examples=100, deadline=None)
 @given(point_and_tangent())
 def test_log_of_exp_is_identity(sample):
     x, v = map(t, sample)
-    torch.testing.assert_close(log_map(x, exp_map(x, v)), v, rtol=0, atol=1e-10)
+    assert_close(log_map(x, exp_map(x, v)), v, 1e-10)
 
 
 @settings(max_examples=100, deadline=None)
@@ -116,8 +123,8 @@ def test_log_of_exp_is_identity(sample):
 def test_exp_stays_on_sphere_and_moves_by_norm(sample):
     x, v = map(t, sample)
     y = exp_map(x, v)
-    torch.testing.assert_close(y.norm(dim=-1), torch.ones(y.shape[:-1], dtype=y.dtype), rtol=0, atol=1e-14)
-    torch.testing.assert_close(sphere_angles(x, y), v.norm(dim=-1), rtol=0, atol=1e-10)
+    assert_close(y.norm(dim=-1), 1.0, 1e-14)
+    assert_close(sphere_angles(x, y), v.norm(dim=-1), 1e-10)
 
 
 @settings(max_examples=100, deadline=None)
@@ -126,9 +133,9 @@ def test_log_norm_is_angle_and_log_is_tangent(pair):
     x, y = map(t, pair)
     log = log_map(x, y)
     expected = t(reference_angles(*pair))
-    torch.testing.assert_close(log.norm(dim=-1), expected, rtol=0, atol=1e-12)
-    torch.testing.assert_close(sphere_angles(x, y), expected, rtol=0, atol=1e-12)
-    torch.testing.assert_close(row_dot(x, log), torch.zeros_like(expected), rtol=0, atol=1e-12)
+    assert_close(log.norm(dim=-1), expected, 1e-12)
+    assert_close(sphere_angles(x, y), expected, 1e-12)
+    assert_close(row_dot(x, log), 0.0, 1e-12)
 
 
 @pytest.mark.parametrize("tiny_norm", [1e-9, 1e-300])
@@ -148,7 +155,7 @@ def test_log_of_identical_points_is_exactly_zero():
 
 
 def test_log_near_zero_is_accurate():
-    """theta/|w| -> 1: for y = x + d with tiny d, log_x(y) = d - (x·d)x to full relative precision."""
+    """theta/|w| -> 1: for y = x + d, d tiny, log_x(y) = d - (x·d)x to full relative precision."""
     x = random_unit((4, 3), seed=1)
     e1, e2 = tangent_basis(x)
     for scale in (1e-6, 1e-9, 1e-12, 1e-15):
@@ -163,14 +170,15 @@ def test_gradients_at_zero_are_finite():
     x = t([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
     v = torch.zeros_like(x, requires_grad=True)
     jacobian = torch.autograd.functional.jacobian(lambda tangent: exp_map(x, tangent), v)
-    torch.testing.assert_close(jacobian.reshape(6, 6), torch.eye(6, dtype=x.dtype), rtol=0, atol=0)
+    assert_close(jacobian.reshape(6, 6), torch.eye(6, dtype=x.dtype), 0)
 
     exp_map(x, v).sum().backward()
     assert torch.equal(v.grad, torch.ones_like(x))
 
     for target in (x, -x):  # identical and antipodal points
         y = target.clone().requires_grad_(True)
-        (log_map(x, y).sum() + distance(x, y).sum() + transport(x, y, x.roll(1, -1)).sum()).backward()
+        loss = log_map(x, y).sum() + distance(x, y).sum() + transport(x, y, x.roll(1, -1)).sum()
+        loss.backward()
         assert torch.isfinite(y.grad).all()
 
 
@@ -189,11 +197,11 @@ def test_log_of_antipode(x):
     log = log_map(x, -x)
     assert abs(float(log.norm()) - math.pi) <= 1e-12
     assert abs(float(row_dot(x, log))) <= 1e-15
-    torch.testing.assert_close(exp_map(x, log), -x, rtol=0, atol=1e-12)
+    assert_close(exp_map(x, log), -x, 1e-12)
     assert torch.equal(log, log_map(x.clone(), -x.clone()))
     axis = np.eye(3)[np.argmin(np.abs(x.numpy()[0]))]
     direction = np.cross(x.numpy()[0], axis)
-    torch.testing.assert_close(log[0], t(math.pi * direction / np.linalg.norm(direction)), rtol=0, atol=1e-14)
+    assert_close(log[0], t(math.pi * direction / np.linalg.norm(direction)), 1e-14)
     assert float(sphere_angles(x, -x)) == pytest.approx(math.pi, abs=1e-15)
 
 
@@ -202,7 +210,7 @@ def test_log_close_to_antipode_points_at_target():
     for gap in (1e-4, 1e-8, 1e-12):
         y = exp_map(x, t([[math.pi - gap, 0.0, 0.0]]))
         log = log_map(x, y)
-        torch.testing.assert_close(log, t([[math.pi - gap, 0.0, 0.0]]), rtol=0, atol=1e-12)
+        assert_close(log, t([[math.pi - gap, 0.0, 0.0]]), 1e-12)
 
 
 # ---------------------------------------------------------------------------
@@ -217,17 +225,17 @@ def test_distance_is_a_metric(data):
     x, y, z = (t(data.draw(unit_points(shape))) for _ in range(3))
     d_xy, d_yx = distance(x, y), distance(y, x)
     assert d_xy.shape == shape[:1]
-    torch.testing.assert_close(d_xy, d_yx, rtol=0, atol=1e-14)
+    assert_close(d_xy, d_yx, 1e-14)
     assert torch.all(distance(x, x) == 0)
     assert torch.all(d_xy <= distance(x, z) + distance(z, y) + 1e-12)
     expected = np.sqrt(np.sum(reference_angles(x.numpy(), y.numpy()) ** 2, axis=-1))
-    torch.testing.assert_close(d_xy, t(expected), rtol=0, atol=1e-12)
+    assert_close(d_xy, t(expected), 1e-12)
 
 
 def test_distance_known_values():
     x = t([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     y = t([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
-    torch.testing.assert_close(sphere_angles(x, y), t([math.pi / 2, math.pi]), rtol=0, atol=1e-15)
+    assert_close(sphere_angles(x, y), t([math.pi / 2, math.pi]), 1e-15)
     assert float(distance(x, y)) == pytest.approx(math.sqrt(1.25) * math.pi, abs=1e-15)
 
 
@@ -249,13 +257,13 @@ def test_karcher_mean_of_symmetric_points_is_centre(data):
         points += [exp_map(t(centre), t(offset)), exp_map(t(centre), -t(offset))]
         weights += [weight, weight]
     mean = karcher_mean(torch.stack(points), t(weights))
-    torch.testing.assert_close(mean, t(centre), rtol=0, atol=1e-10)
+    assert_close(mean, t(centre), 1e-10)
 
 
 def test_karcher_mean_of_single_point_is_that_point():
     x = t(random_unit((2, 4)))
-    torch.testing.assert_close(karcher_mean(x[None]), x, rtol=0, atol=1e-15)
-    torch.testing.assert_close(karcher_mean(x[None], [3.0]), x, rtol=0, atol=1e-15)
+    assert_close(karcher_mean(x[None]), x, 1e-15)
+    assert_close(karcher_mean(x[None], [3.0]), x, 1e-15)
 
 
 @settings(max_examples=100, deadline=None)
@@ -264,7 +272,7 @@ def test_weighted_mean_of_two_points_lies_on_geodesic(sample, fraction):
     x, v = map(t, sample)
     y = exp_map(x, v)
     mean = karcher_mean(torch.stack([x, y]), t([1.0 - fraction, fraction]))
-    torch.testing.assert_close(mean, exp_map(x, fraction * log_map(x, y)), rtol=0, atol=1e-10)
+    assert_close(mean, exp_map(x, fraction * log_map(x, y)), 1e-10)
 
 
 @settings(max_examples=100, deadline=None)
@@ -273,15 +281,14 @@ def test_karcher_mean_satisfies_first_order_condition(data):
     shape = data.draw(batch_shapes)
     centre = data.draw(unit_points(shape))
     count = data.draw(st.integers(2, 6))
-    points = torch.stack(
-        [exp_map(t(centre), t(data.draw(tangent_vectors(centre, max_norm=1.0)))) for _ in range(count)]
-    )
+    offsets = [t(data.draw(tangent_vectors(centre, max_norm=1.0))) for _ in range(count)]
+    points = torch.stack([exp_map(t(centre), offset) for offset in offsets])
     weights = t(data.draw(hnp.arrays(np.float64, (count,), elements=st.floats(0.0, 1.0))))
     weights[0] += 0.1  # not all zero
     mean = karcher_mean(points, weights)
     residual = ((weights / weights.sum())[:, None, None, None] * log_map(mean, points)).sum(dim=0)
     assert float(residual.norm(dim=-1).max()) <= 1e-10
-    torch.testing.assert_close(mean.norm(dim=-1), torch.ones(shape, dtype=mean.dtype), rtol=0, atol=1e-14)
+    assert_close(mean.norm(dim=-1), 1.0, 1e-14)
 
 
 def test_karcher_mean_falls_back_to_heaviest_point_when_euclidean_mean_vanishes():
@@ -289,7 +296,7 @@ def test_karcher_mean_falls_back_to_heaviest_point_when_euclidean_mean_vanishes(
     mean = karcher_mean(x)
     # Starts at the first (heaviest on ties) point, then moves half way along log_map's
     # deterministic antipodal geodesic (direction x × e_x = (0, 1, 0)) to the equator.
-    torch.testing.assert_close(mean, t([[0.0, 1.0, 0.0]]), rtol=0, atol=1e-15)
+    assert_close(mean, t([[0.0, 1.0, 0.0]]), 1e-15)
 
 
 def test_karcher_mean_warns_without_convergence(caplog):
@@ -314,9 +321,9 @@ def test_transport_is_an_isometry_onto_tangent_space(data):
     x, y = t(x_np), t(y_np)
     u, v = (t(data.draw(tangent_vectors(x_np, max_norm=3.0))) for _ in range(2))
     pu, pv = transport(x, y, u), transport(x, y, v)
-    torch.testing.assert_close(pv.norm(dim=-1), v.norm(dim=-1), rtol=0, atol=1e-12)
-    torch.testing.assert_close(row_dot(pu, pv), row_dot(u, v), rtol=0, atol=1e-12)
-    torch.testing.assert_close(row_dot(y, pv), torch.zeros(shape, dtype=x.dtype), rtol=0, atol=1e-12)
+    assert_close(pv.norm(dim=-1), v.norm(dim=-1), 1e-12)
+    assert_close(row_dot(pu, pv), row_dot(u, v), 1e-12)
+    assert_close(row_dot(y, pv), 0.0, 1e-12)
 
 
 @settings(max_examples=100, deadline=None)
@@ -327,7 +334,7 @@ def test_transport_matches_closed_form_along_geodesic(sample, data):
     v = t(data.draw(tangent_vectors(sample[0], max_norm=2.0)))
     moved = transport(x, y, v)
     # The geodesic's velocity is parallel: log_x(y) goes to -log_y(x).
-    torch.testing.assert_close(transport(x, y, log_map(x, y)), -log_map(y, x), rtol=0, atol=1e-10)
+    assert_close(transport(x, y, log_map(x, y)), -log_map(y, x), 1e-10)
     log_xy, log_yx = log_map(x, y), log_map(y, x)
     angle_sq = row_dot(log_xy, log_xy)[..., None]
     closed_form = v - row_dot(log_xy, v)[..., None] / angle_sq * (log_xy + log_yx)
@@ -336,18 +343,35 @@ def test_transport_matches_closed_form_along_geodesic(sample, data):
     assert float(mismatch.abs().max()) <= 1e-10
 
 
+@pytest.mark.parametrize("gap", [1e-4, 1e-9, 1e-15, 0.0])
+def test_transport_near_antipode(gap):
+    x = t(random_unit((50, 2), seed=2))
+    e1, e2 = tangent_basis(x.numpy())
+    direction = t(e1)
+    y = exp_map(x, (math.pi - gap) * direction)
+    v = t(0.7 * e1 - 1.3 * e2)
+    moved = transport(x, y, v)
+    assert_close(row_dot(y, moved), 0.0, 1e-13)
+    assert_close(moved.norm(dim=-1), v.norm(dim=-1), 1e-13)
+    if gap >= 1e-4:  # closer in, rounding y moves its geodesic by ~eps/gap
+        angle = math.pi - gap
+        along = row_dot(direction, v)[..., None]
+        expected = v + along * ((math.cos(angle) - 1) * direction - math.sin(angle) * x)
+        assert_close(moved, expected, 1e-11)
+
+
 def test_transport_identity_and_antipode():
     x = t([[0.0, 0.0, 1.0], [0.48, 0.6, 0.64]])
     e1, e2 = tangent_basis(x.numpy())
     v = t(0.3 * e1 - 1.7 * e2)
-    torch.testing.assert_close(transport(x, x.clone(), v), v, rtol=0, atol=1e-15)
+    assert_close(transport(x, x.clone(), v), v, 1e-15)
     moved = transport(x, -x, v)
     direction = log_map(x, -x) / math.pi
     # Along log_map's antipodal geodesic the component along its direction flips.
     expected = v - 2 * row_dot(direction, v)[..., None] * direction
-    torch.testing.assert_close(moved, expected, rtol=0, atol=1e-15)
-    torch.testing.assert_close(row_dot(-x, moved), torch.zeros(2, dtype=x.dtype), rtol=0, atol=1e-15)
-    torch.testing.assert_close(moved.norm(dim=-1), v.norm(dim=-1), rtol=0, atol=1e-15)
+    assert_close(moved, expected, 1e-15)
+    assert_close(row_dot(-x, moved), 0.0, 1e-15)
+    assert_close(moved.norm(dim=-1), v.norm(dim=-1), 1e-15)
 
 
 @settings(max_examples=100, deadline=None)
@@ -357,9 +381,9 @@ def test_project_to_tangent(data):
     x = t(data.draw(unit_points(shape)))
     u = t(data.draw(hnp.arrays(np.float64, shape + (3,), elements=st.floats(-10, 10))))
     projected = project_to_tangent(x, u)
-    torch.testing.assert_close(row_dot(x, projected), torch.zeros(shape, dtype=x.dtype), rtol=0, atol=1e-12)
-    torch.testing.assert_close(project_to_tangent(x, projected), projected, rtol=0, atol=1e-12)
-    torch.testing.assert_close(projected + row_dot(x, u)[..., None] * x, u, rtol=0, atol=1e-12)
+    assert_close(row_dot(x, projected), 0.0, 1e-12)
+    assert_close(project_to_tangent(x, projected), projected, 1e-12)
+    assert_close(projected + row_dot(x, u)[..., None] * x, u, 1e-12)
 
 
 def test_works_in_float32_and_broadcasts():
@@ -367,8 +391,8 @@ def test_works_in_float32_and_broadcasts():
     v = torch.tensor([[[0.1, 0.0, 0.0]], [[0.0, 0.2, 0.0]]], dtype=torch.float32)  # (2, 1, 3)
     y = exp_map(x, v)
     assert y.dtype == torch.float32 and y.shape == (2, 1, 3)
-    torch.testing.assert_close(log_map(x, y), v, rtol=0, atol=1e-6)
-    torch.testing.assert_close(distance(x, y), torch.tensor([0.1, 0.2]), rtol=0, atol=1e-6)
+    assert_close(log_map(x, y), v, 1e-6)
+    assert_close(distance(x, y), torch.tensor([0.1, 0.2]), 1e-6)
     mean = karcher_mean(y, tol=1e-6)
     assert mean.dtype == torch.float32 and mean.shape == (1, 3)
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import numbers
 from typing import Any
 
 import torch
@@ -46,7 +47,7 @@ logger = logging.getLogger(__name__)
 
 
 def _check_rows(name: str, value: Any, shape: str = "(..., K, 3)", min_dim: int = 2) -> None:
-    """Raise unless ``value`` is a floating-point tensor of shape ``(..., 3)`` with ``min_dim`` dims."""
+    """Raise unless ``value`` is a floating tensor of >= ``min_dim`` dims ending in 3."""
     if not isinstance(value, torch.Tensor):
         raise PriortrackError(
             f"{name}: expected a torch.Tensor of shape {shape}, got {type(value).__name__}"
@@ -79,14 +80,17 @@ def _normalised_weights(weights: Any, count: int, points: torch.Tensor) -> torch
         weights = torch.as_tensor(weights, dtype=points.dtype, device=points.device)
     except (TypeError, ValueError, RuntimeError) as exc:
         raise PriortrackError(
-            f"weights: expected a numeric array of shape (N,) = ({count},), could not convert ({exc})"
+            f"weights: expected a numeric array of shape (N,) = ({count},), "
+            f"could not convert ({exc})"
         ) from None
     if weights.shape != (count,):
         raise PriortrackError(
             f"weights: expected shape (N,) = ({count},) to match x, got {tuple(weights.shape)}"
         )
     if not bool(torch.isfinite(weights).all()):
-        raise PriortrackError(f"weights: expected finite values of shape ({count},), found NaN or inf")
+        raise PriortrackError(
+            f"weights: expected finite values of shape ({count},), found NaN or inf"
+        )
     if bool((weights < 0).any()):
         raise PriortrackError(
             f"weights: expected non-negative values of shape ({count},), "
@@ -94,7 +98,9 @@ def _normalised_weights(weights: Any, count: int, points: torch.Tensor) -> torch
         )
     total = weights.sum()
     if not bool(total > 0):
-        raise PriortrackError(f"weights: expected shape ({count},) with a positive sum, got all zero")
+        raise PriortrackError(
+            f"weights: expected shape ({count},) with a positive sum, got all zero"
+        )
     return weights / total
 
 
@@ -340,8 +346,11 @@ def transport(x: torch.Tensor, y: torch.Tensor, v: torch.Tensor) -> torch.Tensor
     w, cos = _chord_projection(x, y)
     sin_sq = _dot(w, w)
     antipodal = _antipodal_mask(sin_sq, cos)
-    safe_sin_sq = torch.where(antipodal, torch.ones_like(sin_sq), sin_sq)
-    k = torch.where(cos >= 0, 1 / (1 + cos.clamp(min=0)), (1 - cos) / safe_sin_sq)
+    # Each branch of k only ever divides by a quantity bounded away from 0 (1 + c >= 1,
+    # or |w|^2 >= tiny), so the unused branch has no inf/NaN gradient either.
+    use_sin = (cos < 0) & ~antipodal
+    safe_sin_sq = torch.where(use_sin, sin_sq, torch.ones_like(sin_sq))
+    k = torch.where(use_sin, (1 - cos) / safe_sin_sq, 1 / (1 + cos.clamp(min=0)))
     along_geodesic = v - _dot(w, v) * (x + k * w)
     flip_direction = _antipodal_direction(x)
     flipped = v - 2 * _dot(flip_direction, v) * flip_direction
@@ -367,10 +376,10 @@ def karcher_mean(
     It stops after the first step whose product-space norm sqrt(sum_k |step_k|^2) is
     below ``tol`` for every batch element (that step is applied), or after
     ``max_iter`` steps, logging a warning. The iterate is renormalised to unit rows
-    after every step. ``tol`` must exceed the dtype's rounding
-    level (the default 1e-12 suits float64; use ~1e-6 for float32). The mean is unique
-    and the iteration converges when the points lie in a geodesic ball of radius
-    below pi/2 on every sphere.
+    after every step. ``tol`` must exceed the dtype's rounding level (the default
+    1e-12 suits float64; use ~1e-6 for float32). The mean is unique and the iteration
+    converges when the points lie in a geodesic ball of radius below pi/2 on every
+    sphere.
 
     Args:
         x: points (N, ..., K, 3), unit rows; the mean is over the first dimension.
@@ -387,7 +396,7 @@ def karcher_mean(
         raise PriortrackError("x: expected shape (N, ..., K, 3) with N >= 1, got N = 0")
     if not tol > 0:
         raise PriortrackError(f"tol: expected a positive step-norm threshold, got {tol!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
+    if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) or max_iter < 1:
         raise PriortrackError(f"max_iter: expected a positive integer, got {max_iter!r}")
     flat_weights = _normalised_weights(weights, count, x)
     point_weights = flat_weights.reshape((count,) + (1,) * (x.dim() - 1))
