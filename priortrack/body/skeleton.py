@@ -120,9 +120,31 @@ class Skeleton:
         scale[translations] = self.length_unit
         return scale
 
-    def rest_pose(self) -> np.ndarray:
-        """(C,) all channels zero: the rest pose at the origin."""
-        return np.zeros(self.num_channels)
+    def to_arrays(self, prefix: str = "skeleton.") -> dict[str, np.ndarray]:
+        """The skeleton as plain arrays (strings as unicode arrays): storable in npz without pickle."""
+        arrays = {name: getattr(self, name) for name in _ARRAY_FIELDS}
+        arrays["names"] = np.array(self.names)
+        arrays["channel_names"] = np.array(self.channel_names)
+        arrays["info"] = np.array([self.name, self.source])
+        arrays["units"] = np.array([self.length_unit, self.angle_unit])
+        return {prefix + k: np.asarray(v) for k, v in arrays.items()}
+
+    @classmethod
+    def from_arrays(cls, arrays, prefix: str = "skeleton.") -> Skeleton:
+        """Inverse of :meth:`to_arrays`; a missing array is a PriortrackError naming it."""
+        try:
+            get = {k: arrays[prefix + k] for k in (*_ARRAY_FIELDS, "names", "channel_names", "info", "units")}
+        except KeyError as exc:
+            raise PriortrackError(f"stored skeleton lacks the array {exc.args[0]!r}") from None
+        return cls(name=str(get["info"][0]), names=tuple(str(n) for n in get["names"]),
+                   parents=get["parents"].astype(int), offsets=get["offsets"].astype(float),
+                   rot_axes=get["rot_axes"].astype(float), rot_channels=get["rot_channels"].astype(int),
+                   trans_channels=get["trans_channels"].astype(int),
+                   channel_names=tuple(str(n) for n in get["channel_names"]), source=str(get["info"][1]),
+                   length_unit=float(get["units"][0]), angle_unit=float(get["units"][1]))
+
+
+_ARRAY_FIELDS = ("parents", "offsets", "rot_axes", "rot_channels", "trans_channels")
 
 
 def check_channels(channels, skeleton: Skeleton, argument: str = "channels") -> None:

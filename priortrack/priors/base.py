@@ -1,0 +1,176 @@
+"""The transition-model contract and the prior file format.
+
+Every prior is a transition model over states ``(P, S)`` of its :mod:`state space
+<priortrack.priors.spaces>` (DESIGN.md):
+
+- ``sample(x, generator)`` draws x_t for every row of x_{t-1};
+- ``log_prob(x_next, x)`` scores log p(x_t | x_{t-1}) per row, (P,);
+- ``mean(x)`` is the deterministic mean step (the unscented filter's fx);
+- ``initial(x0, n, generator)`` draws n starting states around a known first state;
+- ``joints(x)`` decodes states to eval15 joints (P, 15, 3), metres;
+- ``encode(motion)`` gives the states of a motion's frames (at the prior's frame rate).
+
+A prior learns and runs at one frame rate (``fps``, default 30): motions at other rates are
+resampled on the way in. It is saved to one ``.npz`` (no pickle) holding its arrays and a
+JSON header with the format version, its kind and the preprocessing it used.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import torch
+
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.priors.spaces import StateSpace
+
+FORMAT = "priortrack-prior"
+FORMAT_VERSION = 1
+DEFAULT_FPS = 30.0
+
+#: kind → class, filled by :func:`register`.
+KINDS: dict[str, type[TransitionModel]] = {}
+
+
+def register(*kinds: str):
+    """Class decorator: make a prior class loadable (and fittable) under these kind names."""
+    def decorate(cls):
+        for kind in kinds:
+            KINDS[kind] = cls
+        return cls
+    return decorate
+
+
+class TransitionModel(ABC):
+    """Base of every prior. Subclasses set ``kind``, ``space`` and ``fps``."""
+
+    kind: str
+    space: StateSpace
+    fps: float
+
+    @property
+    def state_dim(self) -> int:
+        return self.space.dim
+
+    # ---- the contract ------------------------------------------------------------------
+    @abstractmethod
+    def sample(self, x: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """(P, S) → (P, S), one draw of x_t ~ p(x_t | x_{t-1}) per row."""
+
+    @abstractmethod
+    def log_prob(self, x_next: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """(P, S), (P, S) → (P,) log p(x_next | x)."""
+
+    @abstractmethod
+    def mean(self, x: torch.Tensor) -> torch.Tensor:
+        """(P, S) → (P, S), the mean (or mode) of p(x_t | x_{t-1})."""
+
+    def initial(self, x0, n: int, generator: torch.Generator) -> torch.Tensor:
+        """(S,) known first state → (n, S) states drawn around it with the prior's own
+        one-step spread: the first row is x0 itself, the others one transition from it."""
+        x0 = self.check_state(torch.as_tensor(x0).reshape(1, -1), "x0")
+        if n < 1:
+            raise PriortrackError(f"initial: n must be positive, got {n}")
+        drawn = self.sample(x0.expand(n, -1).contiguous(), generator)
+        drawn[0] = x0[0]
+        return drawn
+
+    def joints(self, x: torch.Tensor) -> torch.Tensor:
+        """(P, S) → (P, 15, 3) eval15 joints in metres (pelvis-centred body frame)."""
+        return self.space.joints(self.check_state(x))
+
+    def encode(self, motion: Motion) -> torch.Tensor:
+        """(T, S) float64 states of a motion, resampled to the prior's frame rate."""
+        return self.space.encode(motion if motion.fps == self.fps else motion.resample(self.fps))
+
+    # ---- checks --------------------------------------------------------------------------
+    def check_state(self, x, name: str = "state") -> torch.Tensor:
+        """Raise a PriortrackError unless x is a (P, S) tensor without NaN."""
+        x = torch.as_tensor(x)
+        if x.dim() != 2 or x.shape[1] != self.state_dim:
+            raise PriortrackError(f"{name} has shape {tuple(x.shape)}; expected (P, {self.state_dim}) "
+                                  f"for a {self.kind} prior")
+        if not torch.isfinite(x).all():
+            raise PriortrackError(f"{name} contains NaN or inf")
+        return x
+
+    # ---- files ---------------------------------------------------------------------------
+    @abstractmethod
+    def _arrays(self) -> dict[str, np.ndarray]:
+        """The model's own arrays (the space's are added by :meth:`save`)."""
+
+    @abstractmethod
+    def _header(self) -> dict:
+        """The model's own JSON-able settings and fit summary."""
+
+    @classmethod
+    @abstractmethod
+    def _restore(cls, arrays: dict[str, np.ndarray], header: dict) -> TransitionModel:
+        """Rebuild from what :meth:`save` wrote."""
+
+    def save(self, path: str | Path) -> Path:
+        """Write the prior to ``path`` (npz: arrays + a JSON header, no pickle)."""
+        header = {"format": FORMAT, "version": FORMAT_VERSION, "kind": self.kind, "fps": self.fps,
+                  "space": type(self.space).__name__, **self._header()}
+        path = Path(path)
+        with open(path, "wb") as f:
+            np.savez(f, header=np.array(json.dumps(header)), **self.space.to_arrays(), **self._arrays())
+        return path
+
+
+def load_prior(path: str | Path) -> TransitionModel:
+    """Load a prior written by :meth:`TransitionModel.save`; a clear error for a file of
+    another format or version, a truncated file or an unknown kind."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise PriortrackError(f"prior file {path} does not exist") from None
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError) as exc:
+        raise PriortrackError(f"{path} is not a readable prior file (truncated or not npz: {exc})") from None
+    if "header" not in arrays:
+        raise PriortrackError(f"{path} is not a priortrack prior (no header)")
+    header = json.loads(str(arrays.pop("header")))
+    if header.get("format") != FORMAT:
+        raise PriortrackError(f"{path} is not a priortrack prior (format {header.get('format')!r})")
+    if header.get("version") != FORMAT_VERSION:
+        raise PriortrackError(f"{path}: prior format version {header.get('version')} is not supported "
+                              f"(this priortrack reads version {FORMAT_VERSION})")
+    kind = header.get("kind")
+    if kind not in KINDS:
+        raise PriortrackError(f"{path}: unknown prior kind {kind!r}; kinds: {', '.join(sorted(KINDS))}")
+    try:
+        return KINDS[kind]._restore(arrays, header)
+    except KeyError as exc:
+        raise PriortrackError(f"{path}: the {kind} prior lacks {exc.args[0]!r}") from None
+
+
+def prepare_motions(motions: Sequence[Motion], fps: float, min_frames: int = 3) -> list[Motion]:
+    """Resample training motions to ``fps`` and check them (enough frames, no NaN)."""
+    if not motions:
+        raise PriortrackError("no training motions given")
+    prepared = []
+    for m in motions:
+        if not np.isfinite(m.channels).all():
+            raise PriortrackError(f"training motion {m.name!r} contains NaN or inf")
+        m = m if m.fps == fps else m.resample(fps)
+        if len(m) < min_frames:
+            raise PriortrackError(f"training motion {m.name!r} has {len(m)} frames at {fps:g} fps; "
+                                  f"at least {min_frames} are needed")
+        prepared.append(m)
+    return prepared
+
+
+def generator_for(seed: int | torch.Generator, device: str | torch.device = "cpu") -> torch.Generator:
+    """A torch generator from a seed (or the generator itself)."""
+    if isinstance(seed, torch.Generator):
+        return seed
+    return torch.Generator(device=device).manual_seed(int(seed))

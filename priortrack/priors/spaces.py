@@ -1,0 +1,223 @@
+"""State spaces of the pose priors: what a state vector means and how to move in it.
+
+A prior's state is a row of a ``(P, S)`` tensor. The space says how to decode it into
+``eval15`` joints, how to step (⊞) and difference (⊟) on it, and how to average states,
+so that filters can take means on the manifold rather than in the embedding:
+
+- :class:`AngleSpace`: the skeleton's joint angles (root channels excluded: global motion is
+  modelled apart), Euclidean, x ⊞ v = x + v;
+- :class:`DirectionSpace`: the 14 ``eval15`` bone directions in the normalised body frame,
+  a point of (S²)¹⁴ stored as 42 numbers, x ⊞ v = exp_x(v), y ⊟ x = log_x(y).
+
+Coordinates are grouped by joint (a bone's dofs, a bone direction's three numbers); a group
+has ``tangent_dims[g]`` intrinsic dimensions (a bone's dof count, or 2 on a sphere).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from priortrack.body.fk import ForwardKinematics
+from priortrack.body.layout import EVAL15_NAMES, eval15_indices
+from priortrack.body.normalise import BONE_CHILDREN, body_positions, normalise
+from priortrack.body.skeleton import Skeleton
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.geometry.sphere import exp_map, karcher_mean, log_map, project_to_tangent
+
+#: Channels of a CMU angle whose training spread is below this (radians) are constants
+#: (CMU's finger and thumb bones carry no data) and are not modelled.
+CONSTANT_CHANNEL_STD = 1e-6
+
+
+class StateSpace(ABC):
+    """The contract every state space keeps. Shapes: states (..., S), joints (..., 15, 3)."""
+
+    #: True where states live on a manifold embedded in R^S (then ⊞/⊟ are not + and −).
+    manifold: bool = False
+    #: (S,) group (joint) of each coordinate; group_names (G,); tangent_dims (G,).
+    groups: np.ndarray
+    group_names: tuple[str, ...]
+    tangent_dims: np.ndarray
+
+    @property
+    def dim(self) -> int:
+        """S, the width of a state row."""
+        return len(self.groups)
+
+    @abstractmethod
+    def encode(self, motion: Motion) -> torch.Tensor:
+        """(T, S) float64 states of a motion's frames."""
+
+    @abstractmethod
+    def joints(self, x: torch.Tensor) -> torch.Tensor:
+        """(..., S) states → (..., 15, 3) eval15 joints in metres, pelvis-centred body frame."""
+
+    @abstractmethod
+    def boxplus(self, x: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """x ⊞ v: the state reached from x (..., S) by the tangent step v (..., S)."""
+
+    @abstractmethod
+    def boxminus(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """y ⊟ x: the tangent step (..., S) at x that reaches y."""
+
+    @abstractmethod
+    def tangent_noise(self, x: torch.Tensor, std: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """Isotropic Gaussian tangent steps at x (P, S), std (S,) per coordinate (equal within a group)."""
+
+    @abstractmethod
+    def mean(self, x: torch.Tensor, weights: torch.Tensor | None = None) -> torch.Tensor:
+        """Weighted mean (S,) of states (N, S) taken in the space (Karcher mean on a manifold)."""
+
+    @abstractmethod
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Everything needed to rebuild the space, as plain arrays (npz without pickle)."""
+
+    def group_norms_sq(self, v: torch.Tensor) -> torch.Tensor:
+        """(..., S) tangent steps → (..., G) squared norm of each group's part."""
+        index = torch.as_tensor(self.groups, device=v.device)
+        out = torch.zeros(v.shape[:-1] + (len(self.group_names),), dtype=v.dtype, device=v.device)
+        return out.index_add_(-1, index, v * v)
+
+
+class AngleSpace(StateSpace):
+    """Joint angles of one skeleton layout, in radians.
+
+    ``channels`` (D,) indexes the skeleton's channel vector: every non-root channel that
+    moves in training. The rest are fixed: root channels at zero (pelvis at the origin,
+    identity orientation), constant channels at their training value (``reference``, (C,)).
+    """
+
+    def __init__(self, skeleton: Skeleton, channels: np.ndarray, reference: np.ndarray):
+        self.skeleton = skeleton
+        self.channels = np.asarray(channels, dtype=int)
+        self.reference = np.asarray(reference, dtype=float)
+        joint_of = [skeleton.channel_names[c].split(".", 1)[0] for c in self.channels]
+        self.group_names = tuple(dict.fromkeys(joint_of))
+        self.groups = np.array([self.group_names.index(j) for j in joint_of])
+        self.tangent_dims = np.bincount(self.groups, minlength=len(self.group_names))
+        self._eval15 = eval15_indices(skeleton)
+        self._fk: dict[tuple, ForwardKinematics] = {}
+
+    @classmethod
+    def fit(cls, motions: Sequence[Motion]) -> AngleSpace:
+        """The modelled channels and reference pose of a training set (one channel layout)."""
+        skeleton = motions[0].skeleton
+        for m in motions[1:]:
+            if m.skeleton.channel_names != skeleton.channel_names:
+                raise PriortrackError(f"motion {m.name!r} has other channels than {motions[0].name!r}: "
+                                      f"an angle prior needs one skeleton layout (same ASF bones and dofs)")
+        values = np.concatenate([m.channels for m in motions])
+        root = set(skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0]) | \
+            set(skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0])
+        spread = np.array([_unwrapped(values[:, c]).std() for c in range(skeleton.num_channels)])
+        channels = [c for c in range(skeleton.num_channels) if c not in root and spread[c] > CONSTANT_CHANNEL_STD]
+        reference = np.where(spread > CONSTANT_CHANNEL_STD, 0.0, values.mean(axis=0))
+        reference[list(root)] = 0.0
+        return cls(skeleton, np.array(channels), reference)
+
+    def encode(self, motion: Motion) -> torch.Tensor:
+        """(T, D) angles of the modelled channels, unwrapped in time, the clip's mean in (−π, π]."""
+        if motion.skeleton.channel_names != self.skeleton.channel_names:
+            raise PriortrackError(f"motion {motion.name!r}: its skeleton's channels differ from the prior's "
+                                  f"({self.skeleton.name!r}); angle priors need the same layout")
+        return torch.as_tensor(_unwrapped(motion.channels[:, self.channels]))
+
+    def channels_of(self, x: torch.Tensor) -> torch.Tensor:
+        """(..., D) states → (..., C) full channel vectors (root at zero)."""
+        full = torch.as_tensor(self.reference, dtype=x.dtype, device=x.device).expand(x.shape[:-1] + (len(self.reference),))
+        full = full.clone()
+        full[..., torch.as_tensor(self.channels, device=x.device)] = x
+        return full
+
+    def joints(self, x: torch.Tensor) -> torch.Tensor:
+        key = (x.device, x.dtype)
+        if key not in self._fk:
+            self._fk[key] = ForwardKinematics(self.skeleton, device=x.device, dtype=x.dtype)
+        flat = self.channels_of(x).reshape(-1, self.skeleton.num_channels)
+        positions = self._fk[key](flat)[:, torch.as_tensor(self._eval15, device=x.device)]
+        return positions.reshape(x.shape[:-1] + (len(EVAL15_NAMES), 3))
+
+    def boxplus(self, x, v):
+        return x + v
+
+    def boxminus(self, y, x):
+        return y - x
+
+    def tangent_noise(self, x, std, generator):
+        return torch.randn(x.shape, generator=generator, dtype=x.dtype, device=x.device) * std
+
+    def mean(self, x, weights=None):
+        if weights is None:
+            return x.mean(dim=0)
+        return (weights[:, None] * x).sum(dim=0) / weights.sum()
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {**self.skeleton.to_arrays(), "space.channels": self.channels, "space.reference": self.reference}
+
+    @classmethod
+    def from_arrays(cls, arrays) -> AngleSpace:
+        return cls(Skeleton.from_arrays(arrays), arrays["space.channels"], arrays["space.reference"])
+
+
+class DirectionSpace(StateSpace):
+    """The 14 eval15 bone directions in the normalised body frame: (S²)¹⁴ as 42 numbers.
+
+    ``lengths`` (14,) are the bone lengths used to decode joints (the training mean).
+    """
+
+    manifold = True
+
+    def __init__(self, lengths: np.ndarray):
+        self.lengths = np.asarray(lengths, dtype=float)
+        self.group_names = tuple(EVAL15_NAMES[c] for c in BONE_CHILDREN)
+        self.groups = np.repeat(np.arange(len(BONE_CHILDREN)), 3)
+        self.tangent_dims = np.full(len(BONE_CHILDREN), 2)
+
+    @classmethod
+    def fit(cls, motions: Sequence[Motion]) -> DirectionSpace:
+        lengths = torch.cat([normalise(m.positions("eval15")).lengths for m in motions])
+        return cls(lengths.mean(dim=0).numpy())
+
+    def encode(self, motion: Motion) -> torch.Tensor:
+        return normalise(motion.positions("eval15")).directions.reshape(len(motion), -1)
+
+    def _spheres(self, x: torch.Tensor) -> torch.Tensor:
+        return x.reshape(x.shape[:-1] + (len(BONE_CHILDREN), 3))
+
+    def joints(self, x):
+        d = self._spheres(x)
+        return body_positions(d, torch.as_tensor(self.lengths, dtype=x.dtype, device=x.device).expand(d.shape[:-1]))
+
+    def boxplus(self, x, v):
+        return exp_map(self._spheres(x), self._spheres(v)).reshape(x.shape)
+
+    def boxminus(self, y, x):
+        return log_map(self._spheres(x), self._spheres(y)).reshape(y.shape)
+
+    def tangent_noise(self, x, std, generator):
+        ambient = torch.randn(x.shape, generator=generator, dtype=x.dtype, device=x.device) * std
+        return project_to_tangent(self._spheres(x), self._spheres(ambient)).reshape(x.shape)
+
+    def mean(self, x, weights=None):
+        return karcher_mean(self._spheres(x), weights=weights).reshape(-1)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {"space.lengths": self.lengths}
+
+    @classmethod
+    def from_arrays(cls, arrays) -> DirectionSpace:
+        return cls(arrays["space.lengths"])
+
+
+def _unwrapped(angles: np.ndarray) -> np.ndarray:
+    """Unwrap (T, ...) angles along time, then shift each channel by 2πk so its mean is in (−π, π]."""
+    angles = np.unwrap(angles, axis=0)
+    return angles - 2 * np.pi * np.round(angles.mean(axis=0) / (2 * np.pi))
+
+
+SPACES = {"angles": AngleSpace, "directions": DirectionSpace}
