@@ -97,3 +97,15 @@ def test_wrong_shapes_are_clear_errors():
         fk(np.zeros((5, 61)))
     with pytest.raises(PriortrackError, match="expected"):
         fk(np.zeros((2, 5, 62)))
+
+
+def test_pruned_skeleton_places_the_kept_joints_exactly():
+    from priortrack.body.layout import eval15_indices
+
+    motion = load_bundled("cmu:131_04")
+    keep = eval15_indices(motion.skeleton)
+    small, index = motion.skeleton.pruned(keep)
+    assert small.num_joints == 24 and small.num_channels == motion.skeleton.num_channels
+    channels = _poses(motion, n=32)
+    full = ForwardKinematics(motion.skeleton)(channels)[:, keep]
+    torch.testing.assert_close(ForwardKinematics(small)(channels)[:, index], full, rtol=0, atol=1e-15)

@@ -21,7 +21,7 @@ in radians, in the order of ``channel_names``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -119,6 +119,31 @@ class Skeleton:
         translations = self.trans_channels[self.trans_channels >= 0]
         scale[translations] = self.length_unit
         return scale
+
+    def pruned(self, keep) -> tuple[Skeleton, np.ndarray]:
+        """The smallest skeleton that places the joints ``keep``: their ancestors only, and no
+        rotation slots on joints that end up leaves (a joint's own rotation moves only its
+        descendants). Channels keep their indices, so the same pose vectors drive it.
+
+        Returns the skeleton and the (len(keep),) indices of ``keep`` in it.
+        """
+        needed = set()
+        for j in np.asarray(keep, dtype=int):
+            while j >= 0 and j not in needed:
+                needed.add(int(j))
+                j = self.parents[j]
+        joints = np.array(sorted(needed))
+        new_index = -np.ones(self.num_joints, dtype=int)
+        new_index[joints] = np.arange(len(joints))
+        parents = np.where(self.parents[joints] >= 0, new_index[self.parents[joints]], -1)
+        leaf = ~np.isin(np.arange(len(joints)), parents)
+        rot_channels = self.rot_channels[joints].copy()
+        rot_axes = self.rot_axes[joints].copy()
+        rot_channels[leaf], rot_axes[leaf] = -1, 0.0
+        skeleton = replace(self, names=tuple(self.names[j] for j in joints), parents=parents,
+                           offsets=self.offsets[joints], rot_axes=rot_axes, rot_channels=rot_channels,
+                           trans_channels=self.trans_channels[joints])
+        return skeleton, new_index[np.asarray(keep, dtype=int)]
 
     def to_arrays(self, prefix: str = "skeleton.") -> dict[str, np.ndarray]:
         """The skeleton as plain arrays (strings as unicode arrays): storable in npz without pickle."""

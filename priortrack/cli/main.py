@@ -1,7 +1,7 @@
 """The ``priortrack`` command line.
 
-Verbs: ``data list``, ``replay MOTION``, ``bench fk``. Bad input ends with one line
-``priortrack: error: …`` and exit status 2, never a traceback.
+Verbs: ``data list``, ``replay``, ``fit``, ``sample``, ``plot``, ``eval``, ``bench``. Bad input
+ends with one line ``priortrack: error: …`` and exit status 2, never a traceback.
 """
 
 from __future__ import annotations
@@ -47,6 +47,79 @@ def _replay(args: argparse.Namespace) -> None:
           f"scenario {name}, {100 * missing:.1f}% of observed-joint detections missing")
 
 
+def _motions(sources: list[str]):
+    from priortrack.data.bundled import expand_sources
+    from priortrack.data.load import load_motion
+
+    return [load_motion(source) for source in expand_sources(sources)]
+
+
+class _Progress:
+    """A one-line progress display on stderr: step count and objective."""
+
+    def __init__(self, label: str):
+        self.label = label
+        self.last = None
+
+    def __call__(self, step: int, objective: float) -> None:
+        self.last = (step, objective)
+        print(f"\r{self.label}: step {step:5d}  objective {objective:.6g}", end="", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.last is not None:
+            print(file=sys.stderr)
+
+
+def _fit(args: argparse.Namespace) -> None:
+    from priortrack.priors.fit import fit_prior
+
+    motions = _motions(args.train)
+    options = {"fps": args.fps}
+    if args.kind.startswith("diffusion"):
+        options["space"] = args.space
+    elif args.kind in ("gpdm", "bgpdm"):
+        options.update(d=args.d, seed=args.seed)
+    else:
+        options.update(max_components=args.components, seed=args.seed)
+    progress = _Progress(f"fit {args.kind}")
+    try:
+        model = fit_prior(args.kind, motions, progress=progress, **options)
+    finally:
+        progress.close()
+    model.save(args.out)
+    frames = sum(len(m.resample(args.fps)) if m.fps != args.fps else len(m) for m in motions)
+    print(f"wrote {args.out}: {args.kind} prior, state dimension {model.state_dim}, {len(motions)} motions, "
+          f"{frames} frames at {args.fps:g} fps, final objective {model.objective:.6g}")
+
+
+def _sample(args: argparse.Namespace) -> None:
+    import torch
+
+    from priortrack.data.load import load_motion
+    from priortrack.errors import PriortrackError
+    from priortrack.priors import load_prior
+    from priortrack.viz.recording import Recording
+
+    prior = load_prior(args.prior)
+    states = prior.encode(load_motion(args.source))
+    if not 0 <= args.frame < len(states) or args.steps < 1 or args.n < 1:
+        raise PriortrackError(f"--frame must be in [0, {len(states) - 1}] at {prior.fps:g} fps, "
+                              f"--steps and --n positive (got {args.frame}, {args.steps}, {args.n})")
+    generator = torch.Generator().manual_seed(args.seed)
+    x = states[args.frame].expand(args.n, -1).contiguous()
+    truth = prior.joints(states[args.frame:args.frame + args.steps + 1])
+    with Recording(args.out) as rec:
+        for step in range(args.steps + 1):
+            rec.frame(args.frame + step)
+            if step < len(truth):
+                rec.skeleton("truth", truth[step], color=(60, 160, 255))
+            for k, pose in enumerate(prior.joints(x)):
+                rec.skeleton(f"rollouts/{k}", pose, color=(255, 90, 60))
+            x = prior.sample(x, generator)
+    print(f"wrote {args.out}: {args.n} rollouts of {args.steps} steps from frame {args.frame} of {args.source} "
+          f"({prior.kind} prior at {prior.fps:g} fps)")
+
+
 def _bench_fk(args: argparse.Namespace) -> None:
     from priortrack.experiments.bench import bench_fk
 
@@ -78,6 +151,28 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--observations", help="also save the observations to this .npz")
     replay.add_argument("--out", required=True, help="the .rrd file to write")
     replay.set_defaults(run=_replay)
+
+    fit = verbs.add_parser("fit", help="fit a prior to motions")
+    fit.add_argument("kind", choices=["diffusion-global", "diffusion-local", "gpdm", "bgpdm", "lie"])
+    fit.add_argument("--train", nargs="+", required=True,
+                     help="bundled names (patterns allowed: 'walkjog:35_0*'), .amc or .bvh files")
+    fit.add_argument("--out", required=True, help="the prior file to write (.npz)")
+    fit.add_argument("--fps", type=float, default=30.0, help="the prior's frame rate (default 30)")
+    fit.add_argument("--space", choices=["angles", "directions"], default="angles", help="diffusion state space")
+    fit.add_argument("--d", type=int, default=3, help="GPDM latent dimension")
+    fit.add_argument("--components", type=int, default=30, help="Lie prior: initial mixture components")
+    fit.add_argument("--seed", type=int, default=0)
+    fit.set_defaults(run=_fit)
+
+    sample = verbs.add_parser("sample", help="roll a prior out from a real pose into a rerun recording")
+    sample.add_argument("prior", help="a prior file written by 'priortrack fit'")
+    sample.add_argument("--from", dest="source", required=True, help="the motion to start from")
+    sample.add_argument("--frame", type=int, default=0, help="start frame, at the prior's frame rate")
+    sample.add_argument("--steps", type=int, default=30)
+    sample.add_argument("--n", type=int, default=10, help="number of rollouts")
+    sample.add_argument("--seed", type=int, default=0)
+    sample.add_argument("--out", required=True, help="the .rrd file to write")
+    sample.set_defaults(run=_sample)
 
     bench = verbs.add_parser("bench", help="benchmarks against a reference").add_subparsers(dest="what", required=True)
     fk = bench.add_parser("fk", help="our FK against pytorch-kinematics")

@@ -11,6 +11,7 @@ Bundled names:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from fnmatch import fnmatchcase
 from functools import lru_cache
 from pathlib import Path
 
@@ -134,3 +135,19 @@ def load_bundled(name: str) -> Motion:
                 return motion
     names = [c.name for c in bundled_clips()]
     raise PriortrackError(f"unknown bundled motion {name!r}; bundled: {', '.join(names)}")
+
+
+def expand_sources(sources: list[str]) -> list[str]:
+    """Expand shell-style patterns over bundled names (``walkjog:35_0*``, ``cmu:07_*``);
+    anything else (a name, a path) is kept as it is. A pattern matching nothing is an error."""
+    names = [c.name for c in bundled_clips()]
+    expanded = []
+    for source in sources:
+        if any(ch in source for ch in "*?[") and ":" in source:
+            matches = [n for n in names if fnmatchcase(n, source)]
+            if not matches:
+                raise PriortrackError(f"{source!r} matches no bundled motion; bundled: {', '.join(names)}")
+            expanded += matches
+        else:
+            expanded.append(source)
+    return expanded

@@ -100,7 +100,8 @@ class AngleSpace(StateSpace):
         self.group_names = tuple(dict.fromkeys(joint_of))
         self.groups = np.array([self.group_names.index(j) for j in joint_of])
         self.tangent_dims = np.bincount(self.groups, minlength=len(self.group_names))
-        self._eval15 = eval15_indices(skeleton)
+        # FK of the eval15 joints only needs their ancestors.
+        self._eval15_skeleton, self._eval15 = skeleton.pruned(eval15_indices(skeleton))
         self._fk: dict[tuple, ForwardKinematics] = {}
 
     @classmethod
@@ -137,7 +138,7 @@ class AngleSpace(StateSpace):
     def joints(self, x: torch.Tensor) -> torch.Tensor:
         key = (x.device, x.dtype)
         if key not in self._fk:
-            self._fk[key] = ForwardKinematics(self.skeleton, device=x.device, dtype=x.dtype)
+            self._fk[key] = ForwardKinematics(self._eval15_skeleton, device=x.device, dtype=x.dtype)
         flat = self.channels_of(x).reshape(-1, self.skeleton.num_channels)
         positions = self._fk[key](flat)[:, torch.as_tensor(self._eval15, device=x.device)]
         return positions.reshape(x.shape[:-1] + (len(EVAL15_NAMES), 3))
