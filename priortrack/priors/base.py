@@ -54,6 +54,9 @@ class TransitionModel(ABC):
     kind: str
     space: StateSpace
     fps: float
+    #: The fit's final objective: the negative log-likelihood per step (diffusion), the
+    #: negative log posterior (GPDM), the message length (Lie mixture).
+    objective: float = float("nan")
 
     @property
     def state_dim(self) -> int:

@@ -1,0 +1,1 @@
+"""Bayesian filters over the priors: particle, unscented, sliding-window MAP; resampling."""
