@@ -1,0 +1,488 @@
+"""Gaussian process dynamical models (Wang, Fleet, Hertzmann, PAMI 2008) and the balanced
+GPDM (Urtasun, Fleet, Fua, CVPR 2006) as a transition model over a low-dimensional latent space.
+
+Training poses Y (N, D) are the angle channels of :class:`~priortrack.priors.spaces.AngleSpace`
+with their mean subtracted; every frame has a latent position, a row of X (N, d). Two GPs:
+
+- reconstruction, Y ← X, kernel k_Y(x, x') = β1 exp(−β2/2 |x − x'|²) + δ(x, x')/β3, with a scale
+  w_k per data dimension (W = diag(w_1..w_D));
+- dynamics, X_out ← X_in, kernel k_X(x, x') = α1 exp(−α2/2 |x − x'|²) + α3 xᵀx' + δ(x, x')/α4,
+  where X_in holds every frame but each sequence's last and X_out every frame but each
+  sequence's first (no transition crosses a sequence boundary); each sequence's first frame
+  has an N(0, I) prior.
+
+Learning minimises the negative log posterior (constants dropped)
+
+    L = D/2 ln|K_Y| + ½ tr(K_Y⁻¹ Y W² Yᵀ) − N ln|W| + Σ_k w_k²/(2κ²)
+        + λ [ d/2 ln|K_X| + ½ tr(K_X⁻¹ X_out X_outᵀ) ] + ½ Σ_seq x_1ᵀx_1 + Σ_i ln α_i + Σ_i ln β_i
+
+with the half-normal prior of scale κ = 10³ on each w_k, whose argmin over W is the closed form
+w_k² = N / (Y_kᵀ K_Y⁻¹ Y_k + 1/κ²), recomputed inside the objective; the hyperparameter priors
+are ∏ θ⁻¹; λ = 1 for the GPDM and λ = D/d for the balanced GPDM (B-GPDM).
+
+That objective has no lower bound: (1) scaling X by s (with α1, α2, α4, β2 following) lowers it
+by about λ d (N − S) ln(1/s), so the latent points collapse; (2) scaling K_Y by c and W by 1/√c
+leaves it unchanged but for the κ term, which drifts c towards 0; (3) an exactly predictable
+latent path sends the dynamics noise 1/α4 to 0. The learning problem solved here is bounded:
+
+- the latent scale is fixed, |X|²_F = N d (every latent dimension has unit mean square, as the
+  whitened-PCA initialisation): the optimiser moves X̃ and X = √(N d) X̃/|X̃|_F;
+- β1 = 1 is fixed (W carries the scale of the data, so W-scaled data have variance ≈ 1);
+- every log hyperparameter lies in [ln 10⁻⁶, ln 10⁶] (as Wang's reference code clamps them), so
+  1/α4 ≥ 10⁻⁶ (relative to the unit latent variance), and 1/β3 ≥ 10⁻⁴ β1, i.e. the
+  reconstruction noise is at least 10⁻⁴ of the W-scaled data variance.
+
+On that compact set L is continuous, so a minimum exists; L-BFGS-B stops when the relative
+decrease of L falls below ``FTOL`` or the largest projected gradient entry below ``GTOL``
+(scipy's criteria), and the fit records whether it did so within ``MAXITER`` iterations.
+
+Prediction (Urtasun et al. eqs. 19–20), for latent rows x (P, d):
+
+    μ_Y(x) = mean + Yᵀ K_Y⁻¹ k_Y(x),   σ²(x) = k_Y(x, x) − k_Y(x)ᵀ K_Y⁻¹ k_Y(x)   (W-scaled units),
+    μ_X(x) = X_outᵀ K_X⁻¹ k_X(x),      σ_X²(x) = k_X(x, x) − k_X(x)ᵀ K_X⁻¹ k_X(x),
+
+where k(x, x) includes the noise term (the prediction of a new noisy pose / next latent state).
+The transition model is x_t ~ N(μ_X(x_{t−1}), σ_X²(x_{t−1}) I_d).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import torch
+from scipy.optimize import minimize
+
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
+from priortrack.priors.spaces import AngleSpace, StateSpace
+
+log = logging.getLogger(__name__)
+
+#: Scale of the half-normal prior on each w_k.
+KAPPA = 1e3
+#: Every hyperparameter lies in [1/HYPER_BOUND, HYPER_BOUND].
+HYPER_BOUND = 1e6
+#: 1/β3 ≥ NOISE_FLOOR_Y · β1: the reconstruction noise floor relative to the data variance.
+NOISE_FLOOR_Y = 1e-4
+#: β1, fixed (W carries the data scale).
+BETA1 = 1.0
+#: L-BFGS-B stopping tolerances: relative decrease of L, largest projected gradient entry.
+FTOL = 1e-9
+GTOL = 1e-5
+#: Iteration cap of a fit (a fit that reaches it is recorded as not converged).
+MAXITER = 5000
+#: Cholesky jitter: none first; on failure this times the mean diagonal, then ×10 per failure.
+JITTER_START = 1e-8
+JITTER_TRIES = 10
+#: Fewest training frames a fit accepts.
+MIN_FRAMES = 10
+#: Initial hyperparameters: α = (α1, α2, α3, α4), β = (β1, β2, β3).
+ALPHA_INIT = (1.0, 1.0, 1.0, 100.0)
+BETA_INIT = (BETA1, 1.0, 100.0)
+#: Standard deviation of the seeded perturbation added to the whitened-PCA latent positions.
+INIT_JITTER = 1e-3
+
+
+# ---- the objective -----------------------------------------------------------------------------
+
+def cholesky(K: torch.Tensor) -> torch.Tensor:
+    """Lower Cholesky factor of a symmetric (n, n) matrix; on failure the diagonal gets a jitter
+    of 1e-8 × its mean, ×10 on each further failure (10 tries), else a PriortrackError."""
+    L, info = torch.linalg.cholesky_ex(K)
+    if not info.any():
+        return L
+    scale = K.diagonal().mean().detach()
+    eye = torch.eye(K.shape[-1], dtype=K.dtype, device=K.device)
+    jitter = JITTER_START
+    for _ in range(JITTER_TRIES):
+        L, info = torch.linalg.cholesky_ex(K + (jitter * scale) * eye)
+        if not info.any():
+            return L
+        jitter *= 10
+    raise PriortrackError(f"kernel matrix ({K.shape[-1]}×{K.shape[-1]}) is not positive definite "
+                          f"even with a jitter of {jitter / 10:g} × its mean diagonal")
+
+
+def sq_dist(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
+    """(n, d), (m, d) → (n, m) squared Euclidean distances |a − b|²."""
+    return (A[:, None, :] - B[None, :, :]).pow(2).sum(-1)
+
+
+def k_Y(A: torch.Tensor, B: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
+    """Reconstruction kernel without its noise term, β1 exp(−β2/2 |a − b|²): (n, m)."""
+    return beta[0] * torch.exp(-0.5 * beta[1] * sq_dist(A, B))
+
+
+def k_X(A: torch.Tensor, B: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """Dynamics kernel without its noise term, α1 exp(−α2/2 |a − b|²) + α3 aᵀb: (n, m)."""
+    return alpha[0] * torch.exp(-0.5 * alpha[1] * sq_dist(A, B)) + alpha[2] * (A @ B.T)
+
+
+def transition_rows(lengths: Sequence[int], device=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Row indices of the concatenated sequences: (first (S,), X_in (N−S,), X_out (N−S,))."""
+    ends = np.cumsum(lengths)
+    starts = ends - np.asarray(lengths)
+    inp = np.concatenate([np.arange(s, e - 1) for s, e in zip(starts, ends)])
+    as_tensor = lambda a: torch.as_tensor(a, dtype=torch.long, device=device)  # noqa: E731
+    return as_tensor(starts), as_tensor(inp), as_tensor(inp + 1)
+
+
+def closed_form_W(q: torch.Tensor, N: int, kappa: float = KAPPA) -> torch.Tensor:
+    """w_k = √(N / (q_k + 1/κ²)) with q_k = Y_kᵀ K_Y⁻¹ Y_k: (D,) → (D,), the argmin of L over W."""
+    return torch.sqrt(N / (q + kappa ** -2))
+
+
+def gpdm_objective(X: torch.Tensor, log_alpha: torch.Tensor, log_beta: torch.Tensor, Y: torch.Tensor,
+                   lengths: Sequence[int], balanced: bool = True, W: torch.Tensor | None = None,
+                   kappa: float = KAPPA) -> torch.Tensor:
+    """The negative log posterior L of the module docstring, a scalar (differentiable).
+
+    Args:
+        X: (N, d) latent positions. log_alpha: (4,) ln α. log_beta: (3,) ln β.
+        Y: (N, D) training poses, mean subtracted. lengths: frames per sequence, summing to N.
+        balanced: λ = D/d if True, else 1.
+        W: (D,) data scales; None uses the closed form (then L is minimal over W).
+    """
+    N, D = Y.shape
+    d = X.shape[1]
+    alpha, beta = log_alpha.exp(), log_beta.exp()
+    first, inp, out = transition_rows(lengths, X.device)
+    eye_Y = torch.eye(N, dtype=X.dtype, device=X.device)
+    L_Y = cholesky(k_Y(X, X, beta) + eye_Y / beta[2])
+    q = (Y * torch.cholesky_solve(Y, L_Y)).sum(0)                               # Y_kᵀ K_Y⁻¹ Y_k
+    w2 = closed_form_W(q, N, kappa) ** 2 if W is None else W ** 2
+    reconstruction = (D * torch.log(L_Y.diagonal()).sum() + 0.5 * (w2 * q).sum()
+                      - 0.5 * N * torch.log(w2).sum() + 0.5 * w2.sum() / kappa ** 2)
+    X_in, X_out = X[inp], X[out]
+    eye_X = torch.eye(len(inp), dtype=X.dtype, device=X.device)
+    L_X = cholesky(k_X(X_in, X_in, alpha) + eye_X / alpha[3])
+    dynamics = d * torch.log(L_X.diagonal()).sum() + 0.5 * (X_out * torch.cholesky_solve(X_out, L_X)).sum()
+    lam = D / d if balanced else 1.0
+    return reconstruction + lam * dynamics + 0.5 * X[first].pow(2).sum() + log_alpha.sum() + log_beta.sum()
+
+
+def _optimise(Y: torch.Tensor, lengths: Sequence[int], X0: torch.Tensor, balanced: bool,
+              progress: Callable[[int, float], None] | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+    """Minimise L over (X, ln α, ln β2, ln β3) with L-BFGS-B (module docstring: bounds, fixed
+    latent scale, tolerances). Returns X (N, d), ln α (4,), ln β (3,) and the fit summary."""
+    N, d = X0.shape
+    radius = math.sqrt(N * d)
+    log_bound = math.log(HYPER_BOUND)
+    log_beta1 = torch.tensor([math.log(BETA1)], dtype=torch.float64)
+
+    def unpack(p: torch.Tensor):
+        X_tilde = p[:N * d].reshape(N, d)
+        X = radius * X_tilde / X_tilde.norm()
+        return X, p[N * d:N * d + 4], torch.cat([log_beta1, p[N * d + 4:]])
+
+    def f(p_np: np.ndarray):
+        p = torch.from_numpy(p_np).requires_grad_(True)
+        L = gpdm_objective(*unpack(p), Y, lengths, balanced)
+        (grad,) = torch.autograd.grad(L, p)
+        return L.item(), grad.numpy()
+
+    p0 = np.concatenate([X0.reshape(-1).numpy(), np.log(ALPHA_INIT), np.log(BETA_INIT[1:])])
+    bounds = ([(None, None)] * (N * d) + [(-log_bound, log_bound)] * 5
+              + [(-log_bound, math.log(1.0 / (NOISE_FLOOR_Y * BETA1)))])
+    iteration = 0
+
+    def callback(intermediate_result):
+        nonlocal iteration
+        iteration += 1
+        if progress is not None:
+            progress(iteration, float(intermediate_result.fun))
+
+    result = minimize(f, p0, jac=True, method="L-BFGS-B", bounds=bounds, callback=callback,
+                      options={"ftol": FTOL, "gtol": GTOL, "maxiter": MAXITER, "maxfun": 2 * MAXITER})
+    X, log_alpha, log_beta = (t.detach().clone() for t in unpack(torch.from_numpy(result.x)))
+    summary = {"iterations": int(result.nit), "evaluations": int(result.nfev), "objective": float(result.fun),
+               "converged": bool(result.success), "message": str(result.message)}
+    return X, log_alpha, log_beta, summary
+
+
+# ---- the model ---------------------------------------------------------------------------------
+
+class LatentSpace(StateSpace):
+    """The GPDM's state space: the latent R^d, Euclidean (⊞ = +, ⊟ = −), one group per latent
+    dimension ("x0", "x1", …). Decoding goes through the reconstruction mean μ_Y(x) and the
+    angle space of the training motions."""
+
+    def __init__(self, model: GPDM, angles: AngleSpace):
+        self.model, self.angles = model, angles
+        self.group_names = tuple(f"x{i}" for i in range(model.d))
+        self.groups = np.arange(model.d)
+        self.tangent_dims = np.ones(model.d, dtype=int)
+
+    def encode(self, motion: Motion) -> torch.Tensor:
+        """(T, d) latent positions of a motion's frames (:meth:`GPDM.encode_poses`)."""
+        return self.model.encode_poses(self.angles.encode(motion))
+
+    def joints(self, x: torch.Tensor) -> torch.Tensor:
+        flat = x.reshape(-1, self.dim)
+        return self.angles.joints(self.model.reconstruct(flat)[0]).reshape(x.shape[:-1] + (15, 3))
+
+    def boxplus(self, x, v):
+        return x + v
+
+    def boxminus(self, y, x):
+        return y - x
+
+    def tangent_noise(self, x, std, generator):
+        return torch.randn(x.shape, generator=generator, dtype=x.dtype, device=x.device) * std
+
+    def mean(self, x, weights=None):
+        if weights is None:
+            return x.mean(dim=0)
+        return (weights[:, None] * x).sum(dim=0) / weights.sum()
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return self.angles.to_arrays()
+
+
+@register("gpdm", "bgpdm")
+class GPDM(TransitionModel):
+    """A (balanced) GPDM over latent states x (P, d).
+
+    Attributes:
+        X: (N, d) training latent positions. Y: (N, D) training poses (radians, mean subtracted).
+        mean_pose: (D,) the subtracted mean. lengths: frames of each training sequence.
+        log_alpha: (4,) ln α. log_beta: (3,) ln β. W: (D,) data scales.
+        balanced: λ = D/d (``bgpdm``) or 1 (``gpdm``). fit_summary: iterations, evaluations,
+        objective, converged, message, seconds.
+    """
+
+    def __init__(self, angles: AngleSpace, X, Y, mean_pose, lengths: Sequence[int], log_alpha, log_beta,
+                 balanced: bool, fps: float = DEFAULT_FPS, W=None, fit_summary: dict | None = None):
+        as64 = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64)).clone()  # noqa: E731
+        self.X, self.Y, self.mean_pose = as64(X), as64(Y), as64(mean_pose)
+        self.log_alpha, self.log_beta = as64(log_alpha), as64(log_beta)
+        self.lengths = [int(n) for n in lengths]
+        N, D = self.Y.shape
+        if self.X.dim() != 2 or self.X.shape[0] != N or sum(self.lengths) != N or self.mean_pose.shape != (D,):
+            raise PriortrackError(f"GPDM arrays disagree: X {tuple(self.X.shape)}, Y {tuple(self.Y.shape)}, "
+                                  f"mean {tuple(self.mean_pose.shape)}, sequence lengths sum {sum(self.lengths)}")
+        if self.log_alpha.shape != (4,) or self.log_beta.shape != (3,):
+            raise PriortrackError("GPDM hyperparameters must be ln α (4,) and ln β (3,)")
+        self.balanced, self.fps = bool(balanced), float(fps)
+        self.kind = "bgpdm" if balanced else "gpdm"
+        self.d, self.D = self.X.shape[1], D
+        self.alpha, self.beta = self.log_alpha.exp(), self.log_beta.exp()
+        self.fit_summary = dict(fit_summary or {})
+
+        first, inp, out = transition_rows(self.lengths)
+        self.X_in, self.X_out = self.X[inp], self.X[out]
+        self.L_Y = cholesky(k_Y(self.X, self.X, self.beta) + torch.eye(N, dtype=torch.float64) / self.beta[2])
+        self.A_Y = torch.cholesky_solve(self.Y, self.L_Y)                          # K_Y⁻¹ Y (N, D)
+        self.W = closed_form_W((self.Y * self.A_Y).sum(0), N) if W is None else as64(W)
+        K_X = k_X(self.X_in, self.X_in, self.alpha) + torch.eye(len(inp), dtype=torch.float64) / self.alpha[3]
+        self.L_X = cholesky(K_X)
+        self.A_X = torch.cholesky_solve(self.X_out, self.L_X)                      # K_X⁻¹ X_out (N−S, d)
+        self._device_cache: dict[str, dict[str, torch.Tensor]] = {}
+        self.space = LatentSpace(self, angles)
+
+    # ---- learning --------------------------------------------------------------------------
+    @classmethod
+    def fit(cls, motions: Sequence[Motion], balanced: bool = True, d: int = 3, fps: float = DEFAULT_FPS,
+            seed: int = 0, progress: Callable[[int, float], None] | None = None) -> GPDM:
+        """Learn a GPDM (``balanced=False``) or B-GPDM from training motions (one sequence each).
+
+        Motions are resampled to ``fps``; X starts at the whitened PCA of Y (unit variance per
+        latent dimension) plus N(0, 10⁻⁶) noise drawn with ``seed`` (so that repeated frames get
+        distinct latents); ``progress(iteration, L)`` is called after every L-BFGS-B iteration.
+        """
+        start = time.perf_counter()
+        motions = prepare_motions(motions, fps, min_frames=3)
+        angles = AngleSpace.fit(motions)
+        sequences = [angles.encode(m) for m in motions]
+        Y = torch.cat(sequences)
+        N, D = Y.shape
+        if N < MIN_FRAMES:
+            raise PriortrackError(f"a GPDM needs at least {MIN_FRAMES} training frames; got {N} at {fps:g} fps")
+        if not isinstance(d, int | np.integer) or not 1 <= d < D:
+            raise PriortrackError(f"latent dimension d must be an integer in [1, {D}) for {D} pose channels; got {d!r}")
+        mean_pose = Y.mean(0)
+        Y = Y - mean_pose
+        U, _, _ = torch.linalg.svd(Y, full_matrices=False)
+        generator = torch.Generator().manual_seed(int(seed))
+        X0 = math.sqrt(N) * U[:, :d] + INIT_JITTER * torch.randn(N, d, generator=generator, dtype=torch.float64)
+        lengths = [len(s) for s in sequences]
+        X, log_alpha, log_beta, summary = _optimise(Y, lengths, X0, balanced, progress)
+        summary["seconds"] = time.perf_counter() - start
+        log.info("%s fit: N=%d D=%d d=%d, %d iterations, L=%.6g, converged=%s (%s), %.1f s",
+                 "bgpdm" if balanced else "gpdm", N, D, d, summary["iterations"], summary["objective"],
+                 summary["converged"], summary["message"], summary["seconds"])
+        return cls(angles, X, Y, mean_pose, lengths, log_alpha, log_beta, balanced, fps, fit_summary=summary)
+
+    def objective(self) -> float:
+        """L at the model's own X, α, β (closed-form W)."""
+        with torch.no_grad():
+            return float(gpdm_objective(self.X, self.log_alpha, self.log_beta, self.Y, self.lengths, self.balanced))
+
+    # ---- prediction ------------------------------------------------------------------------
+    def _on(self, device) -> dict[str, torch.Tensor]:
+        """The float64 arrays that prediction needs, on ``device`` (cached)."""
+        key = str(device)
+        if key not in self._device_cache:
+            names = ("X", "X_in", "L_Y", "A_Y", "L_X", "A_X", "mean_pose", "W", "alpha", "beta")
+            self._device_cache[key] = {n: getattr(self, n).to(device) for n in names}
+        return self._device_cache[key]
+
+    def _latent(self, x, name: str = "x") -> torch.Tensor:
+        """Check (P, d) latent rows and return them as float64 on their device."""
+        return self.check_state(x, name).to(torch.float64)
+
+    def _reconstruct64(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        t = self._on(x.device)
+        k = k_Y(x, t["X"], t["beta"])                                           # (P, N)
+        v = torch.linalg.solve_triangular(t["L_Y"], k.T, upper=False)           # L_Y⁻¹ k_Y(x)
+        noise = 1.0 / t["beta"][2]
+        var = t["beta"][0] + noise - v.pow(2).sum(0)
+        return t["mean_pose"] + k @ t["A_Y"], torch.clamp(var, min=noise)
+
+    def _dynamics64(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        t = self._on(x.device)
+        k = k_X(x, t["X_in"], t["alpha"])                                       # (P, N−S)
+        v = torch.linalg.solve_triangular(t["L_X"], k.T, upper=False)
+        noise = 1.0 / t["alpha"][3]
+        var = t["alpha"][0] + t["alpha"][2] * x.pow(2).sum(-1) + noise - v.pow(2).sum(0)
+        return k @ t["A_X"], torch.clamp(var, min=noise)
+
+    def reconstruct(self, x) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latent rows x (P, d) → (μ_Y(x) (P, D) radians including the mean pose, σ²(x) (P,) in
+        W-scaled units: channel k's variance is σ²(x)/w_k²), eqs. 19–20; in x's dtype."""
+        x = torch.as_tensor(x)
+        mu, var = self._reconstruct64(self._latent(x))
+        return mu.to(x.dtype), var.to(x.dtype)
+
+    def dynamics(self, x) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latent rows x (P, d) → (μ_X(x) (P, d), σ_X²(x) (P,)): the next state's mean and the
+        variance of each of its coordinates; in x's dtype."""
+        x = torch.as_tensor(x)
+        mu, var = self._dynamics64(self._latent(x))
+        return mu.to(x.dtype), var.to(x.dtype)
+
+    # ---- the transition-model contract -----------------------------------------------------
+    def sample(self, x, generator: torch.Generator) -> torch.Tensor:
+        """(P, d) → (P, d): x_t ~ N(μ_X(x), σ_X²(x) I_d) per row, noise drawn from ``generator``."""
+        x = torch.as_tensor(x)
+        mu, var = self._dynamics64(self._latent(x))
+        noise = torch.randn(mu.shape, generator=generator, dtype=x.dtype, device=x.device)
+        return (mu + var.sqrt()[:, None] * noise.to(torch.float64)).to(x.dtype)
+
+    def log_prob(self, x_next, x) -> torch.Tensor:
+        """(P, d), (P, d) → (P,) ln N(x_next; μ_X(x), σ_X²(x) I_d)."""
+        x = torch.as_tensor(x)
+        x_next = self._latent(x_next, "x_next")
+        mu, var = self._dynamics64(self._latent(x))
+        lp = -0.5 * (x_next - mu).pow(2).sum(-1) / var - 0.5 * self.d * torch.log(2 * math.pi * var)
+        return lp.to(x.dtype)
+
+    def mean(self, x) -> torch.Tensor:
+        """(P, d) → (P, d) μ_X(x)."""
+        return self.dynamics(x)[0]
+
+    def rollout(self, x0, steps: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """From x0 (P, d) (or (d,)), ``steps`` transitions: the mean path if ``generator`` is None,
+        else sampled. Returns (steps + 1, P, d), x0 first."""
+        x = torch.as_tensor(x0)
+        x = x.reshape(1, -1) if x.dim() == 1 else x
+        path = [self.check_state(x, "x0")]
+        for _ in range(int(steps)):
+            path.append(self.mean(path[-1]) if generator is None else self.sample(path[-1], generator))
+        return torch.stack(path)
+
+    # ---- energies (Urtasun et al. eqs. 18, 21) ---------------------------------------------
+    def reconstruction_energy(self, x, y) -> torch.Tensor:
+        """Eq. 18 per row: −ln p(y | x) = |W(y − μ_Y(x))|² / (2σ²(x)) + D_o/2 ln σ²(x) + ½|x|² (constants
+        dropped), x (P, d), y (P, D) radians (with the mean pose); NaN entries of y are missing
+        channels and drop out (D_o counts the observed channels of a row). Returns (P,) float64,
+        differentiable in x."""
+        x = self._latent(x)
+        y = torch.as_tensor(y, dtype=torch.float64, device=x.device)
+        if y.shape != (x.shape[0], self.D):
+            raise PriortrackError(f"y has shape {tuple(y.shape)}; expected ({x.shape[0]}, {self.D})")
+        mu, var = self._reconstruct64(x)
+        observed = torch.isfinite(y)
+        r = torch.where(observed, (y - mu) * self._on(x.device)["W"], torch.zeros_like(mu))
+        return r.pow(2).sum(-1) / (2 * var) + 0.5 * observed.sum(-1) * torch.log(var) + 0.5 * x.pow(2).sum(-1)
+
+    def dynamics_energy(self, window, annealing: float = 0.5) -> torch.Tensor:
+        """−annealing · ln p(X' | model) of windows X' (τ+1, P, d): the sum over t = 1..τ of
+        −ln N(x_t; μ_X(x_{t−1}), σ_X²(x_{t−1}) I_d) (each step predicted from the training set),
+        times the annealing exponent (0.5 when tracking). Returns (P,) float64, differentiable."""
+        window = torch.as_tensor(window)
+        if window.dim() != 3 or window.shape[-1] != self.d or window.shape[0] < 2:
+            raise PriortrackError(f"window has shape {tuple(window.shape)}; expected (τ+1 ≥ 2, P, {self.d})")
+        prev = self._latent(window[:-1].reshape(-1, self.d), "window")
+        nxt = window[1:].reshape(-1, self.d).to(torch.float64)
+        mu, var = self._dynamics64(prev)
+        nll = 0.5 * (nxt - mu).pow(2).sum(-1) / var + 0.5 * self.d * torch.log(2 * math.pi * var)
+        return annealing * nll.reshape(window.shape[0] - 1, -1).sum(0)
+
+    def map_latents(self, y, x0, dynamics: float = 0.0) -> torch.Tensor:
+        """MAP latent positions (T, d) of a pose sequence y (T, D) (radians, NaN = missing), from
+        x0 (T, d): minimises Σ_t reconstruction_energy(x_t, y_t) + dynamics_energy(X', dynamics)
+        (frames independent when ``dynamics`` is 0) with L-BFGS-B (same tolerances as the fit)."""
+        y = torch.as_tensor(y, dtype=torch.float64)
+        x0 = self._latent(x0, "x0")
+        T = x0.shape[0]
+        if y.shape != (T, self.D):
+            raise PriortrackError(f"y has shape {tuple(y.shape)}; expected ({T}, {self.D})")
+
+        def f(p_np: np.ndarray):
+            x = torch.from_numpy(p_np).reshape(T, self.d).requires_grad_(True)
+            E = self.reconstruction_energy(x, y).sum()
+            if dynamics and T > 1:
+                E = E + self.dynamics_energy(x[:, None, :], annealing=dynamics).sum()
+            (grad,) = torch.autograd.grad(E, x)
+            return E.item(), grad.reshape(-1).numpy()
+
+        result = minimize(f, x0.reshape(-1).numpy(), jac=True, method="L-BFGS-B",
+                          options={"ftol": FTOL, "gtol": GTOL, "maxiter": MAXITER})
+        return torch.from_numpy(result.x).reshape(T, self.d)
+
+    def encode_poses(self, y) -> torch.Tensor:
+        """(T, D) poses in radians (with the mean pose) → (T, d) latent positions: each frame starts
+        at the latent of the training pose nearest in W-scaled distance and moves to the minimum
+        of its eq.-18 reconstruction energy."""
+        y = torch.as_tensor(y, dtype=torch.float64)
+        if y.dim() != 2 or y.shape[1] != self.D:
+            raise PriortrackError(f"poses have shape {tuple(y.shape)}; expected (T, {self.D})")
+        nearest = torch.cdist((y - self.mean_pose) * self.W, self.Y * self.W).argmin(dim=1)
+        return self.map_latents(y, self.X[nearest])
+
+    def log_variance_grid(self, n: int = 60, margin: float = 0.2) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """ln σ²(x) of the reconstruction on an n × n grid over latent dims 0 and 1 (the others at
+        their training mean), spanning the training latents' range ± ``margin`` × that range.
+        Returns grid_x (n,), grid_y (n,), logvar (n, n) with logvar[i, j] at (grid_x[j], grid_y[i])."""
+        if self.d < 2:
+            raise PriortrackError("a log-variance grid needs a latent space of at least 2 dimensions")
+        lo, hi = self.X[:, :2].min(0).values, self.X[:, :2].max(0).values
+        pad = margin * (hi - lo)
+        gx = torch.linspace(float(lo[0] - pad[0]), float(hi[0] + pad[0]), n, dtype=torch.float64)
+        gy = torch.linspace(float(lo[1] - pad[1]), float(hi[1] + pad[1]), n, dtype=torch.float64)
+        points = self.X.mean(0).expand(n * n, -1).clone()
+        yy, xx = torch.meshgrid(gy, gx, indexing="ij")
+        points[:, 0], points[:, 1] = xx.reshape(-1), yy.reshape(-1)
+        return gx, gy, torch.log(self._reconstruct64(points)[1]).reshape(n, n)
+
+    # ---- files -----------------------------------------------------------------------------
+    def _arrays(self):
+        return {"gpdm.X": self.X.numpy(), "gpdm.Y": self.Y.numpy(), "gpdm.mean_pose": self.mean_pose.numpy(),
+                "gpdm.lengths": np.asarray(self.lengths, dtype=np.int64), "gpdm.log_alpha": self.log_alpha.numpy(),
+                "gpdm.log_beta": self.log_beta.numpy(), "gpdm.W": self.W.numpy()}
+
+    def _header(self):
+        return {"balanced": self.balanced, "d": self.d, "fit": self.fit_summary,
+                "preprocessing": {"fps": self.fps, "space": "AngleSpace"}}
+
+    @classmethod
+    def _restore(cls, arrays, header):
+        return cls(AngleSpace.from_arrays(arrays), arrays["gpdm.X"], arrays["gpdm.Y"], arrays["gpdm.mean_pose"],
+                   arrays["gpdm.lengths"], arrays["gpdm.log_alpha"], arrays["gpdm.log_beta"], header["balanced"],
+                   header["fps"], W=arrays["gpdm.W"], fit_summary=header["fit"])
