@@ -27,6 +27,7 @@ from priortrack.body.normalise import BONE_CHILDREN, body_positions, normalise
 from priortrack.body.skeleton import Skeleton
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
+from priortrack.geometry import so3
 from priortrack.geometry.sphere import exp_map, karcher_mean, log_map, project_to_tangent
 
 #: Channels of a CMU angle whose training spread is below this (radians) are constants
@@ -55,7 +56,12 @@ class StateSpace(ABC):
 
     @abstractmethod
     def joints(self, x: torch.Tensor) -> torch.Tensor:
-        """(..., S) states → (..., 15, 3) eval15 joints in metres, pelvis-centred body frame."""
+        """(..., S) states → (..., 15, 3) eval15 joints in metres, in the space's body frame."""
+
+    def global_pose(self, motion: Motion) -> torch.Tensor:
+        """(T, 6) global placement g = (t, ω) of a motion's frames: world joints are
+        exp(ω) · joints(x) + t (:func:`priortrack.priors.global_motion.to_world`)."""
+        raise PriortrackError(f"{type(self).__name__} has no global placement")
 
     @abstractmethod
     def boxplus(self, x: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
@@ -136,12 +142,23 @@ class AngleSpace(StateSpace):
         return full
 
     def joints(self, x: torch.Tensor) -> torch.Tensor:
+        """Joints with the root at the origin and unrotated (its rest offset removed)."""
         key = (x.device, x.dtype)
         if key not in self._fk:
             self._fk[key] = ForwardKinematics(self._eval15_skeleton, device=x.device, dtype=x.dtype)
         flat = self.channels_of(x).reshape(-1, self.skeleton.num_channels)
         positions = self._fk[key](flat)[:, torch.as_tensor(self._eval15, device=x.device)]
+        positions = positions - torch.as_tensor(self.skeleton.offsets[0], dtype=x.dtype, device=x.device)
         return positions.reshape(x.shape[:-1] + (len(EVAL15_NAMES), 3))
+
+    def global_pose(self, motion: Motion) -> torch.Tensor:
+        """t = the root's world position (rest offset + translation channels), ω = log of its rotation."""
+        fk = ForwardKinematics(motion.skeleton)
+        channels = torch.as_tensor(motion.channels)
+        root = motion.skeleton.trans_channels[0]
+        t = torch.as_tensor(motion.skeleton.offsets[0]).expand(len(motion), 3).clone()
+        t[:, root >= 0] += channels[:, root[root >= 0]]
+        return torch.cat([t, so3.log(fk.local_rotations(channels)[:, 0])], dim=-1)
 
     def boxplus(self, x, v):
         return x + v
@@ -186,6 +203,11 @@ class DirectionSpace(StateSpace):
 
     def encode(self, motion: Motion) -> torch.Tensor:
         return normalise(motion.positions("eval15")).directions.reshape(len(motion), -1)
+
+    def global_pose(self, motion: Motion) -> torch.Tensor:
+        """t = the hip centre, ω = log of the body frame's world-from-body rotation Rᵀ."""
+        pose = normalise(motion.positions("eval15"))
+        return torch.cat([pose.origin, so3.log(pose.rotation.transpose(-1, -2))], dim=-1)
 
     def _spheres(self, x: torch.Tensor) -> torch.Tensor:
         return x.reshape(x.shape[:-1] + (len(BONE_CHILDREN), 3))

@@ -1,0 +1,83 @@
+"""SO(3) maps, the second-order global motion model and world placement on real mocap."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from priortrack import PriortrackError, load_motion
+from priortrack.geometry import so3
+from priortrack.priors.global_motion import GlobalMotion, to_world
+from priortrack.priors.spaces import AngleSpace, DirectionSpace
+
+
+def _rotvecs(n=500, seed=0, max_angle=math.pi - 1e-6):
+    g = torch.Generator().manual_seed(seed)
+    w = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    return w / w.norm(dim=-1, keepdim=True) * torch.rand(n, 1, generator=g, dtype=torch.float64) * max_angle
+
+
+def test_so3_exp_matches_scipy_and_log_inverts_it():
+    w = torch.cat([_rotvecs(), 1e-10 * _rotvecs(5, 1), torch.zeros(1, 3)])
+    R = so3.exp(w)
+    np.testing.assert_allclose(R.numpy(), Rotation.from_rotvec(w.numpy()).as_matrix(), atol=1e-14)
+    torch.testing.assert_close(so3.log(R), w, rtol=0, atol=1e-9)
+
+
+def test_so3_log_near_pi_gives_the_same_rotation():
+    axis = torch.tensor([[0.6, 0.0, 0.8]], dtype=torch.float64)
+    for angle in (math.pi, math.pi - 1e-9, math.pi - 1e-4):
+        R = so3.exp(angle * axis)
+        w = so3.log(R)
+        assert w.norm().item() == pytest.approx(angle, abs=1e-7)
+        torch.testing.assert_close(so3.exp(w), R, rtol=0, atol=1e-12)
+
+
+def test_constant_velocity_is_predicted_exactly():
+    f64 = dict(dtype=torch.float64)
+    t0, v = torch.tensor([1.0, 0.9, -2.0], **f64), torch.tensor([0.04, 0.0, 0.01], **f64)
+    w0, dw = torch.tensor([0.1, 1.2, -0.05], **f64), torch.tensor([0.0, 0.03, 0.01], **f64)
+    R0, dR = so3.exp(w0[None]), so3.exp(dw[None])
+    g = [torch.cat([(t0 + k * v)[None], so3.log(torch.linalg.matrix_power(dR, k) @ R0)], -1)
+         for k in range(3)]
+    torch.testing.assert_close(GlobalMotion.predict(g[1], g[0]), g[2], rtol=0, atol=1e-12)
+
+
+def test_fit_is_the_ml_estimate_and_sampling_matches_it():
+    walk = load_motion("cmu:07_01").resample(30)
+    g = AngleSpace.fit([walk]).global_pose(walk)
+    model = GlobalMotion.fit([g])
+    r = GlobalMotion.residual(g[2:], g[1:-1], g[:-2])
+    torch.testing.assert_close(model.sigma, r.pow(2).mean(0).sqrt())
+    assert model.log_prob(g[2:], g[1:-1], g[:-2]).mean() > GlobalMotion(model.sigma * 3).log_prob(
+        g[2:], g[1:-1], g[:-2]).mean()
+    n = 20000
+    g1, g2 = g[10].expand(n, 6), g[9].expand(n, 6)
+    draws = model.sample(g1, g2, torch.Generator().manual_seed(0))
+    std = GlobalMotion.residual(draws, g1, g2).std(dim=0)
+    torch.testing.assert_close(std, model.sigma, rtol=0.03, atol=0)
+
+
+@pytest.mark.parametrize("space_class", [AngleSpace, DirectionSpace])
+def test_world_joints_from_body_joints_and_placement(space_class):
+    walk = load_motion("cmu:35_01").resample(30)
+    space = space_class.fit([walk])
+    x, g = space.encode(walk), space.global_pose(walk)
+    world = to_world(space.joints(x), g)
+    truth = torch.as_tensor(walk.positions("eval15"))
+    if space_class is AngleSpace:
+        assert (world - truth).abs().max() < 1e-9
+    else:
+        # Directions decode with the training mean bone lengths: exact up to length changes.
+        assert (world - truth).abs().max() < 0.02
+
+
+def test_bad_input():
+    with pytest.raises(PriortrackError, match="6 positive"):
+        GlobalMotion([1.0, 2.0])
+    with pytest.raises(PriortrackError, match=r"T ≥ 3, 6"):
+        GlobalMotion.fit([torch.zeros(2, 6)])
+    with pytest.raises(PriortrackError, match="rotation vector"):
+        so3.exp(torch.zeros(4, 2))
