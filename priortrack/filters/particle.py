@@ -1,0 +1,127 @@
+"""The batched particle filter (sequential importance resampling) over any prior.
+
+Per frame, for P particles s^i held as one tensor:
+
+    predict   s_t^i ~ p(s_t | s_{t-1}^i)                      (prior + global motion)
+    weight    log w_t^i = log w_{t-1}^i + log p(z_t | s_t^i)   (2D joint likelihood)
+    normalise w_t^i = exp(log w_t^i − logsumexp_j log w_t^j),  ESS = 1 / Σ_i (w_t^i)²
+    estimate  the weighted mean state (pose mean on the prior's manifold), and the best particle
+    resample  when ESS < threshold · P (systematic by default), weights reset to 1/P.
+
+A frame with no observed joint leaves the weights as they are (the prediction stands). If
+every particle's likelihood is −inf, the weights are reset to uniform (flagged), never NaN.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.filters.resampling import resampler
+from priortrack.filters.snapshot import Snapshot, Track
+from priortrack.filters.tracking_model import TrackingModel
+
+
+class ParticleFilter:
+    """Sequential importance resampling with P particles.
+
+    Args:
+        model: the prior, global motion and likelihood to run.
+        particles: P.
+        resampling: "systematic", "stratified", "residual" or "multinomial".
+        ess_threshold: resample when ESS < ess_threshold · P (default 1/2).
+        seed: seeds the filter's own torch.Generator.
+    """
+
+    def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
+                 ess_threshold: float = 0.5, seed: int = 0):
+        if particles < 1:
+            raise PriortrackError(f"particles must be positive, got {particles}")
+        if not 0.0 <= ess_threshold <= 1.0:
+            raise PriortrackError(f"ess_threshold must be in [0, 1], got {ess_threshold}")
+        self.model, self.P, self.ess_threshold = model, int(particles), float(ess_threshold)
+        self.resample = resampler(resampling)
+        self.generator = torch.Generator().manual_seed(seed)
+        self.states: torch.Tensor | None = None
+        self.log_weights: torch.Tensor | None = None
+        self.frame = 0
+
+    def initialise(self, motion: Motion, start: int = 1) -> None:
+        """Particles around frame ``start`` of a known motion (its first two frames)."""
+        self.states = self.model.initial_states(motion, self.P, self.generator, start)
+        self.log_weights = torch.full((self.P,), -math.log(self.P), dtype=self.states.dtype)
+        self.frame = start
+
+    def step(self, z) -> Snapshot:
+        """Consume the observation z (15, 2) of the next frame (NaN where missing)."""
+        if self.states is None:
+            raise PriortrackError("the filter is not initialised: call initialise(motion) first")
+        z = torch.as_tensor(z, dtype=self.states.dtype)
+        if z.shape != (15, 2):
+            raise PriortrackError(f"observation has shape {tuple(z.shape)}; expected (15, 2) pixels")
+        timings, flags = {}, []
+        t0 = time.perf_counter()
+        self.states = self.model.predict(self.states, self.generator)
+        t1 = time.perf_counter()
+        joints = self.model.joints(self.states)
+        if torch.isfinite(z).all(dim=-1).any():
+            log_lik = self.model.likelihood.log_likelihood(joints, z)
+            log_weights = self.log_weights + log_lik
+            if not torch.isfinite(torch.logsumexp(log_weights, 0)):
+                flags.append("weights-underflow")
+                log_weights = torch.full_like(log_weights, -math.log(self.P))
+            self.log_weights = log_weights - torch.logsumexp(log_weights, 0)
+        else:
+            flags.append("no-observation")
+        weights = torch.exp(self.log_weights)
+        ess = float(1.0 / (weights ** 2).sum())
+        t2 = time.perf_counter()
+        estimate = self.model.joints(self.model.mean(self.states, weights)[None])[0]
+        best = joints[int(torch.argmax(weights))]
+        t3 = time.perf_counter()
+        snapshot_states, ancestors = self.states, None
+        if ess < self.ess_threshold * self.P:
+            ancestors = self.resample(weights, self.generator)
+            self.states = self.states[ancestors]
+            self.log_weights = torch.full_like(self.log_weights, -math.log(self.P))
+        t4 = time.perf_counter()
+        timings.update(predict=t1 - t0, weight=t2 - t1, estimate=t3 - t2, resample=t4 - t3)
+        self.frame += 1
+        return Snapshot(self.frame, snapshot_states, weights, ess, ancestors, estimate.cpu().numpy(),
+                        best.cpu().numpy(), joints, flags, timings)
+
+    def run(self, observations, motion: Motion, keep_snapshots: bool = False,
+            progress: Callable[[int, int], None] | None = None) -> Track:
+        """Initialise on the first two frames of ``motion`` and filter the rest.
+
+        Args:
+            observations: (T, 15, 2) pixels at the prior's frame rate, NaN where missing.
+            motion: the known motion whose first two frames start the filter.
+        """
+        observations = np.asarray(observations, dtype=float)
+        T = len(observations)
+        if observations.ndim != 3 or observations.shape[1:] != (15, 2) or T < 3:
+            raise PriortrackError(f"observations have shape {observations.shape}; expected (T ≥ 3, 15, 2)")
+        start = time.perf_counter()
+        self.initialise(motion)
+        known = motion if motion.fps == self.model.prior.fps else motion.resample(self.model.prior.fps)
+        estimates = np.full((T, 15, 3), np.nan)
+        estimates[:2] = known.positions("eval15")[:2]
+        ess = np.full(T, np.nan)
+        flags: list[list[str]] = [[], []]
+        snapshots = []
+        for t in range(2, T):
+            snap = self.step(observations[t])
+            estimates[t], ess[t] = snap.estimate, snap.ess
+            flags.append(snap.flags)
+            if keep_snapshots:
+                snapshots.append(snap)
+            if progress:
+                progress(t, T)
+        return Track(estimates, ess, flags, time.perf_counter() - start, snapshots if keep_snapshots else None)

@@ -1,0 +1,58 @@
+"""What a filter step returns (:class:`Snapshot`) and what a run collects (:class:`Track`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+
+@dataclass
+class Snapshot:
+    """One filter step, for a notebook to look at or a recording to log.
+
+    Attributes:
+        frame: index of the observation this step consumed.
+        particles: (P, S_full) states after the update, before resampling (particles or
+            sigma points), pose state then placement (g_t, g_{t-1}).
+        weights: (P,) normalised weights of ``particles``.
+        ess: effective sample size 1 / Σ w².
+        ancestors: (P,) indices into ``particles`` of the resampled set, None if not resampled.
+        estimate: (15, 3) eval15 joints of the filter's estimate, metres, world.
+        best: (15, 3) joints of the highest-weight particle.
+        joints: (P, 15, 3) joints of every particle (for clouds coloured by weight).
+        flags: what was unusual: "no-observation" (nothing seen, prediction stands),
+            "weights-underflow" (every likelihood −inf: weights reset), "covariance-repaired".
+        timings: seconds spent per phase ("predict", "weight", "resample", "estimate").
+    """
+
+    frame: int
+    particles: torch.Tensor
+    weights: torch.Tensor
+    ess: float
+    ancestors: torch.Tensor | None
+    estimate: np.ndarray
+    best: np.ndarray
+    joints: torch.Tensor
+    flags: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class Track:
+    """A whole run: per-frame estimates (T, 15, 3), ESS (T,), flags and timings.
+
+    Frames before the filter started (the known initial frames) hold the given poses.
+    """
+
+    estimates: np.ndarray
+    ess: np.ndarray
+    flags: list[list[str]]
+    seconds: float
+    snapshots: list[Snapshot] | None = None
+
+    @property
+    def seconds_per_frame(self) -> float:
+        filtered = int(np.sum(~np.isnan(self.ess)))
+        return self.seconds / max(filtered, 1)

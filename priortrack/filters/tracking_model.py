@@ -1,0 +1,84 @@
+"""A pose prior composed with global motion and the 2D likelihood: what every filter runs.
+
+The full filter state is s = [x, g_t, g_{t-1}] (P, S + 12): the prior's pose state x (S),
+and the current and previous placements g = (t, ω) of :mod:`priortrack.priors.global_motion`.
+Prediction draws x_t ~ prior(x_{t-1}) and g_t from the second-order global model; the
+observation model scores the world joints exp(ω_t)·joints(x_t) + t_t against the 2D detections.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.geometry import so3
+from priortrack.observation.likelihood import JointLikelihood
+from priortrack.priors.base import TransitionModel
+from priortrack.priors.global_motion import GlobalMotion, to_world
+
+GLOBAL_DIM = 6
+
+
+class TrackingModel:
+    """prior × global motion × likelihood over full states (P, S + 12)."""
+
+    def __init__(self, prior: TransitionModel, global_motion: GlobalMotion, likelihood: JointLikelihood):
+        self.prior, self.global_motion, self.likelihood = prior, global_motion, likelihood
+
+    @property
+    def pose_dim(self) -> int:
+        return self.prior.state_dim
+
+    @property
+    def dim(self) -> int:
+        return self.prior.state_dim + 2 * GLOBAL_DIM
+
+    def split(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """s (P, S + 12) → x (P, S), g_t (P, 6), g_{t-1} (P, 6)."""
+        if s.dim() != 2 or s.shape[1] != self.dim:
+            raise PriortrackError(f"filter state has shape {tuple(s.shape)}; expected (P, {self.dim})")
+        S = self.pose_dim
+        return s[:, :S], s[:, S:S + GLOBAL_DIM], s[:, S + GLOBAL_DIM:]
+
+    def predict(self, s: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """One draw of s_t per row of s_{t-1}."""
+        x, g, g_prev = self.split(s)
+        return torch.cat([self.prior.sample(x, generator), self.global_motion.sample(g, g_prev, generator), g], -1)
+
+    def mean_step(self, s: torch.Tensor) -> torch.Tensor:
+        """The deterministic mean step (the unscented filter's fx)."""
+        x, g, g_prev = self.split(s)
+        return torch.cat([self.prior.mean(x), GlobalMotion.predict(g, g_prev), g], -1)
+
+    def joints(self, s: torch.Tensor) -> torch.Tensor:
+        """(P, S + 12) → (P, 15, 3) world joints, metres."""
+        x, g, _ = self.split(s)
+        return to_world(self.prior.joints(x), g)
+
+    def initial_states(self, motion: Motion, n: int, generator: torch.Generator, start: int = 1) -> torch.Tensor:
+        """(n, S + 12) states around frame ``start`` of a known motion (its first two frames by
+        default, as in the papers' experiments): the pose drawn by ``prior.initial``, the
+        placements g_start and g_{start-1} exact. Frames are counted at the prior's frame rate."""
+        motion = motion if motion.fps == self.prior.fps else motion.resample(self.prior.fps)
+        if not 1 <= start < len(motion):
+            raise PriortrackError(f"initial frame {start} is outside [1, {len(motion) - 1}]")
+        x0 = self.prior.encode(motion[start:start + 1])[0]
+        g = self.prior.space.global_pose(motion[start - 1:start + 1])
+        x = self.prior.initial(x0, n, generator)
+        return torch.cat([x, g[1].expand(n, -1).to(x), g[0].expand(n, -1).to(x)], -1)
+
+    def mean(self, s: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """Weighted mean state (S + 12,): the pose on the prior's manifold, translations
+        averaged, rotations by their chordal mean (the weighted sum of matrices projected
+        onto SO(3) by SVD)."""
+        x, g, g_prev = self.split(s)
+        w = weights / weights.sum()
+        parts = [self.prior.space.mean(x, w)]
+        for placement in (g, g_prev):
+            M = (w[:, None, None] * so3.exp(placement[:, 3:])).sum(0)
+            U, _, Vh = torch.linalg.svd(M)
+            D = torch.ones(3, dtype=M.dtype, device=M.device)
+            D[2] = torch.sign(torch.linalg.det(U @ Vh))
+            parts += [(w[:, None] * placement[:, :3]).sum(0), so3.log((U * D) @ Vh)]
+        return torch.cat(parts)
