@@ -54,24 +54,30 @@ class ParticleFilter:
 
     def initialise(self, motion: Motion, start: int = 1) -> None:
         """Particles around frame ``start`` of a known motion (its first two frames)."""
-        self.states = self.model.initial_states(motion, self.P, self.generator, start)
-        self.log_weights = torch.full((self.P,), -math.log(self.P), dtype=self.states.dtype)
-        self.frame = start
+        self.initialise_states(self.model.initial_states(motion, self.P, self.generator, start), start)
+
+    def initialise_states(self, states: torch.Tensor, frame: int = 0) -> None:
+        """Start from given particles (P, dim), equally weighted."""
+        if states.shape != (self.P, self.model.dim):
+            raise PriortrackError(f"initial particles have shape {tuple(states.shape)}; expected ({self.P}, {self.model.dim})")
+        self.states = states
+        self.log_weights = torch.full((self.P,), -math.log(self.P), dtype=states.dtype, device=states.device)
+        self.frame = frame
 
     def step(self, z) -> Snapshot:
-        """Consume the observation z (15, 2) of the next frame (NaN where missing)."""
+        """Consume the observation z of the next frame ((15, 2) pixels, NaN where missing)."""
         if self.states is None:
             raise PriortrackError("the filter is not initialised: call initialise(motion) first")
-        z = torch.as_tensor(z, dtype=self.states.dtype)
-        if z.shape != (15, 2):
-            raise PriortrackError(f"observation has shape {tuple(z.shape)}; expected (15, 2) pixels")
+        z = torch.as_tensor(z, dtype=self.states.dtype, device=self.states.device)
+        if z.shape != self.model.observation_shape:
+            raise PriortrackError(f"observation has shape {tuple(z.shape)}; expected {self.model.observation_shape}")
         timings, flags = {}, []
         t0 = time.perf_counter()
         self.states = self.model.predict(self.states, self.generator)
         t1 = time.perf_counter()
-        joints = self.model.joints(self.states)
-        if torch.isfinite(z).all(dim=-1).any():
-            log_lik = self.model.likelihood.log_likelihood(joints, z)
+        joints = self.model.observe(self.states)
+        if torch.isfinite(z).any():
+            log_lik = self.model.log_likelihood(joints, z)
             log_weights = self.log_weights + log_lik
             if not torch.isfinite(torch.logsumexp(log_weights, 0)):
                 flags.append("weights-underflow")
@@ -82,7 +88,7 @@ class ParticleFilter:
         weights = torch.exp(self.log_weights)
         ess = float(1.0 / (weights ** 2).sum())
         t2 = time.perf_counter()
-        estimate = self.model.joints(self.model.mean(self.states, weights)[None])[0]
+        estimate = self.model.observe(self.model.mean(self.states, weights)[None])[0]
         best = joints[int(torch.argmax(weights))]
         t3 = time.perf_counter()
         snapshot_states, ancestors = self.states, None

@@ -21,7 +21,14 @@ GLOBAL_DIM = 6
 
 
 class TrackingModel:
-    """prior × global motion × likelihood over full states (P, S + 12)."""
+    """prior × global motion × likelihood over full states (P, S + 12).
+
+    The interface every filter uses (a linear-Gaussian model in the tests keeps it too):
+    ``dim``, ``observation_shape``, ``predict``, ``mean_step``, ``observe`` (states → what
+    the likelihood scores: world joints), ``log_likelihood(observed, z)``, ``mean``.
+    """
+
+    observation_shape = (15, 2)
 
     def __init__(self, prior: TransitionModel, global_motion: GlobalMotion, likelihood: JointLikelihood):
         self.prior, self.global_motion, self.likelihood = prior, global_motion, likelihood
@@ -51,10 +58,14 @@ class TrackingModel:
         x, g, g_prev = self.split(s)
         return torch.cat([self.prior.mean(x), GlobalMotion.predict(g, g_prev), g], -1)
 
-    def joints(self, s: torch.Tensor) -> torch.Tensor:
+    def observe(self, s: torch.Tensor) -> torch.Tensor:
         """(P, S + 12) → (P, 15, 3) world joints, metres."""
         x, g, _ = self.split(s)
         return to_world(self.prior.joints(x), g)
+
+    def log_likelihood(self, joints: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        """(P, 15, 3) world joints, z (15, 2) pixels with NaN → (P,) log p(z | joints)."""
+        return self.likelihood.log_likelihood(joints, z)
 
     def initial_states(self, motion: Motion, n: int, generator: torch.Generator, start: int = 1) -> torch.Tensor:
         """(n, S + 12) states around frame ``start`` of a known motion (its first two frames by

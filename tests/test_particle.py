@@ -1,0 +1,138 @@
+"""The particle filter against the Kalman filter on a linear-Gaussian model, and on mocap."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from priortrack import PriortrackError, load_walkjog
+from priortrack.experiments.metrics import mpjpe
+from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.tracking_model import TrackingModel
+from priortrack.observation import default_camera, synthesize
+from priortrack.observation.likelihood import JointLikelihood
+from priortrack.priors import Diffusion
+from priortrack.priors.global_motion import GlobalMotion
+
+
+class LinearGaussian:
+    """s_t = A s_{t-1} + N(0, Q), z_t = H s_t + N(0, R): the filter interface, linear."""
+
+    def __init__(self, A, Q, H, R):
+        self.A, self.Q, self.H, self.R = (torch.as_tensor(m, dtype=torch.float64) for m in (A, Q, H, R))
+        self.dim, self.observation_shape = self.A.shape[0], (self.H.shape[0],)
+        self.LQ = torch.linalg.cholesky(self.Q)
+
+    def predict(self, s, generator):
+        noise = torch.randn(s.shape, generator=generator, dtype=s.dtype) @ self.LQ.T
+        return s @ self.A.T + noise
+
+    def mean_step(self, s):
+        return s @ self.A.T
+
+    def observe(self, s):
+        return s @ self.H.T
+
+    def log_likelihood(self, predicted, z):
+        seen = torch.isfinite(z)
+        d = (z - predicted)[:, seen]
+        R = self.R[seen][:, seen]
+        return torch.distributions.MultivariateNormal(torch.zeros(len(R), dtype=d.dtype), R).log_prob(d)
+
+    def mean(self, s, weights):
+        return (weights[:, None] * s).sum(0) / weights.sum()
+
+
+def kalman(model, m0, P0, zs):
+    A, Q, H, R = (m.numpy() for m in (model.A, model.Q, model.H, model.R))
+    m, P = m0.copy(), P0.copy()
+    for z in zs:
+        m, P = A @ m, A @ P @ A.T + Q
+        seen = np.isfinite(z)
+        if seen.any():
+            Hs, Rs = H[seen], R[np.ix_(seen, seen)]
+            S = Hs @ P @ Hs.T + Rs
+            K = np.linalg.solve(S, Hs @ P).T
+            m, P = m + K @ (z[seen] - Hs @ m), P - K @ S @ K.T
+    return m, P
+
+
+@pytest.fixture
+def linear():
+    dt = 1.0
+    A = [[1, dt, 0], [0, 1, 0], [0, 0, 0.9]]
+    Q = np.diag([0.01, 0.04, 0.09])
+    H = [[1.0, 0, 0], [0, 0, 1.0]]
+    R = np.diag([0.25, 0.16])
+    return LinearGaussian(A, Q, H, R)
+
+
+def test_particle_posterior_matches_kalman(linear):
+    rng = np.random.default_rng(0)
+    zs = rng.normal(0, 1, (6, 2))
+    zs[3, 0] = np.nan                                   # a missing entry is data
+    m0, P0 = np.array([0.5, -0.2, 1.0]), np.diag([0.3, 0.2, 0.5])
+    m, P = kalman(linear, m0, P0, zs)
+    n = 40000
+    pf = ParticleFilter(linear, n, ess_threshold=1.0, seed=1)
+    g = torch.Generator().manual_seed(2)
+    start = torch.as_tensor(m0) + torch.randn(n, 3, generator=g, dtype=torch.float64) @ torch.linalg.cholesky(torch.as_tensor(P0)).T
+    pf.initialise_states(start)
+    for z in zs:
+        snap = pf.step(z)
+    w = snap.weights.numpy()
+    s = snap.particles.numpy()
+    mean = w @ s
+    cov = (w[:, None] * (s - mean)).T @ (s - mean)
+    se = np.sqrt(np.diag(P) / snap.ess)
+    assert np.all(np.abs(mean - m) < 5 * se), (mean, m, se)
+    np.testing.assert_allclose(cov, P, atol=0.06 * np.abs(P).max())
+
+
+def test_all_missing_frame_keeps_the_prediction_and_weights(linear):
+    pf = ParticleFilter(linear, 500, ess_threshold=0.0, seed=0)     # never resample
+    pf.initialise_states(torch.zeros(500, 3, dtype=torch.float64))
+    pf.step(np.array([0.3, 0.1]))
+    before = pf.log_weights.clone()
+    snap = pf.step(np.array([np.nan, np.nan]))
+    assert "no-observation" in snap.flags and snap.ancestors is None
+    assert torch.equal(pf.log_weights, before)
+
+
+def test_underflowing_weights_are_reset_not_nan(linear):
+    pf = ParticleFilter(linear, 200, seed=0)
+    pf.initialise_states(torch.zeros(200, 3, dtype=torch.float64))
+    far = linear.log_likelihood
+    linear.log_likelihood = lambda p, z: torch.full((len(p),), -math.inf, dtype=p.dtype)
+    snap = pf.step(np.array([1e6, 1e6]))
+    linear.log_likelihood = far
+    assert "weights-underflow" in snap.flags
+    assert torch.isfinite(snap.weights).all() and snap.ess == pytest.approx(200)
+
+
+def test_bad_observation_shape_and_uninitialised(linear):
+    pf = ParticleFilter(linear, 10)
+    with pytest.raises(PriortrackError, match="not initialised"):
+        pf.step(np.zeros(2))
+    pf.initialise_states(torch.zeros(10, 3, dtype=torch.float64))
+    with pytest.raises(PriortrackError, match=r"expected \(2,\)"):
+        pf.step(np.zeros(3))
+    with pytest.raises(PriortrackError, match="particles"):
+        ParticleFilter(linear, 0)
+
+
+def test_tracks_a_walk_better_than_holding_the_first_pose():
+    walkjog = load_walkjog()
+    train = list(walkjog.walks("train"))
+    prior = Diffusion.fit(train, local=True)
+    motion = walkjog.test[1][:40]
+    X = motion.positions("eval15")
+    obs = synthesize(X, motion.fps, default_camera(X), "clean", seed=0)
+    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
+                          JointLikelihood(obs.camera))
+    track = ParticleFilter(model, 300, seed=0).run(obs.uv, motion)
+    filtered = mpjpe(track.estimates[2:], X[2:]).mean()
+    still = mpjpe(np.repeat(X[1:2], len(X) - 2, 0), X[2:]).mean()
+    assert filtered < 0.5 * still
+    assert np.isnan(track.ess[:2]).all() and np.all(track.ess[2:] >= 1)
