@@ -120,6 +120,59 @@ def _sample(args: argparse.Namespace) -> None:
           f"({prior.kind} prior at {prior.fps:g} fps)")
 
 
+def _plot(args: argparse.Namespace) -> None:
+    from priortrack.errors import PriortrackError
+    from priortrack.priors import load_prior
+    from priortrack.priors.gpdm import GPDM
+    from priortrack.viz.latent_plot import plot_latent
+
+    prior = load_prior(args.prior)
+    if not isinstance(prior, GPDM):
+        raise PriortrackError(f"{args.prior} is a {prior.kind} prior; 'plot' draws the latent space of a gpdm or bgpdm")
+    plot_latent(prior, args.out)
+    print(f"wrote {args.out}")
+
+
+def _print_json(result: dict) -> None:
+    print(json.dumps(result, indent=None if not sys.stdout.isatty() else 2))
+
+
+def _eval_fill_in(args: argparse.Namespace) -> None:
+    from priortrack.experiments.fill_in import eval_fill_in
+
+    result = eval_fill_in(seed=args.seed)
+    if args.json:
+        _print_json(result)
+        return
+    print("missing-frame fill-in (Wang et al. PAMI 2008, Table 2 protocol): mean RMS per frame, degrees")
+    for method in ("bgpdm", "gpdm", "knn15", "spline"):
+        print(f"  {method:<7} {result[method]:8.2f}")
+
+
+def _eval_loglik(args: argparse.Namespace) -> None:
+    from priortrack.experiments.loglik import eval_loglik
+
+    result = eval_loglik(train=args.train, test=args.test, seed=args.seed)
+    if args.json:
+        _print_json(result)
+        return
+    print("mean log p(v_t | x_t) per frame (higher is better)")
+    for model in ("lie", "diffusion_local", "diffusion_global"):
+        print(f"  {model:<17} train {result[model]['train']:9.2f}   test {result[model]['test']:9.2f}")
+
+
+def _bench_gpdm_fit(args: argparse.Namespace) -> None:
+    from priortrack.experiments.bench_gpdm import bench_gpdm_fit
+
+    _print_json(bench_gpdm_fit(frames=args.frames, threads=args.threads))
+
+
+def _bench_lie_sample(args: argparse.Namespace) -> None:
+    from priortrack.experiments.bench_lie import bench_lie_sample
+
+    _print_json(bench_lie_sample(n=args.n, threads=args.threads))
+
+
 def _bench_fk(args: argparse.Namespace) -> None:
     from priortrack.experiments.bench import bench_fk
 
@@ -181,6 +234,34 @@ def build_parser() -> argparse.ArgumentParser:
     fk.add_argument("--threads", type=int, default=2)
     fk.add_argument("--json", action="store_true")
     fk.set_defaults(run=_bench_fk)
+    gpdm_fit = bench.add_parser("gpdm-fit", help="time a balanced GPDM fit to convergence")
+    gpdm_fit.add_argument("--frames", type=int, default=300)
+    gpdm_fit.add_argument("--threads", type=int, default=2)
+    gpdm_fit.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    gpdm_fit.set_defaults(run=_bench_gpdm_fit)
+    lie_sample = bench.add_parser("lie-sample", help="Lie prior conditional samples per second vs scikit-learn")
+    lie_sample.add_argument("--n", type=int, default=200_000, help="samples per timing")
+    lie_sample.add_argument("--threads", type=int, default=2)
+    lie_sample.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    lie_sample.set_defaults(run=_bench_lie_sample)
+
+    plot = verbs.add_parser("plot", help="a GPDM's latent trajectories over its log reconstruction variance")
+    plot.add_argument("prior", help="a gpdm or bgpdm prior file")
+    plot.add_argument("--out", required=True, help="the image to write (.png)")
+    plot.set_defaults(run=_plot)
+
+    evaluate = verbs.add_parser("eval", help="the papers' experiments on bundled data").add_subparsers(
+        dest="experiment", required=True)
+    fill_in = evaluate.add_parser("fill-in", help="GPDM missing-frame fill-in (Wang et al. 2008, Table 2)")
+    fill_in.add_argument("--seed", type=int, default=0)
+    fill_in.add_argument("--json", action="store_true")
+    fill_in.set_defaults(run=_eval_fill_in)
+    loglik = evaluate.add_parser("loglik", help="held-out log-likelihood of the Lie prior and the diffusions")
+    loglik.add_argument("--train", nargs="+", help="training motions (default: leave one subject out)")
+    loglik.add_argument("--test", nargs="+", help="test motions")
+    loglik.add_argument("--seed", type=int, default=0)
+    loglik.add_argument("--json", action="store_true")
+    loglik.set_defaults(run=_eval_loglik)
     return parser
 
 
