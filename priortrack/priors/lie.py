@@ -1,0 +1,744 @@
+"""The Lie-algebra kinematic prior (Simo-Serra, Torras, Moreno-Noguer 2015).
+
+A pose x is the 14 eval15 bone directions, a point of (S²)ᴮ (B = 14); its velocity is the
+tangent vector v_t = s · log_{x_t}(x_{t+1}) ∈ T_x (S²)ᴮ, s a scale (30, so that pose and
+kinematics weigh alike). A training sample is a point (x, v) of the joint manifold.
+
+**Tangent coordinates.** Component k has a mean pose μ_k ∈ (S²)ᴮ and, on each sphere b, the
+fixed orthonormal basis E_kb (2×3, rows e1, e2) of T_μ S² built by
+:func:`~priortrack.geometry.tangent_basis.tangent_basis`. A sample's coordinates at component
+k are, per bone b, the four numbers
+
+    z_kb = ( E_kb log_{μ_kb}(x_b) ,  E_kb Γ_{x_b→μ_kb}(v_b) ) = (a_kb, b_kb) ∈ R² × R²,
+
+Γ the parallel transport along the minimising geodesic (:func:`~priortrack.geometry.sphere.transport`).
+
+**Mixture.** p(x, v) = Σ_k α_k Π_b N(z_kb; (0, m_kb), Σ_kb), Σ_kb a 4×4 block coupling bone b's
+pose and velocity coordinates (a covariance block-diagonal over bones); μ_k is the weighted
+Karcher mean, so the pose part has mean 0 in its own coordinates.
+
+**Conditioning** (closed form). With Σ_kb = [[Sxx, Sxv], [Svx, Svv]] (2×2 blocks),
+
+    π_k(x) ∝ α_k Π_b N(a_kb; 0, Sxx_kb),
+    b_kb | x ~ N(m_kb + R_kb a_kb, C_kb),   R = Svx Sxx⁻¹,   C = Svv − Svx Sxx⁻¹ Sxv,
+
+and the velocity at x is v_b = Γ_{μ_kb→x_b}(E_kbᵀ b_kb). Everything per component (R, the
+Cholesky factors of Sxx and C, their log-determinants) is computed once, when the mixture is
+built, so a draw costs O(K) for π(x) and O(1) after that.
+
+**Densities.** p(v | x) is the density of v in orthonormal coordinates of T_x (S²)ᴮ (2 per
+bone); it does not depend on which orthonormal basis is used, since Γ is an isometry.
+:meth:`LiePrior.log_prob` is the transition density of the contract, the density of the
+step u = log_x(x_next) = v / s in those coordinates, as for the diffusion priors:
+
+    log p(x_next | x) = log p(v = s · log_x(x_next) | x) + 2B ln s,
+
+2B = 28 being the dimension of the velocity; :meth:`LiePrior.velocity_log_prob` gives
+log p(v | x) itself.
+
+**Sampling** (:meth:`LiePrior.sample`): per row, k ~ π(x) by the inverse CDF of one uniform,
+z ~ N(0, I_2B), b = m_k + R_k a_k + L_c z (L_c the Cholesky factor of C_k), and
+x_next = exp_x(Γ_{μ_k→x}(E_kᵀ b) / s). π(x) is evaluated for all K components from one batched
+product per bone (c = μ·x and L_xx⁻¹ E x, see :meth:`GeodesicMixture._planar_logits`); the rows
+are then sorted by component so that each component's rows take one batched step. It runs in
+the input's dtype (float32 is fine there) and on its device, with the caller's generator.
+:meth:`LiePrior.mean` is exp_x(E[v | x] / s) with the mixture's mean velocity.
+
+**Learning** (Figueiredo & Jain, PAMI 2002): component-wise EM with the minimum-message-length
+weight update
+
+    α_k ← max(0, Σ_i w_ik − N_p/2) / Σ_j max(0, Σ_i w_ij − N_p/2),
+
+N_p = 14B parameters per component (2B for μ, 2B for m, 10B for the 4×4 blocks), from
+``max_components`` components seeded at random training samples. A component whose weight
+reaches 0 is annihilated. At convergence the smallest component is annihilated and EM run
+again, down to one component; the configuration kept is the one with the least message length
+
+    L = N_p/2 Σ_k ln(N α_k / 12) + k/2 ln(N/12) + k (N_p + 1)/2 − Σ_i ln p(x_i, v_i).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.geometry.sphere import karcher_mean, log_map
+from priortrack.geometry.tangent_basis import tangent_basis, to_coordinates
+from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
+from priortrack.priors.spaces import DirectionSpace
+
+logger = logging.getLogger(__name__)
+
+#: Default velocity scale s (the paper's 30).
+DEFAULT_SCALE = 30.0
+#: Parameters per bone of one component: 2 (pose mean) + 2 (velocity mean) + 10 (4×4 block).
+PARAMETERS_PER_BONE = 14
+#: Rows per chunk in :meth:`GeodesicMixture.sample_next`: large enough to amortise the per-call
+#: overhead of the per-component loop, small enough that the (B, 3K, n) work set stays in cache.
+SAMPLE_CHUNK = 4096
+_LOG_2PI = math.log(2 * math.pi)
+
+
+# ---------------------------------------------------------------------------------------------
+# small numerical helpers
+# ---------------------------------------------------------------------------------------------
+
+
+def _cholesky(matrices: torch.Tensor, what: str) -> torch.Tensor:
+    """Lower Cholesky factors of a batch of symmetric matrices (..., n, n).
+
+    A factorisation that fails is retried with a jitter ε I added, ε growing tenfold from
+    1e-12 to 1e-6 times the mean diagonal; past that a PriortrackError names ``what``.
+    """
+    factor, info = torch.linalg.cholesky_ex(matrices)
+    if not bool((info > 0).any()):
+        return factor
+    eye = torch.eye(matrices.shape[-1], dtype=matrices.dtype, device=matrices.device)
+    scale = matrices.diagonal(dim1=-2, dim2=-1).mean().abs().clamp(min=torch.finfo(matrices.dtype).tiny)
+    jitter = 1e-12
+    while jitter <= 1e-6:
+        factor, info = torch.linalg.cholesky_ex(matrices + jitter * scale * eye)
+        if not bool((info > 0).any()):
+            logger.debug("cholesky of %s needed a jitter of %.1e", what, jitter)
+            return factor
+        jitter *= 10
+    raise PriortrackError(f"{what} is not positive definite (Cholesky fails even with a jitter of 1e-6)")
+
+
+def _whitening(factor: torch.Tensor) -> torch.Tensor:
+    """L⁻¹ (..., n, n) of lower Cholesky factors L (a triangular solve against I): |L⁻¹ d|² = dᵀ Σ⁻¹ d."""
+    eye = torch.eye(factor.shape[-1], dtype=factor.dtype, device=factor.device)
+    return torch.linalg.solve_triangular(factor, eye.expand_as(factor), upper=False)
+
+
+def _block_diagonal(blocks: torch.Tensor) -> torch.Tensor:
+    """(..., B, r, c) → (..., B r, B c), block b of the result on its diagonal."""
+    *lead, b, r, c = blocks.shape
+    eye = torch.eye(b, dtype=blocks.dtype, device=blocks.device)
+    return torch.einsum("...brc,bd->...brdc", blocks, eye).reshape(*lead, b * r, b * c)
+
+
+def _frame_matrix(mu: torch.Tensor) -> torch.Tensor:
+    """(..., B, 3) means → (..., 3B, 3B) F, (x F)_b = (μ_b·x_b, e1_b·x_b, e2_b·x_b) for flat rows x (N, 3B)."""
+    frame = torch.cat([mu.unsqueeze(-2), tangent_basis(mu)], dim=-2)                   # (..., B, 3, 3)
+    return _block_diagonal(frame.transpose(-1, -2))
+
+
+def _clamped(c: torch.Tensor) -> torch.Tensor:
+    """c clamped to [−c_max, c_max], c_max the largest float below 1 in c's dtype."""
+    c_max = 1.0 - torch.finfo(c.dtype).eps / 2
+    return c.clamp(-c_max, c_max)
+
+
+def _theta_over_sin(c: torch.Tensor) -> torch.Tensor:
+    """θ / sin θ for θ = arccos(c), c = μ·x the cosine of the geodesic angle, elementwise.
+
+    c must be clamped by :func:`_clamped`, so that sin²θ, evaluated as (1 − c)(1 + c) (no
+    cancellation: 1 − c is exact near c = 1), is positive and the ratio tends smoothly to 1
+    at θ = 0. θ and sin θ come from the same rounded c, so the ratio is accurate to a few
+    ulps even where c itself carries rounding.
+    """
+    return torch.acos(c) / torch.sqrt((1 - c) * (1 + c))
+
+
+def _coordinates(x: torch.Tensor, v: torch.Tensor | None, frame: torch.Tensor, bones: int):
+    """Tangent coordinates at one component of flat poses x and velocities v (N, 3B).
+
+    With (c, E x) = x F per bone (:func:`_frame_matrix`), since E μ = 0:
+
+        a = E log_μ(x) = (θ / sin θ) E x,
+        b = E Γ_{x→μ}(v) = E v − (μ·v) / (1 + c) E x     (Γ_{x→μ}(v) = v − (μ·v)/(1 + c) (x + μ)).
+
+    These equal E log_μ(x) and E Γ_{x→μ}(v) of :mod:`priortrack.geometry.sphere` except at the
+    antipode x = −μ, where the logarithm is not unique and a = 0 here.
+
+    Returns a (N, B, 2) and b (N, B, 2), or None for b when v is None.
+    """
+    n = x.shape[0]
+    y = (x @ frame).view(n, bones, 3)
+    c, ex = _clamped(y[..., 0]), y[..., 1:]
+    a = _theta_over_sin(c).unsqueeze(-1) * ex
+    if v is None:
+        return a, None
+    yv = (v @ frame).view(n, bones, 3)
+    return a, yv[..., 1:] - (yv[..., 0] / (1 + c)).unsqueeze(-1) * ex
+
+
+# ---------------------------------------------------------------------------------------------
+# the mixture
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Hot:
+    """The mixture's constants for the sampling path, in one dtype and device. A batch of n
+    poses is held "planar", as X (B, 3, n): X[b, j] the j-th coordinate of bone b of every pose.
+
+    With s the velocity scale and, per component k and bone b, E (2×3), G = L_xx⁻¹ E,
+    R, L_c (2×2), m (2,):
+
+    - ``pi_w`` (B, 3K, 3): rows μ_kb (k = 0…K−1), then the rows 1 and 2 of G_kb, so that
+      pi_w @ X gives c = μ·x and g = G x for every (b, k, pose);
+    - ``pi_c`` (K, 1): ln α_k − ½ Σ_b ln det Sxx_kb − B ln 2π;
+    - ``cond_w`` (K, B, 4, 3): rows Eᵀ R E / s (3) and μᵀ (1), so cond_w[k] @ X = (R-part, c);
+    - ``noise_w`` (K, B, 3, 2): Eᵀ L_c / s;  ``cond_b`` (K, B, 3, 1): Eᵀ m / s;
+    - ``mu`` (K, B, 3, 1): the means.
+    """
+
+    pi_w: torch.Tensor
+    pi_c: torch.Tensor
+    cond_w: torch.Tensor
+    noise_w: torch.Tensor
+    cond_b: torch.Tensor
+    mu: torch.Tensor
+
+
+class GeodesicMixture:
+    """A geodesic Gaussian mixture on (S²)ᴮ × R²ᴮ with block-diagonal (per bone, 4×4) covariances.
+
+    Poses are flat rows x (P, 3B) of B unit vectors, velocities v (P, 3B) tangent at x; see
+    the module docstring for the coordinates and the conditional. Parameters are float64 on
+    the CPU; the sampling path casts them once per dtype and device.
+
+    Attributes:
+        weights: (K,) α_k, positive, summing to 1.
+        means: (K, B, 3) μ_k, unit rows.
+        velocity_means: (K, B, 2) m_k in the coordinates of E_k.
+        covariances: (K, B, 4, 4) Σ_kb over (a_1, a_2, b_1, b_2).
+        basis: (K, B, 2, 3) E_k, from ``means``.
+        regression: (K, B, 2, 2) R = Svx Sxx⁻¹.
+        conditional_covariances: (K, B, 2, 2) C = Svv − Svx Sxx⁻¹ Sxv.
+    """
+
+    def __init__(self, weights, means, velocity_means, covariances):
+        def as64(value):
+            if isinstance(value, torch.Tensor):
+                value = value.detach().cpu()
+            return torch.as_tensor(np.asarray(value, dtype=np.float64))
+
+        weights, means = as64(weights), as64(means)
+        velocity_means, covariances = as64(velocity_means), as64(covariances)
+        if weights.dim() != 1 or len(weights) == 0:
+            raise PriortrackError(f"mixture weights have shape {tuple(weights.shape)}; expected (K,), K >= 1")
+        k = len(weights)
+        if means.dim() != 3 or means.shape[0] != k or means.shape[2] != 3:
+            raise PriortrackError(f"mixture means have shape {tuple(means.shape)}; expected ({k}, B, 3)")
+        b = means.shape[1]
+        if velocity_means.shape != (k, b, 2):
+            raise PriortrackError(f"velocity means have shape {tuple(velocity_means.shape)}; expected ({k}, {b}, 2)")
+        if covariances.shape != (k, b, 4, 4):
+            raise PriortrackError(f"covariances have shape {tuple(covariances.shape)}; expected ({k}, {b}, 4, 4)")
+        for name, value in (("weights", weights), ("means", means), ("velocity means", velocity_means),
+                            ("covariances", covariances)):
+            if not bool(torch.isfinite(value).all()):
+                raise PriortrackError(f"mixture {name} contain NaN or inf")
+        if not bool((weights > 0).all()) or abs(float(weights.sum()) - 1.0) > 1e-9:
+            raise PriortrackError("mixture weights must be positive and sum to 1")
+        if not bool(((torch.linalg.vector_norm(means, dim=-1) - 1).abs() < 1e-9).all()):
+            raise PriortrackError("mixture means must be unit vectors (points of (S²)ᴮ)")
+        self.weights, self.means, self.velocity_means = weights, means, velocity_means
+        self.covariances = 0.5 * (covariances + covariances.transpose(-1, -2))
+        self.basis = tangent_basis(means)
+        self._precompute()
+        self._hot_cache: dict[tuple, _Hot] = {}
+
+    @property
+    def components(self) -> int:
+        """K, the number of components."""
+        return len(self.weights)
+
+    @property
+    def bones(self) -> int:
+        """B, the number of spheres."""
+        return self.means.shape[1]
+
+    def _precompute(self) -> None:
+        """Per component: R, C, the Cholesky factors of Sxx and C, and their block matrices."""
+        cov = self.covariances
+        sxx, sxv, svv = cov[..., :2, :2], cov[..., :2, 2:], cov[..., 2:, 2:]
+        chol_xx = _cholesky(sxx, "a pose block Sxx of the mixture")
+        self.regression = torch.cholesky_solve(sxv, chol_xx).transpose(-1, -2)        # Svx Sxx⁻¹
+        cond = svv - self.regression @ sxv
+        self.conditional_covariances = 0.5 * (cond + cond.transpose(-1, -2))
+        chol_c = _cholesky(self.conditional_covariances, "a conditional covariance C of the mixture")
+        self._chol_xx, self._chol_c = chol_xx, chol_c
+        b = self.bones
+        half_log_det_xx = torch.log(chol_xx.diagonal(dim1=-2, dim2=-1)).sum(dim=(-1, -2))
+        half_log_det_c = torch.log(chol_c.diagonal(dim1=-2, dim2=-1)).sum(dim=(-1, -2))
+        self._log_norm_x = torch.log(self.weights) - half_log_det_xx - b * _LOG_2PI   # (K,)
+        self._log_norm_c = -half_log_det_c - b * _LOG_2PI                              # (K,)
+        # Row-vector block matrices: (a_flat @ M)_b = M_b a_b for a_flat (N, 2B).
+        self._frames = _frame_matrix(self.means)                                       # (K, 3B, 3B)
+        self._white_xx = _block_diagonal(_whitening(chol_xx).transpose(-1, -2))       # (K, 2B, 2B)
+        self._white_c = _block_diagonal(_whitening(chol_c).transpose(-1, -2))
+        self._regress = _block_diagonal(self.regression.transpose(-1, -2))
+        self._vel_flat = self.velocity_means.reshape(self.components, 2 * b)
+
+    # ---- the accurate path (O(K) per row, any dtype; float64 for scoring) -------------------------
+    def _component(self, x: torch.Tensor, v: torch.Tensor | None, k: int):
+        """Component k at flat poses x (P, 3B) (and velocities v): ln α_k N(a; 0, Sxx) (P,), the
+        conditional mean m + R a (P, 2B) and, if v is given, ln N(b; m + R a, C) (P,)."""
+        b = self.bones
+        a, bv = _coordinates(x, v, self._frames[k].to(x), b)
+        a = a.reshape(-1, 2 * b)
+        white = a @ self._white_xx[k].to(x)
+        marginal = self._log_norm_x[k].to(x) - 0.5 * (white * white).sum(dim=-1)
+        mean = self._vel_flat[k].to(x) + a @ self._regress[k].to(x)
+        if v is None:
+            return marginal, mean, None
+        white = (bv.reshape(-1, 2 * b) - mean) @ self._white_c[k].to(x)
+        return marginal, mean, self._log_norm_c[k].to(x) - 0.5 * (white * white).sum(dim=-1)
+
+    def log_responsibilities(self, x: torch.Tensor) -> torch.Tensor:
+        """ln π_k(x) (P, K) for flat poses x (P, 3B): π_k ∝ α_k Π_b N(a_kb; 0, Sxx_kb), Σ_k π_k = 1."""
+        terms = torch.stack([self._component(x, None, k)[0] for k in range(self.components)], dim=-1)
+        return terms - torch.logsumexp(terms, dim=-1, keepdim=True)
+
+    def conditional(self, x: torch.Tensor):
+        """p(v | x) component by component, for flat poses x (P, 3B).
+
+        Returns:
+            ln π (P, K); conditional means m_k + R_k a_k (P, K, B, 2) in the coordinates of E_k
+            (the velocity transported to μ_k); conditional covariances C (K, B, 2, 2).
+        """
+        parts = [self._component(x, None, k) for k in range(self.components)]
+        terms = torch.stack([p[0] for p in parts], dim=-1)
+        means = torch.stack([p[1] for p in parts], dim=1).reshape(x.shape[0], self.components, self.bones, 2)
+        return terms - torch.logsumexp(terms, dim=-1, keepdim=True), means, self.conditional_covariances.to(x)
+
+    def velocity_log_prob(self, v: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """ln p(v | x) (P,) for flat velocities v (P, 3B) tangent at flat poses x (P, 3B):
+
+            p(v | x) = Σ_k π_k(x) Π_b N(E_kb Γ_{x→μ_k}(v_b); m_kb + R_kb a_kb, C_kb).
+        """
+        parts = [self._component(x, v, k) for k in range(self.components)]
+        marginal = torch.stack([p[0] for p in parts], dim=-1)
+        joint = torch.stack([p[0] + p[2] for p in parts], dim=-1)
+        return torch.logsumexp(joint, dim=-1) - torch.logsumexp(marginal, dim=-1)
+
+    # ---- the sampling path (any dtype and device, chunked) --------------------------------------
+    def _hot(self, dtype: torch.dtype, device: torch.device, scale: float) -> _Hot:
+        key = (dtype, str(device), float(scale))
+        if key not in self._hot_cache:
+            self._hot_cache[key] = self._build_hot(scale, dtype, device)
+        return self._hot_cache[key]
+
+    def _build_hot(self, scale: float, dtype: torch.dtype, device: torch.device) -> _Hot:
+        """The :class:`_Hot` constants (computed in float64, then cast)."""
+        basis, mu = self.basis, self.means
+        g = _whitening(self._chol_xx) @ basis                                           # (K, B, 2, 3)
+        pi_w = torch.cat([mu, g[:, :, 0], g[:, :, 1]]).transpose(0, 1)                  # (B, 3K, 3)
+        basis_t = basis.transpose(-1, -2)                                               # Eᵀ (K, B, 3, 2)
+        cond_w = torch.cat([basis_t @ self.regression @ basis / scale, mu.unsqueeze(-2)], dim=-2)
+        noise_w = basis_t @ self._chol_c / scale
+        cond_b = basis_t @ self.velocity_means.unsqueeze(-1) / scale
+        return _Hot(*(t.to(dtype=dtype, device=device).contiguous()
+                      for t in (pi_w, self._log_norm_x.unsqueeze(-1), cond_w, noise_w, cond_b, mu.unsqueeze(-1))))
+
+    def _planar(self, x: torch.Tensor) -> torch.Tensor:
+        """Flat poses (n, 3B) → planar (B, 3, n)."""
+        return x.t().contiguous().view(self.bones, 3, x.shape[0])
+
+    def _planar_logits(self, xp: torch.Tensor, hot: _Hot) -> torch.Tensor:
+        """ln α_k N(a_k; 0, Sxx_k) (K, n) for planar poses X (B, 3, n).
+
+        |L_xx⁻¹ a|² = (θ / sin θ)² |G x|², since a = (θ / sin θ) E x (E ⊥ μ) and G = L_xx⁻¹ E,
+        with (θ / sin θ)² = arccos(c)² / (1 − c²), c clamped as in :func:`_clamped`. 1 − c² loses
+        relative precision as θ → 0, but there |G x|² ~ λ θ² and the error in the product stays
+        below λ ε (λ the largest eigenvalue of Sxx⁻¹, ε the dtype's epsilon).
+        """
+        k = self.components
+        y = torch.bmm(hot.pi_w, xp)                                                     # (B, 3K, n)
+        g1, g2 = y[:, k:2 * k], y[:, 2 * k:]
+        q = g1 * g1
+        q.addcmul_(g2, g2)
+        c_max = 1.0 - torch.finfo(y.dtype).eps / 2
+        c = y[:, :k].clamp_(-c_max, c_max)                                              # as _clamped, in place
+        q.div_(torch.addcmul(torch.ones((), dtype=c.dtype, device=c.device), c, c, value=-1.0))
+        q.mul_(c.acos_().square_())
+        return hot.pi_c - 0.5 * q.sum(dim=0)
+
+    def _planar_velocity(self, xp: torch.Tensor, hot: _Hot, k: int, z: torch.Tensor | None) -> torch.Tensor:
+        """Velocity / s (B, 3, n) at planar poses X (B, 3, n) from component k: Γ_{μ→x}(Eᵀ (m + R a + L_c z)) / s.
+
+        z (B, 2, n) standard normal, or None for the conditional mean. The transport is the
+        closed form Γ_{μ→x}(V) = V − (x·V) / (1 + μ·x) (x + μ) for V ⊥ μ.
+        """
+        y = torch.bmm(hot.cond_w[k], xp)                                                # (B, 4, n)
+        c = _clamped(y[:, 3])
+        vel = hot.cond_b[k].expand(-1, -1, xp.shape[-1]).clone() if z is None \
+            else torch.baddbmm(hot.cond_b[k], hot.noise_w[k], z)
+        vel.addcmul_(y[:, :3], _theta_over_sin(c).unsqueeze(1))
+        along = torch.addcmul(torch.addcmul(xp[:, 0] * vel[:, 0], xp[:, 1], vel[:, 1]), xp[:, 2], vel[:, 2])
+        along.div_(c.add_(1))
+        vel.addcmul_(xp + hot.mu[k], along.unsqueeze(1), value=-1.0)
+        return vel
+
+    @staticmethod
+    def _planar_exp(xp: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """exp_x(u) for planar poses X and tangent steps u (B, 3, n), renormalised to unit rows.
+
+        exp_x(u)_b = cos|u_b| x_b + (sin|u_b| / |u_b|) u_b; sin t / (t + tiny) is exact for t > 0
+        and multiplies u_b = 0 when t = 0.
+        """
+        t = torch.addcmul(torch.addcmul(u[:, 0] * u[:, 0], u[:, 1], u[:, 1]), u[:, 2], u[:, 2]).sqrt_()
+        out = xp * torch.cos(t).unsqueeze(1)
+        out.addcmul_(u, torch.sin(t).div_(t.add_(torch.finfo(t.dtype).tiny)).unsqueeze(1))
+        norm_sq = torch.addcmul(torch.addcmul(out[:, 0] * out[:, 0], out[:, 1], out[:, 1]), out[:, 2], out[:, 2])
+        return out.mul_(norm_sq.rsqrt_().unsqueeze(1))
+
+    def fast_log_responsibilities(self, x: torch.Tensor) -> torch.Tensor:
+        """ln π_k(x) (P, K) for flat poses x (P, 3B), by the sampling path's formula (x's dtype)."""
+        logits = self._planar_logits(self._planar(x), self._hot(x.dtype, x.device, 1.0))
+        return (logits - torch.logsumexp(logits, dim=0)).T
+
+    def sample_next(self, x: torch.Tensor, generator: torch.Generator, scale: float) -> torch.Tensor:
+        """One draw x_next = exp_x(v / s), v ~ p(v | x), per row of flat poses x (P, 3B).
+
+        Per chunk of :data:`SAMPLE_CHUNK` rows: k ~ π(x) by the inverse CDF of one uniform per
+        row, z ~ N(0, I_2B); rows sorted by k (stable) and each component's rows advanced
+        together. Works in x's dtype and on its device.
+        """
+        hot = self._hot(x.dtype, x.device, scale)
+        out = torch.empty_like(x)
+        b = self.bones
+        for start in range(0, x.shape[0], SAMPLE_CHUNK):
+            chunk = x[start:start + SAMPLE_CHUNK]
+            n = chunk.shape[0]
+            cdf = torch.softmax(self._planar_logits(self._planar(chunk), hot), dim=0).cumsum_(dim=0)   # (K, n)
+            u = torch.rand(n, generator=generator, dtype=x.dtype, device=x.device)
+            comp = (cdf < u * cdf[-1]).sum(dim=0).clamp_(max=self.components - 1)
+            z = torch.randn(b, 2, n, generator=generator, dtype=x.dtype, device=x.device)
+            order = torch.sort(comp, stable=True).indices
+            inverse = torch.empty_like(order).index_copy_(0, order, torch.arange(n, device=x.device))
+            counts = torch.bincount(comp, minlength=self.components).tolist()
+            xp = self._planar(chunk.index_select(0, order))
+            step = torch.empty_like(xp)
+            begin = 0
+            for k, count in enumerate(counts):
+                if count:
+                    cols = slice(begin, begin + count)
+                    step[..., cols] = self._planar_velocity(xp[..., cols], hot, k, z[..., cols])
+                    begin += count
+            nxt = self._planar_exp(xp, step).view(3 * b, n).t().contiguous()
+            torch.index_select(nxt, 0, inverse, out=out[start:start + n])
+        return out
+
+    def mean_next(self, x: torch.Tensor, scale: float) -> torch.Tensor:
+        """exp_x(E[v | x] / s) (P, 3B) for flat poses x (P, 3B).
+
+        E[v | x] = Σ_k π_k(x) Γ_{μ_k→x}(E_kᵀ (m_k + R_k a_k)), the mixture's mean velocity.
+        """
+        hot = self._hot(x.dtype, x.device, scale)
+        xp = self._planar(x)
+        weights = torch.softmax(self._planar_logits(xp, hot), dim=0)                    # (K, P)
+        mean = torch.zeros_like(xp)
+        for k in range(self.components):
+            mean.addcmul_(self._planar_velocity(xp, hot, k, None), weights[k])
+        return self._planar_exp(xp, mean).view(x.shape[1], x.shape[0]).t().contiguous()
+
+    # ---- learning --------------------------------------------------------------------------------
+    @classmethod
+    def fit(cls, x: torch.Tensor, v: torch.Tensor, max_components: int = 30, ridge: float = 1e-6,
+            tol: float = 1e-5, max_sweeps: int = 300, seed: int = 0,
+            progress: Callable[[int, float], None] | None = None) -> tuple[GeodesicMixture, dict]:
+        """Component-wise EM with the MML criterion (module docstring) on samples x, v (N, B, 3).
+
+        Args:
+            x: poses (N, B, 3), unit rows; v: velocities (N, B, 3) tangent at x (already scaled).
+            max_components: components at the start, seeded at distinct random samples.
+            ridge: added to every diagonal entry of each 4×4 block (in the coordinates' units).
+            tol: a configuration has converged when a sweep changes L by less than tol·|L|.
+            max_sweeps: sweeps per configuration at most (a warning is logged when reached).
+            seed: seeds the choice of the starting samples.
+            progress: called as progress(sweep, L) after every sweep.
+
+        Returns:
+            The mixture with the least message length and ``{"message_length", "log_likelihood",
+            "sweeps", "frames"}`` of that configuration (sweeps: all sweeps run).
+        """
+        x, v = torch.as_tensor(x, dtype=torch.float64), torch.as_tensor(v, dtype=torch.float64)
+        if x.dim() != 3 or x.shape[-1] != 3 or v.shape != x.shape:
+            raise PriortrackError(f"fit: x and v must both be (N, B, 3), got {tuple(x.shape)} and {tuple(v.shape)}")
+        if not bool(torch.isfinite(x).all() and torch.isfinite(v).all()):
+            raise PriortrackError("fit: x or v contains NaN or inf")
+        if max_components < 1:
+            raise PriortrackError(f"fit: max_components must be positive, got {max_components}")
+        em = _MessageLengthEM(x.reshape(len(x), -1).contiguous(), v.reshape(len(v), -1).contiguous(),
+                              x.shape[1], ridge, tol, max_sweeps, progress)
+        params, info = em.run(max_components, seed)
+        return cls(*params), info
+
+
+class _MessageLengthEM:
+    """Figueiredo & Jain's component-wise EM over flat samples x, v (N, 3B), float64."""
+
+    def __init__(self, x, v, bones, ridge, tol, max_sweeps, progress):
+        self.x, self.v, self.b = x, v, bones
+        self.n = x.shape[0]
+        self.n_par = PARAMETERS_PER_BONE * bones
+        if self.n <= self.n_par:
+            raise PriortrackError(f"too few frames to fit: {self.n} samples for {bones} bones; the mixture "
+                                  f"needs more than N_p = {self.n_par} (the parameters of one component)")
+        self.ridge, self.tol, self.max_sweeps, self.progress = ridge, tol, max_sweeps, progress
+        self.sweeps = 0
+
+    def run(self, max_components: int, seed: int):
+        """EM to convergence, then annihilate the smallest component and repeat down to one;
+        return the parameters (α, μ, m, Σ) of the configuration with the least L, and a summary."""
+        b = self.b
+        k0 = min(max_components, self.n)
+        start = torch.as_tensor(np.random.default_rng(seed).choice(self.n, size=k0, replace=False))
+        self.mu = self.x[start].reshape(k0, b, 3).clone()                              # (K, B, 3)
+        self.vel = to_coordinates(tangent_basis(self.mu), self.v[start].reshape(k0, b, 3))  # (K, B, 2)
+        # F&J's start: every component gets a tenth of the data's spread, isotropic within the
+        # pose part and within the velocity part of each bone.
+        x3, v3 = self.x.reshape(self.n, b, 3), self.v.reshape(self.n, b, 3)
+        pose_var = (log_map(karcher_mean(x3), x3) ** 2).sum(dim=-1).mean(dim=0) / 2    # (B,)
+        vel_var = (v3 ** 2).sum(dim=-1).mean(dim=0) / 2
+        block = torch.diag_embed(torch.stack([pose_var, pose_var, vel_var, vel_var], dim=-1)) / 10
+        self.cov = (block + self.ridge * torch.eye(4, dtype=torch.float64)).expand(k0, b, 4, 4).clone()
+        self.alpha = torch.full((k0,), 1.0 / k0, dtype=torch.float64)
+        self.alive = torch.ones(k0, dtype=torch.bool)
+        self.log_dens = torch.stack([self._log_density(k, *self._coordinates(k)) for k in range(k0)], dim=-1)
+
+        best = None
+        while True:
+            length, loglik = self._converge()
+            alive = torch.nonzero(self.alive).flatten()
+            logger.info("MML EM: %d components, message length %.6g", len(alive), length)
+            if best is None or length < best[0]:
+                best = (length, loglik, self._snapshot())
+            if len(alive) == 1:
+                break
+            self._annihilate(int(alive[torch.argmin(self.alpha[alive])]))
+        length, loglik, params = best
+        return params, {"message_length": length, "log_likelihood": loglik, "sweeps": self.sweeps, "frames": self.n}
+
+    def _snapshot(self):
+        keep = self.alive
+        return (self.alpha[keep] / self.alpha[keep].sum(), self.mu[keep].clone(), self.vel[keep].clone(),
+                self.cov[keep].clone())
+
+    def _annihilate(self, k: int) -> None:
+        self.alive[k] = False
+        self.alpha[k] = 0.0
+        self.alpha /= self.alpha.sum()
+
+    def _coordinates(self, k: int):
+        """(a, b) (N, B, 2) of every sample at component k."""
+        return _coordinates(self.x, self.v, _frame_matrix(self.mu[k]), self.b)
+
+    def _log_density(self, k: int, a: torch.Tensor, bv: torch.Tensor) -> torch.Tensor:
+        """ln N(z_ik; (0, m_k), Σ_k) (N,) from the coordinates (a, b) at component k."""
+        d = torch.cat([a, bv - self.vel[k]], dim=-1).reshape(self.n, 4 * self.b)
+        factor = _cholesky(self.cov[k], f"covariance of component {k}")                 # (B, 4, 4)
+        white = d @ _block_diagonal(_whitening(factor).transpose(-1, -2))
+        half_log_det = torch.log(factor.diagonal(dim1=-2, dim2=-1)).sum()
+        return -0.5 * (white * white).sum(dim=-1) - half_log_det - 2 * self.b * _LOG_2PI
+
+    def _message_length(self) -> tuple[float, float]:
+        alpha = self.alpha[self.alive]
+        loglik = float(torch.logsumexp(torch.log(alpha) + self.log_dens[:, self.alive], dim=-1).sum())
+        k, n, n_par = len(alpha), self.n, self.n_par
+        length = (n_par / 2 * float(torch.log(n * alpha / 12).sum()) + k / 2 * math.log(n / 12)
+                  + k * (n_par + 1) / 2 - loglik)
+        return length, loglik
+
+    def _converge(self) -> tuple[float, float]:
+        """CEM² sweeps until L changes by less than tol·|L| in a sweep that annihilated nothing."""
+        previous = None
+        for _ in range(self.max_sweeps):
+            killed = self._sweep()
+            self.sweeps += 1
+            length, loglik = self._message_length()
+            if self.progress is not None:
+                self.progress(self.sweeps, length)
+            if not killed and previous is not None and abs(previous - length) < self.tol * abs(length):
+                return length, loglik
+            previous = length
+        logger.warning("MML EM: no convergence in %d sweeps (last message length %.6g)", self.max_sweeps, length)
+        return length, loglik
+
+    def _sweep(self) -> bool:
+        """One pass of component-wise EM over the live components; True if one was annihilated."""
+        killed = False
+        for k in torch.nonzero(self.alive).flatten().tolist():
+            alive = self.alive
+            joint = torch.log(self.alpha[alive]) + self.log_dens[:, alive]
+            w = torch.exp(torch.log(self.alpha[k]) + self.log_dens[:, k] - torch.logsumexp(joint, dim=-1))
+            self.alpha[k] = max(0.0, float(w.sum()) - self.n_par / 2) / self.n
+            if self.alpha[k] == 0:
+                self._annihilate(k)
+                killed = True
+                continue
+            self.alpha /= self.alpha.sum()
+            self._m_step(k, w)
+        return killed
+
+    def _m_step(self, k: int, w: torch.Tensor) -> None:
+        """μ_k: weighted Karcher mean; m_k, Σ_k: weighted moments of the coordinates (+ ridge I)."""
+        self._karcher(k, w)
+        a, bv = self._coordinates(k)
+        total = w.sum()
+        self.vel[k] = (w[:, None, None] * bv).sum(dim=0) / total
+        d = torch.cat([a, bv - self.vel[k]], dim=-1)                                   # (N, B, 4)
+        cov = torch.einsum("n,nbi,nbj->bij", w, d, d) / total
+        self.cov[k] = cov + self.ridge * torch.eye(4, dtype=torch.float64)
+        self.log_dens[:, k] = self._log_density(k, a, bv)
+
+    def _karcher(self, k: int, w: torch.Tensor, tol: float = 1e-10, max_iter: int = 50) -> None:
+        """μ_k ← the weighted Karcher mean of the poses, by μ ← exp_μ(Eᵀ Σ_i w_i a_i / Σ_i w_i) from the
+        current μ_k, until the step is below ``tol`` radians or after ``max_iter`` steps.
+
+        Samples whose weight is below 1e-12 of the largest are left out (their pull on the mean
+        is below that fraction too).
+        """
+        keep = w > 1e-12 * w.max()
+        x, weights = self.x[keep], w[keep]
+        weights = (weights / weights.sum()).unsqueeze(0)
+        mu = self.mu[k]
+        for _ in range(max_iter):
+            basis = tangent_basis(mu)
+            frame = _block_diagonal(torch.cat([mu.unsqueeze(-2), basis], dim=-2).transpose(-1, -2))
+            a, _ = _coordinates(x, None, frame, self.b)
+            step = (weights @ a.reshape(len(x), -1)).reshape(self.b, 2)
+            tangent = (step.unsqueeze(-1) * basis).sum(dim=-2)                          # Eᵀ step (B, 3)
+            angle = torch.linalg.vector_norm(tangent, dim=-1, keepdim=True)
+            mu = torch.cos(angle) * mu + torch.sinc(angle / math.pi) * tangent        # exp_μ(step)
+            mu = mu / torch.linalg.vector_norm(mu, dim=-1, keepdim=True)
+            if float(torch.linalg.vector_norm(step)) < tol:
+                break
+        self.mu[k] = mu
+
+
+# ---------------------------------------------------------------------------------------------
+# the transition model
+# ---------------------------------------------------------------------------------------------
+
+
+@register("lie")
+class LiePrior(TransitionModel):
+    """The Lie-algebra kinematic prior as a transition model on :class:`DirectionSpace` states (P, 42).
+
+    Attributes:
+        mixture: the :class:`GeodesicMixture` over (x, v), B = 14.
+        scale: s, v = s · log_x(x_next).
+        message_length: L of the chosen configuration (NaN if not fitted here).
+        log_likelihood: Σ_i ln p(x_i, v_i) over the training samples at that configuration.
+        train_frames: N, the training samples (pairs of consecutive frames) used.
+    """
+
+    kind = "lie"
+
+    def __init__(self, space: DirectionSpace, mixture: GeodesicMixture, scale: float = DEFAULT_SCALE,
+                 fps: float = DEFAULT_FPS, message_length: float = float("nan"),
+                 log_likelihood: float = float("nan"), train_frames: int = 0):
+        if not isinstance(space, DirectionSpace):
+            raise PriortrackError("the Lie prior lives on the bone-direction space (DirectionSpace)")
+        if mixture.bones * 3 != space.dim:
+            raise PriortrackError(f"mixture has {mixture.bones} bones; the direction space has {space.dim // 3}")
+        if not scale > 0:
+            raise PriortrackError(f"scale must be positive, got {scale}")
+        self.space, self.mixture, self.scale, self.fps = space, mixture, float(scale), float(fps)
+        self.message_length, self.log_likelihood = float(message_length), float(log_likelihood)
+        self.train_frames = int(train_frames)
+
+    @property
+    def clusters(self) -> int:
+        """K, the number of mixture components."""
+        return self.mixture.components
+
+    @classmethod
+    def fit(cls, motions: Sequence[Motion], fps: float = DEFAULT_FPS, scale: float = DEFAULT_SCALE,
+            max_components: int = 30, subsample: int | None = None, seed: int = 0,
+            progress: Callable[[int, float], None] | None = None, ridge: float = 1e-6,
+            tol: float = 1e-5) -> LiePrior:
+        """Learn the prior from motions (resampled to ``fps``) by MML EM (module docstring).
+
+        Samples are the pairs (x_t, v_t = s log_{x_t}(x_{t+1})) within each motion; with
+        ``subsample`` set, that many of them drawn without replacement (seeded by ``seed``,
+        which also seeds the starting components). ``progress(sweep, message_length)``.
+        """
+        motions = prepare_motions(motions, fps, min_frames=2)
+        space = DirectionSpace.fit(motions)
+        xs, vs = [], []
+        for m in motions:
+            frames = space.encode(m).reshape(len(m), -1, 3)
+            xs.append(frames[:-1])
+            vs.append(scale * log_map(frames[:-1], frames[1:]))
+        x, v = torch.cat(xs), torch.cat(vs)
+        if subsample is not None:
+            if subsample < 1:
+                raise PriortrackError(f"subsample must be a positive count, got {subsample}")
+            if subsample < len(x):
+                rng = np.random.default_rng((seed, 1))                                # apart from the EM's start
+                keep = np.sort(rng.choice(len(x), size=subsample, replace=False))
+                x, v = x[keep], v[keep]
+        mixture, info = GeodesicMixture.fit(x, v, max_components=max_components, ridge=ridge, tol=tol,
+                                            seed=seed, progress=progress)
+        logger.info("Lie prior: %d clusters from %d samples (message length %.6g, %d sweeps)",
+                    mixture.components, info["frames"], info["message_length"], info["sweeps"])
+        return cls(space, mixture, scale, fps, info["message_length"], info["log_likelihood"], info["frames"])
+
+    def check_state(self, x, name: str = "state") -> torch.Tensor:
+        """Raise a PriortrackError unless x is a (P, 42) tensor without NaN or inf.
+
+        As the base check, with the finiteness test done on x's minimum and maximum (both
+        propagate NaN), one pass without a temporary instead of four on the sampling path.
+        """
+        x = torch.as_tensor(x)
+        if x.dim() != 2 or x.shape[1] != self.state_dim:
+            raise PriortrackError(f"{name} has shape {tuple(x.shape)}; expected (P, {self.state_dim}) "
+                                  f"for a {self.kind} prior")
+        if x.numel() and not bool(torch.isfinite(torch.stack(torch.aminmax(x))).all()):
+            raise PriortrackError(f"{name} contains NaN or inf")
+        return x
+
+    def sample(self, x, generator):
+        """(P, 42) → (P, 42): x_next = exp_x(v / s), v ~ p(v | x) (k ~ π(x), then the Gaussian conditional)."""
+        x = self.check_state(x)
+        return self.mixture.sample_next(x.contiguous(), generator, self.scale)
+
+    def velocity_log_prob(self, x_next, x) -> torch.Tensor:
+        """(P, 42), (P, 42) → (P,) ln p(v | x) at v = s · log_x(x_next), in orthonormal coordinates of T_x."""
+        x, x_next = self.check_state(x), self.check_state(x_next, "x_next")
+        v = self.scale * self.space.boxminus(x_next, x)
+        return self.mixture.velocity_log_prob(v.contiguous(), x.contiguous())
+
+    def log_prob(self, x_next, x) -> torch.Tensor:
+        """(P, 42), (P, 42) → (P,) ln p(x_next | x) = ln p(v = s log_x(x_next) | x) + 2B ln s,
+        the density of the step log_x(x_next) in orthonormal tangent coordinates (as the diffusions)."""
+        return self.velocity_log_prob(x_next, x) + 2 * self.mixture.bones * math.log(self.scale)
+
+    def responsibilities(self, x) -> torch.Tensor:
+        """(P, 42) → (P, K) π_k(x), summing to 1 over k."""
+        return torch.exp(self.mixture.log_responsibilities(self.check_state(x).contiguous()))
+
+    def mean(self, x):
+        """(P, 42) → (P, 42) exp_x(E[v | x] / s), E[v | x] the mixture's mean velocity at x."""
+        return self.mixture.mean_next(self.check_state(x).contiguous(), self.scale)
+
+    def _arrays(self):
+        m = self.mixture
+        return {"lie.weights": m.weights.numpy(), "lie.means": m.means.numpy(),
+                "lie.velocity_means": m.velocity_means.numpy(), "lie.covariances": m.covariances.numpy()}
+
+    def _header(self):
+        return {"scale": self.scale, "clusters": self.clusters, "message_length": self.message_length,
+                "log_likelihood": self.log_likelihood, "train_frames": self.train_frames,
+                "preprocessing": {"fps": self.fps, "space": type(self.space).__name__}}
+
+    @classmethod
+    def _restore(cls, arrays, header):
+        mixture = GeodesicMixture(arrays["lie.weights"], arrays["lie.means"], arrays["lie.velocity_means"],
+                                  arrays["lie.covariances"])
+        return cls(DirectionSpace.from_arrays(arrays), mixture, header["scale"], header["fps"],
+                   header["message_length"], header["log_likelihood"], header["train_frames"])
