@@ -82,3 +82,31 @@ def test_console_script_runs():
     result = subprocess.run([sys.executable, "-m", "priortrack.cli.main", "data", "list"],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and "cmu:135_06" in result.stdout
+
+
+def test_fit_and_sample_a_prior(tmp_path, capsys):
+    prior = tmp_path / "local.npz"
+    assert main(["fit", "diffusion-local", "--train", "walkjog:35_0[1-4]", "--out", str(prior)]) == 0
+    out = capsys.readouterr().out
+    assert "diffusion-local prior" in out and "4 motions" in out and "final objective" in out
+    rrd = tmp_path / "rollouts.rrd"
+    assert main(["sample", str(prior), "--from", "cmu:07_01", "--frame", "5", "--steps", "12", "--n", "3",
+                 "--out", str(rrd)]) == 0
+    rows = _entities(rrd)
+    assert rows["/world/truth"] == 13 and all(rows[f"/world/rollouts/{k}"] == 13 for k in range(3))
+
+
+def test_fit_lie_and_plot_refuses_non_gpdm(tmp_path, capsys):
+    prior = tmp_path / "lie.npz"
+    assert main(["fit", "lie", "--train", "cmu:07_0[12]", "walkjog:35_0[1-6]", "--components", "8",
+                 "--out", str(prior)]) == 0
+    assert "lie prior" in capsys.readouterr().out
+    assert main(["plot", str(prior), "--out", str(tmp_path / "x.png")]) == 2
+    assert "draws the latent space of a gpdm" in capsys.readouterr().err
+
+
+def test_fit_errors(tmp_path, capsys):
+    assert main(["fit", "lie", "--train", "walkjog:99_*", "--out", str(tmp_path / "x.npz")]) == 2
+    assert "matches no bundled motion" in capsys.readouterr().err
+    assert main(["sample", str(tmp_path / "missing.npz"), "--from", "cmu:07_01", "--out", "x.rrd"]) == 2
+    assert "does not exist" in capsys.readouterr().err

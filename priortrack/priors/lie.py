@@ -649,6 +649,7 @@ class LiePrior(TransitionModel):
             raise PriortrackError(f"scale must be positive, got {scale}")
         self.space, self.mixture, self.scale, self.fps = space, mixture, float(scale), float(fps)
         self.message_length, self.log_likelihood = float(message_length), float(log_likelihood)
+        self.objective = self.message_length
         self.train_frames = int(train_frames)
 
     @property
