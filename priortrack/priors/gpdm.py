@@ -76,7 +76,7 @@ except ImportError:  # optional: only a speed-up
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
-from priortrack.priors.spaces import AngleSpace, StateSpace
+from priortrack.priors.spaces import AngleSpace, EuclideanSpace
 
 log = logging.getLogger(__name__)
 
@@ -261,7 +261,7 @@ def _optimise(Y: torch.Tensor, lengths: Sequence[int], X0: torch.Tensor, balance
 
 # ---- the model ---------------------------------------------------------------------------------
 
-class LatentSpace(StateSpace):
+class LatentSpace(EuclideanSpace):
     """The GPDM's state space: the latent R^d, Euclidean (⊞ = +, ⊟ = −), one group per latent
     dimension ("x0", "x1", …). Decoding goes through the reconstruction mean μ_Y(x) and the
     angle space of the training motions."""
@@ -280,20 +280,6 @@ class LatentSpace(StateSpace):
         flat = x.reshape(-1, self.dim)
         return self.angles.joints(self.model.reconstruct(flat)[0]).reshape(x.shape[:-1] + (15, 3))
 
-    def boxplus(self, x, v):
-        return x + v
-
-    def boxminus(self, y, x):
-        return y - x
-
-    def tangent_noise(self, x, std, generator):
-        return torch.randn(x.shape, generator=generator, dtype=x.dtype, device=x.device) * std
-
-    def mean(self, x, weights=None):
-        if weights is None:
-            return x.mean(dim=0)
-        return (weights[:, None] * x).sum(dim=0) / weights.sum()
-
     def to_arrays(self) -> dict[str, np.ndarray]:
         return self.angles.to_arrays()
 
@@ -310,7 +296,8 @@ class GPDM(TransitionModel):
         mean_pose: (D,) the subtracted mean. lengths: frames of each training sequence.
         log_alpha: (4,) ln α. log_beta: (3,) ln β. W: (D,) data scales.
         balanced: λ = D/d (``bgpdm``) or 1 (``gpdm``). fit_summary: iterations, evaluations,
-        objective, converged, message, seconds.
+        objective, converged, message, seconds. objective: the fit's final L (NaN if not fitted),
+        as every prior reports one.
     """
 
     def __init__(self, angles: AngleSpace, X, Y, mean_pose, lengths: Sequence[int], log_alpha, log_beta,
@@ -376,8 +363,8 @@ class GPDM(TransitionModel):
                  summary["converged"], summary["message"], summary["seconds"])
         return cls(angles, X, Y, mean_pose, lengths, log_alpha, log_beta, balanced, fps, fit_summary=summary)
 
-    def objective(self) -> float:
-        """L at the model's own X, α, β (closed-form W)."""
+    def recompute_objective(self) -> float:
+        """L evaluated afresh at the model's own X, α, β (closed-form W)."""
         with torch.no_grad():
             return float(gpdm_objective(self.X, self.log_alpha, self.log_beta, self.Y, self.lengths, self.balanced))
 
@@ -482,10 +469,11 @@ class GPDM(TransitionModel):
         nll = 0.5 * (nxt - mu).pow(2).sum(-1) / var + 0.5 * self.d * torch.log(2 * math.pi * var)
         return annealing * nll.reshape(window.shape[0] - 1, -1).sum(0)
 
-    def map_latents(self, y, x0, dynamics: float = 0.0) -> torch.Tensor:
+    def map_latents(self, y, x0, dynamics: float = 0.0, maxiter: int = MAXITER) -> torch.Tensor:
         """MAP latent positions (T, d) of a pose sequence y (T, D) (radians, NaN = missing), from
         x0 (T, d): minimises Σ_t reconstruction_energy(x_t, y_t) + dynamics_energy(X', dynamics)
-        (frames independent when ``dynamics`` is 0) with L-BFGS-B (same tolerances as the fit)."""
+        (frames independent when ``dynamics`` is 0) with L-BFGS-B (the fit's tolerances, at most
+        ``maxiter`` iterations)."""
         y = torch.as_tensor(y, dtype=torch.float64)
         x0 = self._latent(x0, "x0")
         T = x0.shape[0]
@@ -502,7 +490,7 @@ class GPDM(TransitionModel):
 
         with _single_blas_thread():
             result = minimize(f, x0.reshape(-1).numpy(), jac=True, method="L-BFGS-B",
-                              options={"ftol": FTOL, "gtol": GTOL, "maxiter": MAXITER})
+                              options={"ftol": FTOL, "gtol": GTOL, "maxiter": maxiter})
         return torch.from_numpy(result.x).reshape(T, self.d)
 
     def encode_poses(self, y) -> torch.Tensor:

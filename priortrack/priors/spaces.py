@@ -90,7 +90,25 @@ class StateSpace(ABC):
         return out.index_add_(-1, index, v * v)
 
 
-class AngleSpace(StateSpace):
+class EuclideanSpace(StateSpace):
+    """A state space that is R^S itself: x ⊞ v = x + v, y ⊟ x = y − x, the mean is the mean."""
+
+    def boxplus(self, x, v):
+        return x + v
+
+    def boxminus(self, y, x):
+        return y - x
+
+    def tangent_noise(self, x, std, generator):
+        return torch.randn(x.shape, generator=generator, dtype=x.dtype, device=x.device) * std
+
+    def mean(self, x, weights=None):
+        if weights is None:
+            return x.mean(dim=0)
+        return (weights[:, None] * x).sum(dim=0) / weights.sum()
+
+
+class AngleSpace(EuclideanSpace):
     """Joint angles of one skeleton layout, in radians.
 
     ``channels`` (D,) indexes the skeleton's channel vector: every non-root channel that
@@ -159,20 +177,6 @@ class AngleSpace(StateSpace):
         t = torch.as_tensor(motion.skeleton.offsets[0]).expand(len(motion), 3).clone()
         t[:, root >= 0] += channels[:, root[root >= 0]]
         return torch.cat([t, so3.log(fk.local_rotations(channels)[:, 0])], dim=-1)
-
-    def boxplus(self, x, v):
-        return x + v
-
-    def boxminus(self, y, x):
-        return y - x
-
-    def tangent_noise(self, x, std, generator):
-        return torch.randn(x.shape, generator=generator, dtype=x.dtype, device=x.device) * std
-
-    def mean(self, x, weights=None):
-        if weights is None:
-            return x.mean(dim=0)
-        return (weights[:, None] * x).sum(dim=0) / weights.sum()
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {**self.skeleton.to_arrays(), "space.channels": self.channels, "space.reference": self.reference}
