@@ -39,8 +39,9 @@ solved here is bounded:
 
 L is continuous on that compact set, so a minimum exists. The balanced fit ends with the dynamics
 noise on its floor (an active bound, the only one it needs) and a smooth closed latent cycle for
-walking; the measured floors that gave way first were 10⁻⁶ (no convergence in 4000 iterations,
-the RBF drifting to a polynomial) and 10⁻³ (the latent unrolled into a helix along time).
+walking. Floors tried on the bench problem: 10⁻⁶ (no convergence in 4000 iterations, the RBF
+drifting towards a polynomial), 10⁻³ and 10⁻² (the latent unrolled into a helix or a line along
+time, the RBF switched off).
 L-BFGS-B stops when an iteration lowers L by less than ``FTOL`` relative (1e-7: 0.01 nat at
 |L| ≈ 10⁵, and on the 300-frame bench L then lies within ~15 nats of its value 1200 iterations
 later, far inside the posterior's own spread of ~(N d)/2 nats) or the largest projected gradient
@@ -200,7 +201,7 @@ def gpdm_objective(X: torch.Tensor, log_alpha: torch.Tensor, log_beta: torch.Ten
     N, D = Y.shape
     d = X.shape[1]
     first, inp, out = transition_rows(lengths, X.device)
-    logdet_Y, q = _LogdetQuad.apply(k_Y(X, X, log_beta), torch.exp(-log_beta[2]), Y)               # q_k = Y_kᵀ K_Y⁻¹ Y_k
+    logdet_Y, q = _LogdetQuad.apply(k_Y(X, X, log_beta), torch.exp(-log_beta[2]), Y)   # q_k = Y_kᵀ K_Y⁻¹ Y_k
     w2 = closed_form_W(q, N, kappa) ** 2 if W is None else W ** 2
     reconstruction = (0.5 * D * logdet_Y + 0.5 * (w2 * q).sum()
                       - 0.5 * N * torch.log(w2).sum() + 0.5 * w2.sum() / kappa ** 2)
@@ -373,7 +374,8 @@ class GPDM(TransitionModel):
         """The float64 arrays that prediction needs, on ``device`` (cached)."""
         key = str(device)
         if key not in self._device_cache:
-            names = ("X", "X_in", "L_Y", "A_Y", "L_X", "A_X", "mean_pose", "W", "alpha", "beta", "log_alpha", "log_beta")
+            names = ("X", "X_in", "L_Y", "A_Y", "L_X", "A_X", "mean_pose", "W", "alpha", "beta",
+                     "log_alpha", "log_beta")
             self._device_cache[key] = {n: getattr(self, n).to(device) for n in names}
         return self._device_cache[key]
 
