@@ -75,16 +75,11 @@ class ParticleFilter:
         t0 = time.perf_counter()
         self.states = self.model.predict(self.states, self.generator)
         t1 = time.perf_counter()
-        joints = self.model.observe(self.states)
         if torch.isfinite(z).any():
-            log_lik = self.model.log_likelihood(joints, z)
-            log_weights = self.log_weights + log_lik
-            if not torch.isfinite(torch.logsumexp(log_weights, 0)):
-                flags.append("weights-underflow")
-                log_weights = torch.full_like(log_weights, -math.log(self.P))
-            self.log_weights = log_weights - torch.logsumexp(log_weights, 0)
+            joints = self.update(z, flags)
         else:
             flags.append("no-observation")
+            joints = self.model.observe(self.states)
         weights = torch.exp(self.log_weights)
         ess = float(1.0 / (weights ** 2).sum())
         t2 = time.perf_counter()
@@ -101,6 +96,24 @@ class ParticleFilter:
         self.frame += 1
         return Snapshot(self.frame, snapshot_states, weights, ess, ancestors, estimate.cpu().numpy(),
                         best.cpu().numpy(), joints, flags, timings)
+
+    def update(self, z: torch.Tensor, flags: list[str]) -> torch.Tensor:
+        """Bayes' rule on the predicted particles: log w += log p(z | s), normalised.
+
+        Returns the particles' observed joints (P, ...); appends "weights-underflow" to
+        ``flags`` (and resets the weights to uniform) if every likelihood is −inf.
+        """
+        joints = self.model.observe(self.states)
+        self.log_weights = self.normalised(self.log_weights + self.model.log_likelihood(joints, z), flags)
+        return joints
+
+    def normalised(self, log_weights: torch.Tensor, flags: list[str]) -> torch.Tensor:
+        """log w − logsumexp(log w); uniform (and flagged) if every entry is −inf or NaN."""
+        total = torch.logsumexp(log_weights, 0)
+        if not torch.isfinite(total):
+            flags.append("weights-underflow")
+            return torch.full_like(log_weights, -math.log(self.P))
+        return log_weights - total
 
     def run(self, observations, motion: Motion, keep_snapshots: bool = False,
             progress: Callable[[int, int], None] | None = None) -> Track:
