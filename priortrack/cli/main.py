@@ -1,6 +1,6 @@
 """The ``priortrack`` command line.
 
-Verbs: ``data list``, ``replay``, ``fit``, ``sample``, ``plot``, ``eval``, ``bench``. Bad input
+Verbs: ``data list``, ``replay``, ``fit``, ``sample``, ``track``, ``plot``, ``eval``, ``bench``. Bad input
 ends with one line ``priortrack: error: …`` and exit status 2, never a traceback.
 """
 
@@ -55,15 +55,15 @@ def _motions(sources: list[str]):
 
 
 class _Progress:
-    """A one-line progress display on stderr: step count and objective."""
+    """A one-line progress display on stderr: a step count and a value (objective, or total)."""
 
-    def __init__(self, label: str):
-        self.label = label
+    def __init__(self, label: str, template: str = "step {0:5d}  objective {1:.6g}"):
+        self.label, self.template = label, template
         self.last = None
 
-    def __call__(self, step: int, objective: float) -> None:
-        self.last = (step, objective)
-        print(f"\r{self.label}: step {step:5d}  objective {objective:.6g}", end="", file=sys.stderr, flush=True)
+    def __call__(self, step: int, value: float) -> None:
+        self.last = (step, value)
+        print(f"\r{self.label}: " + self.template.format(step, value), end="", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         if self.last is not None:
@@ -133,6 +133,50 @@ def _plot(args: argparse.Namespace) -> None:
     print(f"wrote {args.out}")
 
 
+def _track(args: argparse.Namespace) -> None:
+    from priortrack.experiments.tracking import track
+    from priortrack.viz.replay import replay_track
+
+    progress = _Progress(f"track {args.filter}", "frame {0} of {1}") if sys.stderr.isatty() else None
+    run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd), progress=progress)
+    if progress:
+        progress.close()
+    if args.rrd:
+        replay_track(run.motion, run.observations, run.track, args.rrd)
+    if args.json:
+        _print_json(run.result)
+        return
+    r = run.result
+    print(f"{r['filter']} on {r['motion']} ({r['frames']} frames, scenario {r['scenario']}, seed {r['seed']}): "
+          f"MPJPE {r['mpjpe_mm']:.1f} mm, root-relative {r['mpjpe_root_rel_mm']:.1f} mm, 2D {r['err2d_px']:.1f} px, "
+          f"{1000 * r['seconds_per_frame']:.0f} ms/frame, mean ESS {r['mean_ess']:.0f}"
+          + (f"; wrote {args.rrd}" if args.rrd else ""))
+
+
+def _eval_tracking(args: argparse.Namespace) -> None:
+    from priortrack.experiments.tracking import eval_tracking
+
+    def show(row: dict) -> None:
+        logging.getLogger("priortrack.track").info("%s %s %s seed %d: %.1f mm", row["filter"], row["motion"],
+                                                    row["scenario"], row["seed"], row["mpjpe_mm"])
+
+    result = eval_tracking(args.presets, args.scenarios, args.motions, args.seeds, progress=show)
+    if args.json:
+        _print_json(result)
+        return
+    scenarios = list(args.scenarios)
+    print(f"MPJPE (mm), mean ± std over {len(args.motions)} motions × {args.seeds} seeds; "
+          f"ratio to pf-diffusion-local in brackets")
+    print("| preset | " + " | ".join(scenarios) + " |")
+    print("|---|" + "---|" * len(scenarios))
+    for name, row in result["table"].items():
+        cells = []
+        for s in scenarios:
+            ratio = result["ratios"].get(name, {}).get(s)
+            cells.append(f"{row[s]['mpjpe_mm']:.0f} ± {row[s]['std_mm']:.0f}" + (f" ({ratio:.2f})" if ratio else ""))
+        print(f"| {name} | " + " | ".join(cells) + " |")
+
+
 def _print_json(result: dict) -> None:
     print(json.dumps(result, indent=None if not sys.stdout.isatty() else 2))
 
@@ -186,6 +230,8 @@ def _bench_fk(args: argparse.Namespace) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from priortrack.experiments.tracking import TABLE_MOTIONS, TABLE_PRESETS, TABLE_SCENARIOS, TABLE_SEEDS
+
     parser = argparse.ArgumentParser(prog="priortrack", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     verbs = parser.add_subparsers(dest="verb", required=True)
@@ -245,6 +291,16 @@ def build_parser() -> argparse.ArgumentParser:
     lie_sample.add_argument("--json", action="store_true", help="(the output is always JSON)")
     lie_sample.set_defaults(run=_bench_lie_sample)
 
+    track = verbs.add_parser("track", help="track a motion's synthetic 2D observations with a filter preset")
+    track.add_argument("motion", help="bundled name (cmu:07_10, walkjog:35_29), .amc or .bvh file")
+    track.add_argument("--filter", required=True, help="a preset name (see filters/) or a .toml file")
+    track.add_argument("--scenario", default="clean",
+                       help="NAME or NAME:key=value,... (clean, noise, dropout, occlusion, blackout, outliers)")
+    track.add_argument("--seed", type=int, default=0, help="seeds the observations and the filter")
+    track.add_argument("--rrd", help="also write a rerun recording: truth, estimate, particle cloud, 2D observations")
+    track.add_argument("--json", action="store_true")
+    track.set_defaults(run=_track)
+
     plot = verbs.add_parser("plot", help="a GPDM's latent trajectories over its log reconstruction variance")
     plot.add_argument("prior", help="a gpdm or bgpdm prior file")
     plot.add_argument("--out", required=True, help="the image to write (.png)")
@@ -262,6 +318,13 @@ def build_parser() -> argparse.ArgumentParser:
     loglik.add_argument("--seed", type=int, default=0)
     loglik.add_argument("--json", action="store_true")
     loglik.set_defaults(run=_eval_loglik)
+    tracking = evaluate.add_parser("tracking", help="the accuracy table: every preset x scenario over seeds")
+    tracking.add_argument("--presets", nargs="+", default=list(TABLE_PRESETS))
+    tracking.add_argument("--scenarios", nargs="+", default=list(TABLE_SCENARIOS))
+    tracking.add_argument("--motions", nargs="+", default=list(TABLE_MOTIONS), help="held-out motions to track")
+    tracking.add_argument("--seeds", type=int, default=TABLE_SEEDS)
+    tracking.add_argument("--json", action="store_true")
+    tracking.set_defaults(run=_eval_tracking)
     return parser
 
 

@@ -192,17 +192,16 @@ def parse_preset(table: dict, name: str, where: str = "preset") -> Preset:
     kind = options.pop("kind", None)
     if kind not in FILTERS:
         raise PriortrackError(f"{where}: [filter] kind {kind!r} is not one of {', '.join(FILTERS)}")
-    usable = FILTERS[kind][2]
-    valid = _parameters(filter_class(kind).__init__, ("self", "model", "seed"))
-    _check_keys(f"{where} [filter] ({kind})", options, ["kind", *valid])
-
     prior = table["prior"]
     _check_keys(f"{where} [prior]", prior, PRIOR_KEYS)
     prior_kind = prior.get("kind")
     if prior_kind not in FIT_KINDS:
         raise PriortrackError(f"{where}: [prior] kind {prior_kind!r} is not one of {', '.join(FIT_KINDS)}")
+    usable = FILTERS[kind][2]
     if prior_kind not in usable:
         raise PriortrackError(f"{where}: filter {kind!r} cannot run a {prior_kind!r} prior; it runs {', '.join(usable)}")
+    valid = _parameters(filter_class(kind).__init__, ("self", "model", "seed"))
+    _check_keys(f"{where} [filter] ({kind})", options, ["kind", *valid])
     train = prior.get("train")
     if not isinstance(train, list) or not train or not all(isinstance(s, str) for s in train):
         raise PriortrackError(f"{where}: [prior] train must be a non-empty list of motion names or paths")

@@ -4,6 +4,7 @@ Entity layout of a priortrack recording (timeline ``frame``):
 
 - ``world``: Y-up, right-handed; the ``eval15`` annotation context (joint names and bones);
 - ``world/<name>``: a 3D skeleton as keypoints joined by the context's connections;
+- ``world/<name>/cloud``: the joints of every particle or sigma point, coloured by weight;
 - ``world/camera``: the camera pose; ``world/camera/image`` its pinhole;
   ``world/camera/image/<name>``: 2D points in pixels (missing joints are simply not logged).
 """
@@ -73,6 +74,17 @@ class Recording:
         self.stream.log(f"world/{name}", rr.Points3D(
             np.asarray(positions), class_ids=EVAL15_CLASS, keypoint_ids=np.arange(len(EVAL15_NAMES)),
             colors=[color], radii=0.02))
+
+    def cloud(self, name: str, joints, weights) -> None:
+        """Log particles' joints (P, 15, 3) metres at ``world/<name>/cloud``, coloured by weight:
+        dark blue (lowest) to yellow (highest), by each weight's share of the largest."""
+        joints, weights = np.asarray(joints), np.asarray(weights, dtype=float)
+        top = weights.max() if weights.size and weights.max() > 0 else 1.0
+        share = np.clip(weights / top, 0.0, 1.0)
+        low, high = np.array([30, 40, 120]), np.array([255, 230, 40])
+        colors = (low + share[:, None] * (high - low)).astype(np.uint8)
+        self.stream.log(f"world/{name}/cloud", rr.Points3D(
+            joints.reshape(-1, 3), colors=np.repeat(colors, joints.shape[1], axis=0), radii=0.006))
 
     def camera(self, camera: PinholeCamera) -> None:
         """Log the camera pose and pinhole (static)."""

@@ -1,0 +1,82 @@
+"""The annealed particle filter: the annealing schedule, its survival rate, tracking a walk."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from priortrack import PriortrackError, load_walkjog
+from priortrack.experiments.metrics import mpjpe
+from priortrack.filters.annealed import AnnealedParticleFilter, annealing_exponent, survival
+from priortrack.filters.tracking_model import TrackingModel
+from priortrack.observation import default_camera, synthesize
+from priortrack.observation.likelihood import JointLikelihood
+from priortrack.priors import Diffusion
+from priortrack.priors.global_motion import GlobalMotion
+
+
+def test_survival_is_the_normalised_ess():
+    log_lik = torch.tensor([0.0, -1.0, -2.0, -math.inf], dtype=torch.float64)
+    w = torch.exp(0.7 * log_lik)
+    w = w / w.sum()
+    assert survival(log_lik, 0.7) == pytest.approx(float(1 / (w ** 2).sum() / 4), rel=1e-12)
+
+
+def test_annealing_exponent_hits_the_target_survival():
+    log_lik = -0.5 * torch.randn(2000, generator=torch.Generator().manual_seed(0), dtype=torch.float64).pow(2) * 400
+    beta = annealing_exponent(log_lik, 0.5)
+    assert 0 < beta < 1
+    assert survival(log_lik, beta) == pytest.approx(0.5, abs=1e-6)
+    flat = torch.zeros(100, dtype=torch.float64)
+    assert annealing_exponent(flat, 0.5) == 1.0                      # nothing to choose: the full likelihood
+    assert annealing_exponent(log_lik, 0.5, lower=0.9) == 0.9        # β never decreases across layers
+
+
+@pytest.fixture(scope="module")
+def walk():
+    walkjog = load_walkjog()
+    train = list(walkjog.walks("train"))[:8]
+    prior = Diffusion.fit(train, local=True)
+    motion = walkjog.test[1][:30]
+    X = motion.positions("eval15")
+    obs = synthesize(X, motion.fps, default_camera(X), "noise", seed=0, sigma_px=5.0)
+    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
+                          JointLikelihood(obs.camera))
+    return model, motion, X, obs
+
+
+def test_layers_keep_half_the_particles_and_beta_grows(walk):
+    model, motion, X, obs = walk
+    apf = AnnealedParticleFilter(model, 400, layers=4, survival=0.5, seed=0)
+    apf.initialise(motion)
+    snap = apf.step(obs.uv[2])
+    assert len(apf.betas) == 4 and all(b2 >= b1 for b1, b2 in zip(apf.betas, apf.betas[1:]))
+    assert all(0 < b <= 1 for b in apf.betas)
+    if apf.betas[-1] < 1:                                             # the exponent was chosen by survival
+        assert snap.ess / 400 == pytest.approx(0.5, abs=0.01)
+    assert snap.ancestors is not None                                 # tempered weights: always resampled
+
+
+def test_tracks_a_walk_better_than_holding_still(walk):
+    model, motion, X, obs = walk
+    track = AnnealedParticleFilter(model, 300, layers=4, seed=1).run(obs.uv, motion)
+    still = mpjpe(np.repeat(X[1:2], len(X) - 2, 0), X[2:]).mean()
+    assert mpjpe(track.estimates[2:], X[2:]).mean() < 0.5 * still
+    assert np.isfinite(track.estimates).all() and np.all(track.ess[2:] >= 1)
+
+
+def test_all_missing_frame_runs_no_layer(walk):
+    model, motion, X, obs = walk
+    apf = AnnealedParticleFilter(model, 100, seed=0)
+    apf.initialise(motion)
+    snap = apf.step(np.full((15, 2), np.nan))
+    assert "no-observation" in snap.flags and apf.betas == [] and snap.ancestors is None
+
+
+def test_bad_parameters(walk):
+    model = walk[0]
+    with pytest.raises(PriortrackError, match="layers"):
+        AnnealedParticleFilter(model, 10, layers=0)
+    with pytest.raises(PriortrackError, match="survival"):
+        AnnealedParticleFilter(model, 10, survival=1.0)

@@ -1,0 +1,104 @@
+"""Filter presets: the shipped TOML files, validation of every section, the fitted-prior cache."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from priortrack import PriortrackError
+from priortrack.experiments.tracking import TABLE_PRESETS
+from priortrack.filters import presets as presets_module
+from priortrack.filters.presets import load_preset, parse_preset, preset_names
+
+BASE = {
+    "filter": {"kind": "pf", "particles": 50},
+    "prior": {"kind": "diffusion-local", "train": ["walkjog:35_01", "walkjog:35_02"], "options": {"space": "angles"}},
+    "observation": {"sigma_px": 10.0},
+}
+
+
+def table(**changes):
+    t = json.loads(json.dumps(BASE))
+    for dotted, value in changes.items():
+        section, _, key = dotted.partition("__")
+        t[section][key] = value
+    return t
+
+
+def test_the_issue_presets_are_shipped_and_valid():
+    assert set(TABLE_PRESETS) <= set(preset_names())
+    for name in preset_names():
+        preset = load_preset(name)
+        assert preset.name == name and preset.train and preset.description
+
+
+def test_patterns_in_train_are_expanded():
+    preset = load_preset("pf-diffusion-local")
+    assert "walkjog:35_29" not in preset.train and "walkjog:35_01" in preset.train
+    assert "walkjog:35_17" not in preset.train                       # a jog
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"filter__particels": 10}, r"unknown key 'particels'; valid keys: .*particles"),
+    ({"filter__kind": "kalman"}, r"kind 'kalman' is not one of pf, apf, ukf, map"),
+    ({"prior__kind": "hmm"}, r"\[prior\] kind 'hmm'"),
+    ({"prior__train": []}, r"train must be a non-empty list"),
+    ({"prior__options": {"spaces": "angles"}}, r"options \(diffusion-local\): unknown key 'spaces'; valid keys: space"),
+    ({"observation__sigma": 3.0}, r"\[observation\]: unknown key 'sigma'; valid keys: robust_nu, sigma_px"),
+])
+def test_mistyped_keys_list_the_valid_ones(changes, message):
+    with pytest.raises(PriortrackError, match=message):
+        parse_preset(table(**changes), "bad")
+
+
+def test_unknown_top_level_key_and_missing_section():
+    t = table()
+    t["filtre"] = {}
+    with pytest.raises(PriortrackError, match="unknown key 'filtre'"):
+        parse_preset(t, "bad")
+    with pytest.raises(PriortrackError, match=r"a \[prior\] table is required"):
+        parse_preset({"filter": {"kind": "pf"}}, "bad")
+
+
+def test_a_filter_that_cannot_run_the_prior_says_so():
+    with pytest.raises(PriortrackError, match="filter 'map' cannot run a 'lie' prior; it runs gpdm, bgpdm"):
+        parse_preset(table(filter__kind="map", prior__kind="lie", prior__options={}), "bad")
+    with pytest.raises(PriortrackError, match="filter 'ukf' cannot run a 'lie' prior"):
+        parse_preset(table(filter__kind="ukf", prior__kind="lie", prior__options={}), "bad")
+
+
+def test_not_toml_and_unknown_name(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[filter\nkind = 'pf'")
+    with pytest.raises(PriortrackError, match="not valid TOML"):
+        load_preset(bad)
+    with pytest.raises(PriortrackError, match="no preset 'pf-nothing'.*pf-diffusion-local"):
+        load_preset("pf-nothing")
+
+
+def test_a_second_run_reads_the_cache_and_predicts_identically(tmp_path, monkeypatch):
+    preset = parse_preset(table(), "small")
+    first = preset.prior(cache=tmp_path)
+    assert len(list(tmp_path.glob("diffusion-local-*.npz"))) == 1
+
+    def no_refit(*args, **kwargs):
+        raise AssertionError("refitted although the prior is cached")
+
+    monkeypatch.setattr(presets_module, "fit_prior", no_refit)
+    second = preset.prior(cache=tmp_path)
+    x = first.encode(preset.training_motions()[0])[:5]
+    g = torch.Generator().manual_seed(0), torch.Generator().manual_seed(0)
+    assert torch.equal(first.sample(x, g[0]), second.sample(x, g[1]))
+    other = parse_preset(table(prior__train=["walkjog:35_03"]), "small")
+    assert other.cache_key != preset.cache_key                        # other training data, other entry
+
+
+def test_build_gives_the_named_filter_with_its_parameters(tmp_path):
+    from priortrack.observation import default_camera
+
+    preset = parse_preset(table(), "small")
+    motion = preset.training_motions()[0]
+    filt = preset.build(default_camera(motion.positions("eval15")), seed=3, cache=tmp_path)
+    assert type(filt).__name__ == "ParticleFilter" and filt.P == 50
+    assert np.isclose(filt.model.likelihood.sigma_px, 10.0)
