@@ -217,6 +217,18 @@ def _bench_lie_sample(args: argparse.Namespace) -> None:
     _print_json(bench_lie_sample(n=args.n, threads=args.threads))
 
 
+def _bench_ukf(args: argparse.Namespace) -> None:
+    from priortrack.experiments.bench_ukf import bench_ukf
+
+    _print_json(bench_ukf(repeats=args.repeats, seed=args.seed, threads=args.threads))
+
+
+def _bench_pf(args: argparse.Namespace) -> None:
+    from priortrack.experiments.bench_pf import bench_pf
+
+    _print_json(bench_pf(particles=args.particles, seed=args.seed))
+
+
 def _bench_fk(args: argparse.Namespace) -> None:
     from priortrack.experiments.bench import bench_fk
 
@@ -300,6 +312,18 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--rrd", help="also write a rerun recording: truth, estimate, particle cloud, 2D observations")
     track.add_argument("--json", action="store_true")
     track.set_defaults(run=_track)
+
+    ukf = bench.add_parser("ukf", help="one UKF step, batched sigma points vs filterpy's per-point loop")
+    ukf.add_argument("--repeats", type=int, default=9)
+    ukf.add_argument("--threads", type=int, default=1)
+    ukf.add_argument("--seed", type=int, default=0)
+    ukf.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    ukf.set_defaults(run=_bench_ukf)
+    pf = bench.add_parser("pf", help="particle-steps per second of the particle filter with each prior")
+    pf.add_argument("--particles", type=int, default=10_000)
+    pf.add_argument("--seed", type=int, default=0)
+    pf.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    pf.set_defaults(run=_bench_pf)
 
     plot = verbs.add_parser("plot", help="a GPDM's latent trajectories over its log reconstruction variance")
     plot.add_argument("prior", help="a gpdm or bgpdm prior file")

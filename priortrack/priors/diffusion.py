@@ -88,6 +88,17 @@ class Diffusion(TransitionModel):
     def mean(self, x):
         return self.check_state(x).clone()
 
+    def transition_covariance(self, x) -> torch.Tensor:
+        """(P, S) states → (P, n, n) covariance of the step ε in tangent coordinates at each state:
+        diag(σ_g² of each coordinate's group), the same at every state. n = Σ_g n_g: the state's
+        own coordinates in a Euclidean space; on the spheres 2 orthonormal coordinates per bone,
+        bone by bone (the step is isotropic in each tangent plane, so any orthonormal basis)."""
+        x = self.check_state(x)
+        space = self.space
+        groups = np.repeat(np.arange(len(space.group_names)), space.tangent_dims) if space.manifold else space.groups
+        var = (self.sigma ** 2)[torch.as_tensor(groups, device=self.sigma.device)].to(device=x.device, dtype=x.dtype)
+        return torch.diag_embed(var).expand(x.shape[0], -1, -1)
+
     def _arrays(self):
         return {"sigma": self.sigma.cpu().numpy()}
 

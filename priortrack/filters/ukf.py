@@ -1,0 +1,526 @@
+"""The unscented Kalman filter: filterpy's UnscentedKalmanFilter with its sigma points
+propagated as one batch and states on manifolds handled in tangent coordinates.
+
+**Model.** For the full state s = [x, g_t, g_{t-1}] of a :class:`TrackingModel`:
+
+    s_t = f(s_{t-1}) ⊞ w_t,  w_t ~ N(0, Q),    f = TrackingModel.mean_step (prior mean, the
+                                               placement's constant-velocity step, the copy g_t → g_{t-1}),
+    z_t = h(s_t) + v_t,      v_t ~ N(0, R),    h = the pixels of the projected world joints (15 · 2),
+
+    Q = blockdiag(prior.transition_covariance(x̄), diag σ_g², ε I_6),   R = σ_px² I,
+
+Q taken at the current mean state x̄ (s̄ = [x̄, ḡ_t, ḡ_{t-1}]), σ_g = GlobalMotion.sigma, and ε =
+``COPY_JITTER`` on g_{t-1}, whose transition is an exact copy (zero noise): the jitter only keeps Q
+positive definite, it adds 10 µm / 10 µrad of spread. A frame's missing observations (NaN) drop
+their rows of z and of R (and their columns of R).
+
+**Tangent coordinates.** A state is stored in A numbers (the ambient row, as every filter holds
+it); its covariance P lives in the tangent space at the mean, in n numbers:
+
+- the pose, in the prior's space: Euclidean (joint angles, a GPDM latent; n = S, ⊞ = +) or the
+  bone directions on (S²)¹⁴ (n = 28 < 42: on each bone the two coordinates in the
+  :func:`~priortrack.geometry.tangent_basis.tangent_basis` E(x) at the base point,
+  x ⊞ c = x ⊞_space Eᵀc = exp_x(Eᵀc) and y ⊟ x = E (y ⊟_space x) = E log_x(y));
+- each placement g = (t, ω): the translation Euclidean, the rotation with world-frame (left)
+  perturbations, R ⊞ η = exp(η) R and R_a ⊟ R_b = log(R_a R_bᵀ), as GlobalMotion's noise η;
+
+so n = n_x + 12 ≤ A = S + 12. filterpy's sigma-point machinery needs n = A, so it runs on the
+tangent coordinates: our sigma-point object draws filterpy's scaled offsets ξ_i on 0 ∈ Rⁿ and
+maps them onto the manifold; the state's mean, residual and add are passed to filterpy as its
+``x_mean_fn``, ``residual_x`` and ``state_add`` hooks; the state's unscented transform and the
+cross-covariance are ours (filterpy sizes both by the sigma points' width, A), vectorised.
+There is no rank deficiency to manage: P is n × n and positive definite.
+
+**One step** (Van der Merwe's scaled sigma points, α, β, κ; λ = α²(n + κ) − n; weights Wm, Wc):
+
+    ξ_0 = 0, ξ_{±k} = ±(row k of the upper Cholesky factor of (n + λ) P)    (filterpy)
+    χ_i = s̄ ⊞ ξ_i                                                          (2n + 1 points, one batch)
+    predict  χ'_i = f(χ_i) in one batch; s̄' = their mean, the fixed point of
+             m ← m ⊞ Σ_i Wm_i (χ'_i ⊟ m) started at χ'_0 (one step in a Euclidean space; the
+             Karcher iteration with signed weights on a manifold);
+             P' = Σ_i Wc_i (χ'_i ⊟ s̄')(χ'_i ⊟ s̄')ᵀ + Q
+    update   χ_i redrawn from (s̄', P'); Z_i = h(χ_i) in one batch; ẑ = Σ Wm_i Z_i;
+             S = Σ Wc_i (Z_i − ẑ)(Z_i − ẑ)ᵀ + R;  C = Σ Wc_i (χ_i ⊟ s̄')(Z_i − ẑ)ᵀ;  K = C S⁻¹;
+             s̄ = s̄' ⊞ K (z − ẑ);  P = Γ (P' − K S Kᵀ) Γᵀ
+
+with Γ the change of tangent coordinates from s̄' to the new s̄: on the spheres the parallel
+transport of the basis at s̄' into the basis at s̄ (a 2 × 2 rotation per bone), the identity
+elsewhere (world-frame rotation perturbations need none). filterpy's own ``predict`` and
+``update`` run every step; ``batched=False`` runs f through filterpy's per-sigma-point loop
+(``UnscentedKalmanFilter.compute_process_sigmas``) and h one sigma point per call (the pattern
+of filterpy's update loop), the reference that :mod:`priortrack.experiments.bench_ukf` times.
+
+**Care.** A frame without any observation skips the update (the prediction stands; flagged
+"no-observation"). A covariance that is not positive definite (an update's P' − K S Kᵀ losing
+definiteness to rounding, or a broken one handed in) is symmetrised and its eigenvalues floored
+at ``EIGEN_FLOOR`` × its largest (flagged "covariance-repaired"); a non-finite one is an error,
+never a NaN estimate. An observed joint that some sigma point puts behind the camera (no
+projection) is left out of that frame's update (flagged "behind-camera").
+
+Only a Gaussian filter: a robust (Student-t) likelihood has no R, and the Lie prior's transition
+(a mixture) has no single noise covariance; both are refused with a PriortrackError (use the
+particle filter).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
+
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.snapshot import Snapshot
+from priortrack.filters.tracking_model import GLOBAL_DIM, TrackingModel
+from priortrack.geometry import so3
+from priortrack.geometry.sphere import transport
+from priortrack.geometry.tangent_basis import from_coordinates, tangent_basis, to_coordinates
+from priortrack.priors.spaces import DirectionSpace, StateSpace
+
+log = logging.getLogger(__name__)
+
+#: Variance (m², rad²) added to the zero noise of the copy g_{t-1} ← g_t.
+COPY_JITTER = 1e-10
+#: Eigenvalues of a repaired covariance are at least this times its largest.
+EIGEN_FLOOR = 1e-9
+#: The sigma-point mean iteration stops when its step is below this (largest |coordinate|) …
+MEAN_TOL = 1e-12
+#: … or after this many steps (logged).
+MEAN_MAX_STEPS = 50
+#: Van der Merwe's sigma-point parameters (defaults): spread α, prior knowledge β, κ.
+ALPHA, BETA, KAPPA = 0.5, 2.0, 0.0
+#: What the filter needs of a model that is not a TrackingModel (the linear-Gaussian test model keeps it).
+UNSCENTED_INTERFACE = ("dim", "tangent_dim", "observation_shape", "mean_step", "measure", "observe",
+                       "process_covariance", "measurement_covariance", "boxplus", "boxminus", "sigma_mean", "transport")
+
+
+# ---- tangent coordinates of the pose --------------------------------------------------------------
+
+class EuclideanChart:
+    """A Euclidean pose space: its coordinates are its tangent coordinates (n = S)."""
+
+    def __init__(self, space: StateSpace):
+        self.space, self.dim = space, space.dim
+
+    def boxplus(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        """x (N, S) ⊞ c (N, S) → (N, S)."""
+        return self.space.boxplus(x, c)
+
+    def boxminus(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """y (N, S) ⊟ x (S,) → (N, S)."""
+        return self.space.boxminus(y, x)
+
+    def transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """Coordinates at a → coordinates at b: the identity (S, S)."""
+        return torch.eye(self.dim, dtype=a.dtype, device=a.device)
+
+    def mean(self, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """Σ_i w_i x_i: x (N, S), w (N,) → (S,)."""
+        return w @ x
+
+
+class SphereChart:
+    """(S²)ᴷ stored as 3K numbers, 2K tangent coordinates: per bone the coordinates in the
+    tangent basis E(x) (K, 2, 3) at the base point x."""
+
+    def __init__(self, space: DirectionSpace):
+        self.space, self.bones = space, len(space.group_names)
+        self.dim = 2 * self.bones
+
+    def _points(self, x: torch.Tensor) -> torch.Tensor:
+        return x.reshape(x.shape[:-1] + (self.bones, 3))
+
+    def boxplus(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        """x ⊞ c = exp_x(E(x)ᵀ c): x (N, 3K), c (N, 2K) → (N, 3K)."""
+        v = from_coordinates(tangent_basis(self._points(x)), c.reshape(c.shape[:-1] + (self.bones, 2)))
+        return self.space.boxplus(x, v.reshape(x.shape))
+
+    def boxminus(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """y ⊟ x = E(x) log_x(y): y (N, 3K), x (3K,) → (N, 2K)."""
+        v = self.space.boxminus(y, x.expand_as(y))
+        c = to_coordinates(tangent_basis(self._points(x)), self._points(v))
+        return c.reshape(y.shape[:-1] + (self.dim,))
+
+    def transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """Coordinates at a → coordinates at b (2K, 2K), block-diagonal: on bone k the rotation
+        T_k[i, j] = e_i(b_k) · Γ_{a_k→b_k} e_j(a_k), Γ the parallel transport."""
+        pa, pb = self._points(a), self._points(b)
+        moved = transport(pa[:, None], pb[:, None], tangent_basis(pa))           # (K, 2, 3): Γ e_j(a)
+        return torch.block_diag(*(tangent_basis(pb) @ moved.transpose(-1, -2)))
+
+    def mean(self, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """Fixed point of m ← exp_m(Σ_i w_i log_m(x_i)) from x_0: x (N, 3K), w (N,) → (3K,)."""
+        return signed_mean(x[0], w, lambda m: self.space.boxminus(x, m.expand_as(x)),
+                           lambda m, v: self.space.boxplus(m[None], v[None])[0])
+
+
+def pose_chart(space: StateSpace) -> EuclideanChart | SphereChart:
+    """The tangent coordinates of a prior's state space."""
+    if isinstance(space, DirectionSpace):
+        return SphereChart(space)
+    if not space.manifold:
+        return EuclideanChart(space)
+    raise PriortrackError(f"the unscented filter has no tangent coordinates for the state space {type(space).__name__}")
+
+
+def signed_mean(start: torch.Tensor, w: torch.Tensor, minus: Callable[[torch.Tensor], torch.Tensor],
+                plus: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]) -> torch.Tensor:
+    """The weighted mean of points on a manifold for weights w (N,) summing to 1 of any sign (the
+    unscented weights): the fixed point of m ← m ⊞ Σ_i w_i (x_i ⊟ m) from ``start``, with
+    minus(m) = (x_i ⊟ m)_i (N, k) and plus(m, v) = m ⊞ v. Stops once the step's largest entry is
+    below MEAN_TOL (after MEAN_MAX_STEPS steps, logged)."""
+    mean = start
+    for _ in range(MEAN_MAX_STEPS):
+        step = w @ minus(mean)
+        mean = plus(mean, step)
+        if float(step.abs().max()) < MEAN_TOL:
+            return mean
+    log.warning("sigma-point mean: no convergence in %d steps (last step %.3g)", MEAN_MAX_STEPS,
+                float(step.abs().max()))
+    return mean
+
+
+def _placements(g: torch.Tensor) -> torch.Tensor:
+    """(..., 12) → (..., 2, 6): the two placements (g_t, g_{t-1}) of a state, each (t, ω)."""
+    return g.reshape(g.shape[:-1] + (2, GLOBAL_DIM))
+
+
+def placements_plus(g: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """(t, ω) ⊞ (δt, η) = (t + δt, log(exp(η) exp(ω))) on both placements: g (N, 12), v (N, 12) → (N, 12)."""
+    g, v = _placements(g), _placements(v)
+    rotation = so3.exp(v[..., 3:]) @ so3.exp(g[..., 3:])
+    return torch.cat([g[..., :3] + v[..., :3], so3.log(rotation)], -1).flatten(-2)
+
+
+def placements_minus(g: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
+    """g ⊟ base = (t − t_b, log(exp(ω) exp(ω_b)ᵀ)) on both placements: g (N, 12), base (12,) → (N, 12)."""
+    g, base = _placements(g), _placements(base)
+    rotation = so3.exp(g[..., 3:]) @ so3.exp(base[..., 3:]).transpose(-1, -2)
+    return torch.cat([g[..., :3] - base[..., :3], so3.log(rotation)], -1).flatten(-2)
+
+
+def placements_mean(g: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Mean (12,) of both placements of states g (N, 12): the translations' Σ w_i t_i and the
+    rotations' :func:`signed_mean` with R ⊞ η = exp(η) R, R_i ⊟ M = log(R_i Mᵀ) (R_i computed once)."""
+    g = _placements(g)
+    R = so3.exp(g[..., 3:])                                                        # (N, 2, 3, 3)
+    M = signed_mean(R[0], w, lambda M: so3.log(R @ M.transpose(-1, -2)).flatten(-2),
+                    lambda M, eta: so3.exp(eta.reshape(2, 3)) @ M)
+    return torch.cat([torch.einsum("n,nkc->kc", w, g[..., :3]), so3.log(M)], -1).flatten()
+
+
+# ---- a tracking model as the unscented filter sees it ---------------------------------------------
+
+class UnscentedTracking:
+    """A :class:`TrackingModel` in the form the unscented filter needs (``UNSCENTED_INTERFACE``):
+    tangent coordinates of full states (⊞, ⊟, the change of coordinates between base points), the
+    noise-free measurement h and the noise covariances Q and R (module docstring).
+
+    Shapes: states (N, A), A = S + 12; tangent vectors (N, n), n = n_x + 12; measurements (N, 30).
+    """
+
+    def __init__(self, model: TrackingModel):
+        prior, likelihood = model.prior, model.likelihood
+        if not hasattr(prior, "transition_covariance"):
+            raise PriortrackError(f"the unscented filter needs a prior with a Gaussian transition (a mean step and a "
+                                  f"noise covariance); the {prior.kind!r} prior ({type(prior).__name__}) has none: "
+                                  f"use the particle filter")
+        if likelihood.robust_nu is not None:
+            raise PriortrackError(f"the unscented filter needs a Gaussian likelihood (R = σ_px² I); this one is a "
+                                  f"Student-t (robust_nu={likelihood.robust_nu:g}), which has no measurement "
+                                  f"covariance: use the particle filter, or a JointLikelihood without robust_nu")
+        self.model, self.chart = model, pose_chart(prior.space)
+        self.dim, self.tangent_dim = model.dim, self.chart.dim + 2 * GLOBAL_DIM
+        self.observation_shape = model.observation_shape
+        self.mean_step, self.observe = model.mean_step, model.observe
+        m = int(np.prod(self.observation_shape))
+        self.measurement_covariance = likelihood.sigma_px ** 2 * torch.eye(m, dtype=torch.float64)
+
+    def boxplus(self, s: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """s (N, A) ⊞ v (N, n) → (N, A)."""
+        S, n = self.model.pose_dim, self.chart.dim
+        return torch.cat([self.chart.boxplus(s[:, :S], v[:, :n]), placements_plus(s[:, S:], v[:, n:])], -1)
+
+    def boxminus(self, s: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
+        """s (N, A) ⊟ base (A,) → (N, n), in the tangent coordinates at base."""
+        S = self.model.pose_dim
+        return torch.cat([self.chart.boxminus(s[:, :S], base[:S]), placements_minus(s[:, S:], base[S:])], -1)
+
+    def sigma_mean(self, s: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """Mean (A,) of states s (N, A) for weights w (N,) summing to 1 (any sign): on each factor
+        of the product manifold the fixed point of m ← m ⊞ Σ_i w_i (s_i ⊟ m) (:func:`signed_mean`;
+        one step, the weighted sum, where ⊞ = +)."""
+        S = self.model.pose_dim
+        return torch.cat([self.chart.mean(s[:, :S], w), placements_mean(s[:, S:], w)])
+
+    def transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """(n, n) map from tangent coordinates at state a (A,) to those at b (A,)."""
+        S = self.model.pose_dim
+        eye = torch.eye(2 * GLOBAL_DIM, dtype=a.dtype, device=a.device)
+        return torch.block_diag(self.chart.transport(a[:S], b[:S]), eye)
+
+    def measure(self, s: torch.Tensor) -> torch.Tensor:
+        """h: states (N, A) → (N, 30) pixels (u, v of each eval15 joint), NaN where behind the camera."""
+        uv, _ = self.model.likelihood.camera.project(self.model.observe(s))
+        return uv.reshape(s.shape[0], -1)
+
+    def process_covariance(self, s: torch.Tensor) -> torch.Tensor:
+        """Q (n, n) at the state s (A,): blockdiag(prior noise at x, diag σ_g², COPY_JITTER I_6)."""
+        x, _, _ = self.model.split(s[None])
+        sigma = self.model.global_motion.sigma.to(s)
+        jitter = torch.full((GLOBAL_DIM,), COPY_JITTER, dtype=s.dtype, device=s.device)
+        return torch.block_diag(self.model.prior.transition_covariance(x)[0], torch.diag(sigma ** 2), torch.diag(jitter))
+
+
+def unscented_form(model):
+    """The model as the unscented filter uses it: a TrackingModel wrapped in
+    :class:`UnscentedTracking`; any other model must itself keep ``UNSCENTED_INTERFACE``."""
+    if isinstance(model, TrackingModel):
+        return UnscentedTracking(model)
+    missing = [name for name in UNSCENTED_INTERFACE if not hasattr(model, name)]
+    if missing:
+        raise PriortrackError(f"the unscented filter needs a TrackingModel or a model with {', '.join(UNSCENTED_INTERFACE)}; "
+                              f"{type(model).__name__} lacks {', '.join(missing)}")
+    return model
+
+
+# ---- filterpy, batched ------------------------------------------------------------------------------
+
+def repaired_covariance(P: np.ndarray) -> tuple[np.ndarray, bool]:
+    """(n, n) → (the symmetrised P, False) if it is positive definite (a Cholesky factorisation
+    succeeds), else (V max(Λ, EIGEN_FLOOR · λ_max) Vᵀ from its eigendecomposition V Λ Vᵀ, True).
+    A non-finite P raises a PriortrackError."""
+    if not np.isfinite(P).all():
+        raise PriortrackError("the unscented filter's covariance is not finite (NaN or inf)")
+    P = (P + P.T) / 2
+    try:
+        np.linalg.cholesky(P)
+        return P, False
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(P)
+        floor = EIGEN_FLOOR * max(float(w.max()), np.finfo(float).tiny)
+        log.debug("covariance repaired: smallest eigenvalue %.3g floored at %.3g", w.min(), floor)
+        return (V * np.maximum(w, floor)) @ V.T, True
+
+
+class ManifoldSigmaPoints:
+    """filterpy's sigma-point object (duck-typed) for states whose tangent dimension n differs from
+    their width A: filterpy's ``MerweScaledSigmaPoints(n, α, β, κ)`` gives the weights and the
+    offsets ξ_i on 0 ∈ Rⁿ (its Cholesky square root); the points are s̄ ⊞ ξ_i, one batch."""
+
+    def __init__(self, model, alpha: float, beta: float, kappa: float):
+        self.model = model
+        self.offsets = MerweScaledSigmaPoints(model.tangent_dim, alpha, beta, kappa)
+        self.Wm, self.Wc = self.offsets.Wm, self.offsets.Wc
+
+    def num_sigmas(self) -> int:
+        return self.offsets.num_sigmas()
+
+    def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Mean x (A,), covariance P (n, n) → sigma points (2n + 1, A)."""
+        xi = torch.from_numpy(self.offsets.sigma_points(np.zeros(self.model.tangent_dim), P))
+        base = torch.from_numpy(x).expand(len(xi), -1)
+        return self.model.boxplus(base, xi).numpy()
+
+
+class _Rows:
+    """filterpy's hx for precomputed measurements: filterpy's update calls hx once per sigma point,
+    in order, so the i-th call returns row i."""
+
+    def __init__(self, rows: np.ndarray):
+        self.rows, self.next = rows, 0
+
+    def __call__(self, _sigma_point: np.ndarray) -> np.ndarray:
+        row = self.rows[self.next]
+        self.next += 1
+        return row
+
+
+class BatchedUKF(UnscentedKalmanFilter):
+    """filterpy's UnscentedKalmanFilter on tangent coordinates (x (A,), P and Q (n, n)) with f run on
+    all sigma points as one batch (``batched``) or by filterpy's own per-point loop.
+
+    Overrides ``compute_process_sigmas`` (the batch) and ``cross_variance`` (vectorised, with the
+    manifold residual); :meth:`transform_states` is the unscented transform passed to ``predict``.
+    ``repairs`` counts covariance repairs (read and reset by the caller).
+    """
+
+    def __init__(self, model, points: ManifoldSigmaPoints, batched: bool):
+        self.model, self.batched, self.repairs = model, bool(batched), 0
+        super().__init__(dim_x=model.dim, dim_z=int(np.prod(model.observation_shape)), dt=1.0, hx=None,
+                         fx=self.fx_point, points=points, x_mean_fn=self.state_mean,
+                         residual_x=self.state_residual, state_add=self.state_add)
+        self.P = np.eye(model.tangent_dim)
+        self.Q = np.eye(model.tangent_dim)
+
+    # the state's mean, residual and add (filterpy's hooks), batched over rows
+    def state_mean(self, sigmas: np.ndarray, Wm: np.ndarray) -> np.ndarray:
+        """Mean (A,) of points (N, A) with weights Wm (N,) summing to 1 (any sign)."""
+        return self.model.sigma_mean(torch.from_numpy(sigmas), torch.from_numpy(Wm)).numpy()
+
+    def state_residual(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """a (N, A) or (A,) ⊟ b (A,) → (N, n) or (n,)."""
+        rows = torch.from_numpy(np.atleast_2d(a))
+        r = self.model.boxminus(rows, torch.from_numpy(b)).numpy()
+        return r if a.ndim == 2 else r[0]
+
+    def state_add(self, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        """x (A,) ⊞ dx (n,) → (A,)."""
+        return self.model.boxplus(torch.from_numpy(x)[None], torch.from_numpy(dx)[None])[0].numpy()
+
+    # f, h
+    def fx_point(self, s: np.ndarray, dt: float) -> np.ndarray:
+        """f of one sigma point (A,) (filterpy's per-point signature; dt is one frame)."""
+        return self.model.mean_step(torch.from_numpy(s)[None])[0].numpy()
+
+    def compute_process_sigmas(self, dt, fx=None, **fx_args):
+        """χ'_i = f(s̄ ⊞ ξ_i): one batch, or filterpy's per-point loop when not ``batched``."""
+        if not self.batched:
+            return super().compute_process_sigmas(dt, fx, **fx_args)
+        sigmas = self.points_fn.sigma_points(self.x, self.P)
+        self.sigmas_f = self.model.mean_step(torch.from_numpy(sigmas)).numpy()
+
+    def measure(self, sigmas: np.ndarray) -> np.ndarray:
+        """h of sigma points (N, A) → (N, m): one batch, or one point per call when not ``batched``."""
+        if self.batched:
+            return self.model.measure(torch.from_numpy(sigmas)).numpy()
+        return np.stack([self.model.measure(torch.from_numpy(s)[None])[0].numpy() for s in sigmas])
+
+    # the unscented transform of states and the cross-covariance (filterpy's assume n = A)
+    def transform_states(self, sigmas, Wm, Wc, noise_cov, mean_fn, residual_fn):
+        """filterpy's UT signature: (mean (A,), Σ Wc_i r_i r_iᵀ + Q (n, n), repaired if need be),
+        r_i = χ_i ⊟ mean."""
+        x = mean_fn(sigmas, Wm)
+        r = residual_fn(sigmas, x)
+        P, repaired = repaired_covariance((r.T * Wc) @ r + noise_cov)
+        self.repairs += repaired
+        return x, P
+
+    def cross_variance(self, x, z, sigmas_f, sigmas_h):
+        """C = Σ_i Wc_i (χ_i ⊟ x)(Z_i − z)ᵀ: (n, m)."""
+        return (self.state_residual(sigmas_f, x).T * self.Wc) @ (sigmas_h - z)
+
+
+class UnscentedFilter:
+    """The unscented Kalman filter over a prior with a Gaussian transition (module docstring).
+
+    Args:
+        model: a TrackingModel (its prior must have ``transition_covariance``: the diffusion and
+            GPDM priors, not the Lie prior; its likelihood Gaussian), or any model keeping
+            ``UNSCENTED_INTERFACE``.
+        alpha, beta, kappa: Van der Merwe's sigma-point parameters (filterpy's).
+        batched: f and h on all sigma points as one batch (True) or per point (filterpy's loop).
+
+    It runs on the CPU in float64 (filterpy works in numpy): the model's tensors must be there.
+
+    Attributes:
+        kf: the :class:`BatchedUKF` (filterpy's state: ``kf.x`` (A,), ``kf.P`` (n, n)).
+    """
+
+    def __init__(self, model, alpha: float = ALPHA, beta: float = BETA, kappa: float = KAPPA, batched: bool = True):
+        if not alpha > 0:
+            raise PriortrackError(f"alpha must be positive, got {alpha}")
+        self.model = model
+        self.unscented = unscented_form(model)
+        n = self.unscented.tangent_dim
+        if not n + kappa > 0:
+            raise PriortrackError(f"kappa must exceed −n = {-n}, got {kappa}")
+        self.kf = BatchedUKF(self.unscented, ManifoldSigmaPoints(self.unscented, alpha, beta, kappa), batched)
+        self.initialised = False
+        self.frame = 0
+
+    @property
+    def mean(self) -> torch.Tensor:
+        """The state estimate s̄ (A,)."""
+        return torch.from_numpy(self.kf.x.copy())
+
+    @property
+    def covariance(self) -> torch.Tensor:
+        """P (n, n), in the tangent coordinates at the mean."""
+        return torch.from_numpy(self.kf.P.copy())
+
+    def initialise(self, motion: Motion, start: int = 1) -> None:
+        """Start at frame ``start`` of a known motion (pose, g_start, g_{start-1} exact) with the
+        covariance of one transition from it, Q(s_start)."""
+        s0 = self.model.initial_states(motion, 1, torch.Generator(), start)[0]
+        self.initialise_states(s0, self.unscented.process_covariance(s0), start)
+
+    def initialise_states(self, mean, covariance, frame: int = 0) -> None:
+        """Start from a mean state (A,) and a covariance (n, n) in tangent coordinates at it."""
+        A, n = self.unscented.dim, self.unscented.tangent_dim
+        mean = torch.as_tensor(mean, dtype=torch.float64).cpu().numpy().copy()
+        covariance = torch.as_tensor(covariance, dtype=torch.float64).cpu().numpy().copy()
+        if mean.shape != (A,) or covariance.shape != (n, n):
+            raise PriortrackError(f"initial mean {mean.shape} and covariance {covariance.shape}: expected ({A},) and ({n}, {n})")
+        if not (np.isfinite(mean).all() and np.isfinite(covariance).all()):
+            raise PriortrackError("initial mean or covariance contains NaN or inf")
+        self.kf.x, self.kf.P = mean, covariance
+        self.initialised, self.frame = True, frame
+
+    def step(self, z) -> Snapshot:
+        """Consume the observation z of the next frame (``observation_shape``, NaN where missing).
+
+        Returns a Snapshot whose particles are the posterior's 2n + 1 sigma points, weights their
+        mean weights Wm (which may be negative), ess their count (they are not a weighted
+        sample), estimate and best the observed joints of the mean state (the central sigma
+        point), ancestors None; timings "predict", "weight" (the update), "estimate".
+        """
+        if not self.initialised:
+            raise PriortrackError("the filter is not initialised: call initialise(motion) first")
+        z = np.asarray(z, dtype=float)
+        if z.shape != tuple(self.unscented.observation_shape):
+            raise PriortrackError(f"observation has shape {z.shape}; expected {tuple(self.unscented.observation_shape)}")
+        kf, flags = self.kf, []
+        kf.repairs = 0
+        t0 = time.perf_counter()
+        kf.P, repaired = repaired_covariance(kf.P)
+        kf.repairs += repaired
+        kf.Q = self.unscented.process_covariance(torch.from_numpy(kf.x)).numpy()
+        kf.predict(UT=kf.transform_states)
+        t1 = time.perf_counter()
+        self._update(z.reshape(-1), flags)
+        t2 = time.perf_counter()
+        if kf.repairs:
+            flags.append("covariance-repaired")
+        sigmas = torch.from_numpy(kf.points_fn.sigma_points(kf.x, kf.P))
+        estimate = self.unscented.observe(torch.from_numpy(kf.x)[None])[0]
+        joints = self.unscented.observe(sigmas)
+        t3 = time.perf_counter()
+        self.frame += 1
+        return Snapshot(self.frame, sigmas, torch.from_numpy(kf.Wm.copy()), float(len(sigmas)), None,
+                        estimate.cpu().numpy(), estimate.cpu().numpy(), joints, flags,
+                        {"predict": t1 - t0, "weight": t2 - t1, "estimate": t3 - t2})
+
+    def _update(self, z: np.ndarray, flags: list[str]) -> None:
+        """The measurement update with z (m,) on the observed coordinates that every sigma point
+        can predict; then P in the coordinates at the new mean (Γ), repaired if need be."""
+        kf = self.kf
+        seen = np.isfinite(z)
+        if not seen.any():
+            flags.append("no-observation")
+            kf.update(None)
+            return
+        predicted = kf.measure(kf.sigmas_f)
+        usable = seen & np.isfinite(predicted).all(axis=0)
+        if (seen & ~usable).any():
+            flags.append("behind-camera")
+        if not usable.any():
+            flags.append("no-observation")
+            kf.update(None)
+            return
+        R = self.unscented.measurement_covariance.numpy()
+        x_prior = kf.x.copy()
+        kf.update(z[usable], R=R[np.ix_(usable, usable)], UT=unscented_transform, hx=_Rows(predicted[:, usable]))
+        gamma = self.unscented.transport(torch.from_numpy(x_prior), torch.from_numpy(kf.x)).numpy()
+        kf.P, repaired = repaired_covariance(gamma @ kf.P @ gamma.T)
+        kf.repairs += repaired
+
+    # run(observations, motion, keep_snapshots, progress) -> Track: initialise on the first two
+    # frames of ``motion`` and filter the rest. The particle filter's run loop, shared: it uses
+    # only ``initialise``, ``step`` and ``model.prior``.
+    run = ParticleFilter.run

@@ -1,0 +1,73 @@
+"""A linear-Gaussian state-space model with the filter interface, and the Kalman filter as its
+exact reference (shared by the particle and unscented filter tests)."""
+
+import numpy as np
+import torch
+
+
+class LinearGaussian:
+    """s_t = A s_{t-1} + N(0, Q), z_t = H s_t + N(0, R): the filter interface, linear.
+
+    Also keeps the unscented filter's interface (Euclidean: tangent coordinates are the state's
+    own, ⊞ = +, ⊟ = −, no change of coordinates between base points).
+    """
+
+    def __init__(self, A, Q, H, R):
+        self.A, self.Q, self.H, self.R = (torch.as_tensor(m, dtype=torch.float64) for m in (A, Q, H, R))
+        self.dim, self.observation_shape = self.A.shape[0], (self.H.shape[0],)
+        self.tangent_dim = self.dim
+        self.measurement_covariance = self.R
+        self.LQ = torch.linalg.cholesky(self.Q)
+
+    def predict(self, s, generator):
+        noise = torch.randn(s.shape, generator=generator, dtype=s.dtype) @ self.LQ.T
+        return s @ self.A.T + noise
+
+    def mean_step(self, s):
+        return s @ self.A.T
+
+    def observe(self, s):
+        return s @ self.H.T
+
+    def log_likelihood(self, predicted, z):
+        seen = torch.isfinite(z)
+        d = (z - predicted)[:, seen]
+        R = self.R[seen][:, seen]
+        return torch.distributions.MultivariateNormal(torch.zeros(len(R), dtype=d.dtype), R).log_prob(d)
+
+    def mean(self, s, weights):
+        return (weights[:, None] * s).sum(0) / weights.sum()
+
+    # the unscented filter's interface
+    def measure(self, s):
+        return self.observe(s)
+
+    def process_covariance(self, s):
+        return self.Q
+
+    def boxplus(self, s, v):
+        return s + v
+
+    def boxminus(self, s, base):
+        return s - base
+
+    def sigma_mean(self, s, w):
+        return w @ s
+
+    def transport(self, a, b):
+        return torch.eye(self.dim, dtype=torch.float64)
+
+
+def kalman(model, m0, P0, zs):
+    """The Kalman filter's (mean, covariance) after the observations zs (T, m), NaN = missing."""
+    A, Q, H, R = (m.numpy() for m in (model.A, model.Q, model.H, model.R))
+    m, P = m0.copy(), P0.copy()
+    for z in zs:
+        m, P = A @ m, A @ P @ A.T + Q
+        seen = np.isfinite(z)
+        if seen.any():
+            Hs, Rs = H[seen], R[np.ix_(seen, seen)]
+            S = Hs @ P @ Hs.T + Rs
+            K = np.linalg.solve(S, Hs @ P).T
+            m, P = m + K @ (z[seen] - Hs @ m), P - K @ S @ K.T
+    return m, P
