@@ -32,6 +32,9 @@ class TrackingModel:
 
     def __init__(self, prior: TransitionModel, global_motion: GlobalMotion, likelihood: JointLikelihood):
         self.prior, self.global_motion, self.likelihood = prior, global_motion, likelihood
+        #: The state space that decodes joints: the prior's, with the tracked subject's body
+        #: (bone lengths) once :meth:`initial_states` has seen the subject's known first frames.
+        self.body = prior.space
 
     @property
     def pose_dim(self) -> int:
@@ -61,7 +64,7 @@ class TrackingModel:
     def observe(self, s: torch.Tensor) -> torch.Tensor:
         """(P, S + 12) → (P, 15, 3) world joints, metres."""
         x, g, _ = self.split(s)
-        return to_world(self.prior.joints(x), g)
+        return to_world(self.body.joints(x), g)
 
     def log_likelihood(self, joints: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         """(P, 15, 3) world joints, z (15, 2) pixels with NaN → (P,) log p(z | joints)."""
@@ -70,10 +73,15 @@ class TrackingModel:
     def initial_states(self, motion: Motion, n: int, generator: torch.Generator, start: int = 1) -> torch.Tensor:
         """(n, S + 12) states around frame ``start`` of a known motion (its first two frames by
         default, as in the papers' experiments): the pose drawn by ``prior.initial``, the
-        placements g_start and g_{start-1} exact. Frames are counted at the prior's frame rate."""
+        placements g_start and g_{start-1} exact. Frames are counted at the prior's frame rate.
+
+        The known frames also give the subject's body: from here on joints are decoded with its
+        bone lengths (:meth:`StateSpace.for_body`), not the training subjects' (a 5% smaller
+        subject seen through the prior's body would be placed 5% too far from the camera)."""
         motion = motion if motion.fps == self.prior.fps else motion.resample(self.prior.fps)
         if not 1 <= start < len(motion):
             raise PriortrackError(f"initial frame {start} is outside [1, {len(motion) - 1}]")
+        self.body = self.prior.space.for_body(motion[start - 1:start + 1])
         x0 = self.prior.encode(motion[start:start + 1])[0]
         g = self.prior.space.global_pose(motion[start - 1:start + 1])
         x = self.prior.initial(x0, n, generator)
@@ -84,12 +92,12 @@ class TrackingModel:
         averaged, rotations by their chordal mean (the weighted sum of matrices projected
         onto SO(3) by SVD)."""
         x, g, g_prev = self.split(s)
-        w = weights / weights.sum()
+        w = (weights / weights.sum()).to(s)
         parts = [self.prior.space.mean(x, w)]
         for placement in (g, g_prev):
-            M = (w[:, None, None] * so3.exp(placement[:, 3:])).sum(0)
+            M = (w @ so3.exp(placement[:, 3:]).reshape(-1, 9)).reshape(3, 3)
             U, _, Vh = torch.linalg.svd(M)
             D = torch.ones(3, dtype=M.dtype, device=M.device)
             D[2] = torch.sign(torch.linalg.det(U @ Vh))
-            parts += [(w[:, None] * placement[:, :3]).sum(0), so3.log((U * D) @ Vh)]
+            parts += [w @ placement[:, :3], so3.log((U * D) @ Vh)]
         return torch.cat(parts)

@@ -281,6 +281,9 @@ class LatentSpace(EuclideanSpace):
         flat = x.reshape(-1, self.dim)
         return self.angles.joints(self.model.reconstruct(flat)[0]).reshape(x.shape[:-1] + (15, 3))
 
+    def for_body(self, motion: Motion) -> LatentSpace:
+        return LatentSpace(self.model, self.angles.for_body(motion))
+
     def to_arrays(self) -> dict[str, np.ndarray]:
         return self.angles.to_arrays()
 
@@ -432,6 +435,12 @@ class GPDM(TransitionModel):
     def mean(self, x) -> torch.Tensor:
         """(P, d) → (P, d) μ_X(x)."""
         return self.dynamics(x)[0]
+
+    def transition_covariance(self, x) -> torch.Tensor:
+        """(P, d) → (P, d, d) σ_X²(x) I_d, the covariance of x_t given x_{t−1} = x (the latent
+        space is Euclidean: its tangent coordinates are the latent coordinates)."""
+        var = self.dynamics(x)[1]
+        return var[:, None, None] * torch.eye(self.d, dtype=var.dtype, device=var.device)
 
     def rollout(self, x0, steps: int, generator: torch.Generator | None = None) -> torch.Tensor:
         """From x0 (P, d) (or (d,)), ``steps`` transitions: the mean path if ``generator`` is None,

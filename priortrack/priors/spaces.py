@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -63,6 +64,11 @@ class StateSpace(ABC):
         exp(ω) · joints(x) + t (:func:`priortrack.priors.global_motion.to_world`)."""
         raise PriortrackError(f"{type(self).__name__} has no global placement")
 
+    def for_body(self, motion: Motion) -> StateSpace:
+        """The same space decoding joints with the body (bone lengths) of ``motion``'s subject.
+        A space without body dimensions returns itself."""
+        return self
+
     @abstractmethod
     def boxplus(self, x: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         """x ⊞ v: the state reached from x (..., S) by the tangent step v (..., S)."""
@@ -105,7 +111,7 @@ class EuclideanSpace(StateSpace):
     def mean(self, x, weights=None):
         if weights is None:
             return x.mean(dim=0)
-        return (weights[:, None] * x).sum(dim=0) / weights.sum()
+        return weights.to(x) @ x / weights.sum()
 
 
 class AngleSpace(EuclideanSpace):
@@ -124,9 +130,10 @@ class AngleSpace(EuclideanSpace):
         self.group_names = tuple(dict.fromkeys(joint_of))
         self.groups = np.array([self.group_names.index(j) for j in joint_of])
         self.tangent_dims = np.bincount(self.groups, minlength=len(self.group_names))
-        # FK of the eval15 joints only needs their ancestors.
-        self._eval15_skeleton, self._eval15 = skeleton.pruned(eval15_indices(skeleton))
-        self._fk: dict[tuple, ForwardKinematics] = {}
+        # FK of the eval15 joints only needs their ancestors, read straight from a state row.
+        pruned, self._eval15 = skeleton.pruned(eval15_indices(skeleton))
+        self._state_skeleton, self._fixed = _driven_by_state(pruned, self.channels, self.reference)
+        self._fk: dict[tuple, tuple[ForwardKinematics, torch.Tensor]] = {}
 
     @classmethod
     def fit(cls, motions: Sequence[Motion]) -> AngleSpace:
@@ -161,13 +168,17 @@ class AngleSpace(EuclideanSpace):
 
     def joints(self, x: torch.Tensor) -> torch.Tensor:
         """Joints with the root at the origin and unrotated (its rest offset removed)."""
+        if x.shape[-1:] != (self.dim,):
+            raise PriortrackError(f"angle states have shape {tuple(x.shape)}; expected (..., {self.dim})")
         key = (x.device, x.dtype)
         if key not in self._fk:
-            self._fk[key] = ForwardKinematics(self._eval15_skeleton, device=x.device, dtype=x.dtype)
-        flat = self.channels_of(x).reshape(-1, self.skeleton.num_channels)
-        positions = self._fk[key](flat)[:, torch.as_tensor(self._eval15, device=x.device)]
-        positions = positions - torch.as_tensor(self.skeleton.offsets[0], dtype=x.dtype, device=x.device)
-        return positions.reshape(x.shape[:-1] + (len(EVAL15_NAMES), 3))
+            self._fk[key] = (ForwardKinematics(self._state_skeleton, device=x.device, dtype=x.dtype),
+                             torch.as_tensor(self._fixed, dtype=x.dtype, device=x.device))
+        fk, fixed = self._fk[key]
+        flat = x.reshape(-1, self.dim)
+        if len(fixed):
+            flat = torch.cat([flat, fixed.expand(len(flat), -1)], dim=1)
+        return fk(flat, joints=self._eval15).reshape(x.shape[:-1] + (len(EVAL15_NAMES), 3))
 
     def global_pose(self, motion: Motion) -> torch.Tensor:
         """t = the root's world position (rest offset + translation channels), ω = log of its rotation."""
@@ -177,6 +188,13 @@ class AngleSpace(EuclideanSpace):
         t = torch.as_tensor(motion.skeleton.offsets[0]).expand(len(motion), 3).clone()
         t[:, root >= 0] += channels[:, root[root >= 0]]
         return torch.cat([t, so3.log(fk.local_rotations(channels)[:, 0])], dim=-1)
+
+    def for_body(self, motion: Motion) -> AngleSpace:
+        """The same channels and reference pose on ``motion``'s skeleton (same channel layout)."""
+        if motion.skeleton.channel_names != self.skeleton.channel_names:
+            raise PriortrackError(f"motion {motion.name!r}: its skeleton's channels differ from the prior's "
+                                  f"({self.skeleton.name!r}); angle priors need the same layout")
+        return AngleSpace(motion.skeleton, self.channels, self.reference)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {**self.skeleton.to_arrays(), "space.channels": self.channels, "space.reference": self.reference}
@@ -207,6 +225,10 @@ class DirectionSpace(StateSpace):
 
     def encode(self, motion: Motion) -> torch.Tensor:
         return normalise(motion.positions("eval15")).directions.reshape(len(motion), -1)
+
+    def for_body(self, motion: Motion) -> DirectionSpace:
+        """Bone lengths of ``motion``'s subject (the mean over its frames)."""
+        return DirectionSpace(normalise(motion.positions("eval15")).lengths.mean(dim=0).numpy())
 
     def global_pose(self, motion: Motion) -> torch.Tensor:
         """t = the hip centre, ω = log of the body frame's world-from-body rotation Rᵀ."""
@@ -239,6 +261,28 @@ class DirectionSpace(StateSpace):
     @classmethod
     def from_arrays(cls, arrays) -> DirectionSpace:
         return cls(arrays["space.lengths"])
+
+
+def _driven_by_state(skeleton: Skeleton, channels: np.ndarray, reference: np.ndarray) -> tuple[Skeleton, np.ndarray]:
+    """``skeleton`` with its channels renumbered to read a row [x, f]: the state x (D,), whose
+    column i is channel ``channels[i]``, then the fixed values f (F,) (returned) of the other
+    channels it uses. Fixed channels at exactly zero are dropped (a zero angle or translation
+    moves nothing) and the root's rest offset is zeroed, so the root sits at the origin."""
+    C = skeleton.num_channels
+    used = np.concatenate([skeleton.rot_channels.ravel(), skeleton.trans_channels.ravel()])
+    modelled = set(int(c) for c in channels)
+    fixed = np.array([c for c in np.unique(used[used >= 0]) if c not in modelled and reference[c] != 0.0], dtype=int)
+    column = -np.ones(C + 1, dtype=int)                     # column[-1] = -1 keeps unused slots unused
+    column[channels] = np.arange(len(channels))
+    column[fixed] = len(channels) + np.arange(len(fixed))
+    rot_channels, trans_channels = column[skeleton.rot_channels], column[skeleton.trans_channels]
+    offsets = skeleton.offsets.copy()
+    offsets[0] = 0.0
+    names = tuple(skeleton.channel_names[c] for c in (*channels, *fixed))
+    state_skeleton = replace(skeleton, offsets=offsets, rot_channels=rot_channels, trans_channels=trans_channels,
+                             rot_axes=np.where((rot_channels >= 0)[..., None], skeleton.rot_axes, 0.0),
+                             channel_names=names)
+    return state_skeleton, reference[fixed]
 
 
 def _unwrapped(angles: np.ndarray) -> np.ndarray:
