@@ -20,4 +20,4 @@ demo: install
 	$(BIN)/priortrack replay cmu:07_01 --scenario occlusion --out walk.rrd
 
 test: install
-	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q

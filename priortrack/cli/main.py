@@ -138,7 +138,8 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.viz.replay import replay_track
 
     progress = _Progress(f"track {args.filter}", "frame {0} of {1}") if sys.stderr.isatty() else None
-    run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd), progress=progress)
+    run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd), progress=progress,
+                frames=args.frames)
     if progress:
         progress.close()
     if args.rrd:
@@ -309,6 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--scenario", default="clean",
                        help="NAME or NAME:key=value,... (clean, noise, dropout, occlusion, blackout, outliers)")
     track.add_argument("--seed", type=int, default=0, help="seeds the observations and the filter")
+    track.add_argument("--frames", type=int, help="track only the first N frames (at the prior's rate)")
     track.add_argument("--rrd", help="also write a rerun recording: truth, estimate, particle cloud, 2D observations")
     track.add_argument("--json", action="store_true")
     track.set_defaults(run=_track)

@@ -20,6 +20,7 @@ import torch
 
 from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import error_2d, mpjpe, mpjpe_root_relative
 from priortrack.filters.presets import Preset, load_preset
 from priortrack.filters.snapshot import Track
@@ -47,8 +48,10 @@ class TrackingRun:
 
 def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", seed: int = 0,
           keep_snapshots: bool = False, progress: Callable[[int, int], None] | None = None,
-          cache=None) -> TrackingRun:
+          cache=None, frames: int | None = None) -> TrackingRun:
     """Track ``motion`` with ``preset`` under ``scenario`` ("NAME" or "NAME:key=value,...").
+
+    ``frames`` keeps only the first frames (at the prior's rate) of the motion.
 
     Returns the result {"filter", "motion", "scenario", "frames", "mpjpe_mm", "mpjpe_root_rel_mm",
     "err2d_px", "seconds_per_frame", "mean_ess"} with the run behind it. The seed drives both the
@@ -57,6 +60,10 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     motion = load_motion(motion) if isinstance(motion, str) else motion
     motion = motion if motion.fps == preset.fps else motion.resample(preset.fps)
+    if frames is not None:
+        if frames < 3:
+            raise PriortrackError(f"frames must be at least 3 (two known, one tracked), got {frames}")
+        motion = motion[:frames]
     name, params = parse_scenario(scenario)
     X = motion.positions("eval15")
     camera = default_camera(X)
@@ -89,8 +96,6 @@ def eval_tracking(presets: Sequence[str] = TABLE_PRESETS, scenarios: Sequence[st
     "motions", "seeds", "seconds"}. ``progress`` sees every run's result row.
     """
     if seeds < 1:
-        from priortrack.errors import PriortrackError
-
         raise PriortrackError(f"seeds must be at least 1, got {seeds}")
     start = time.perf_counter()
     loaded = {name: load_motion(name) for name in motions}

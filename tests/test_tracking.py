@@ -1,0 +1,62 @@
+"""Tracking with the shipped presets: every one beats holding the first pose still; the track
+command's JSON and recording. Fitted priors are cached in .pytest_cache (see conftest.py); the
+tests share one xdist group so the GPDM is fitted once."""
+
+import json
+
+import numpy as np
+import pytest
+import rerun as rr
+
+from priortrack import PriortrackError
+from priortrack.cli.main import main
+from priortrack.experiments.metrics import mpjpe
+from priortrack.experiments.tracking import TABLE_PRESETS, track
+
+pytestmark = pytest.mark.xdist_group("presets")
+FRAMES = 40
+
+
+@pytest.mark.parametrize("preset", TABLE_PRESETS)
+def test_every_preset_tracks_a_held_out_walk_better_than_holding_still(preset):
+    run = track("walkjog:35_29", preset, "clean", seed=0, frames=FRAMES)
+    X = run.motion.positions("eval15")
+    still = mpjpe(np.repeat(X[1:2], FRAMES - 2, 0), X[2:]).mean()
+    assert np.isfinite(run.track.estimates).all()
+    assert run.result["mpjpe_mm"] < 0.5 * still, (run.result, still)
+    assert run.result["frames"] == FRAMES and run.result["seconds_per_frame"] > 0
+
+
+def _entities(path):
+    rows = {}
+    for chunk in rr.chunk.RrdReader(str(path)).stream().to_chunks():
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    return rows
+
+
+def test_track_command_prints_the_result_and_logs_the_cloud(tmp_path, capsys):
+    out = tmp_path / "track.rrd"
+    assert main(["track", "walkjog:35_29", "--filter", "pf-diffusion-local", "--scenario", "blackout",
+                 "--frames", "30", "--seed", "1", "--rrd", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result) >= {"filter", "motion", "scenario", "frames", "mpjpe_mm", "mpjpe_root_rel_mm", "err2d_px",
+                           "seconds_per_frame", "mean_ess"}
+    assert result["filter"] == "pf-diffusion-local" and result["frames"] == 30 and result["mpjpe_mm"] > 0
+    rows = _entities(out)
+    assert rows["/world/truth"] == 30 and rows["/world/estimate"] == 28
+    assert rows["/world/estimate/cloud"] == 28                  # one cloud per filtered frame
+    assert rows["/world/camera/image/observations"] == 30
+
+
+def test_all_missing_frames_are_flagged_and_carried():
+    run = track("walkjog:35_29", "pf-diffusion-local", "blackout:start_s=0.3,length_s=0.5", seed=0, frames=30)
+    flagged = [t for t, f in enumerate(run.track.flags) if "no-observation" in f]
+    assert flagged == list(range(9, 24))
+    assert np.isfinite(run.track.estimates).all()
+
+
+def test_bad_track_arguments(capsys):
+    assert main(["track", "walkjog:35_29", "--filter", "pf-nothing"]) == 2
+    assert "no preset 'pf-nothing'" in capsys.readouterr().err
+    with pytest.raises(PriortrackError, match="frames must be at least 3"):
+        track("walkjog:35_29", "pf-diffusion-local", frames=2)
