@@ -257,6 +257,25 @@ def test_fill_in_smoke_on_one_window(model):
     assert [w[0] for w in fill_in.windows(125)] == [(k * 75) // 11 for k in range(12)]
 
 
+def test_fill_floor_recovers_poses_between_training_frames(model):
+    # Poses on the model's manifold between training frames: the floor (each pose's own eq.-18
+    # latent, then μ_Y) reproduces them far better than the nearest training pose does.
+    x = 0.5 * (model.X[:-1] + model.X[1:])[::2]
+    y = model.reconstruct(x)[0].numpy()
+    nearest = torch.cdist(torch.as_tensor(y) - model.mean_pose, model.Y).argmin(dim=1)
+    nearest_error = fill_in.rms_degrees((model.Y[nearest] + model.mean_pose).numpy(), y)
+    floor_error = fill_in.rms_degrees(fill_in.fill_floor(model, y), y)
+    assert floor_error < 0.5 < 1.0 < nearest_error, (floor_error, nearest_error)
+
+
+def test_torch_threads_is_scoped():
+    before = torch.get_num_threads()
+    with pytest.raises(RuntimeError), fill_in.torch_threads(1):
+        assert torch.get_num_threads() == 1
+        raise RuntimeError
+    assert torch.get_num_threads() == before
+
+
 # ---- bad input ------------------------------------------------------------------------------
 
 def test_bad_input_raises(model):
