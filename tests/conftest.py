@@ -11,3 +11,11 @@ CACHE = Path(__file__).resolve().parents[1] / ".pytest_cache" / "priortrack-prio
 @pytest.fixture(autouse=True)
 def _prior_cache(monkeypatch):
     monkeypatch.setenv("PRIORTRACK_CACHE", str(CACHE))
+
+
+def pytest_configure(config):
+    """One torch thread per test process: `make test` runs two xdist workers on two cores, and
+    two-thread BLAS calls in each would oversubscribe them (a GPDM fit ran several times slower)."""
+    import torch
+
+    torch.set_num_threads(1)
