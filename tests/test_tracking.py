@@ -60,3 +60,16 @@ def test_bad_track_arguments(capsys):
     assert "no preset 'pf-nothing'" in capsys.readouterr().err
     with pytest.raises(PriortrackError, match="frames must be at least 3"):
         track("walkjog:35_29", "pf-diffusion-local", frames=2)
+
+
+def test_eval_tracking_table_and_ratios():
+    from priortrack.experiments.tracking import eval_tracking
+
+    result = eval_tracking(["pf-diffusion-local"], ["clean"], ["cmu:07_10"], seeds=2)
+    cell = result["table"]["pf-diffusion-local"]["clean"]
+    rows = [track("cmu:07_10", "pf-diffusion-local", "clean", seed).result["mpjpe_mm"] for seed in range(2)]
+    assert cell["runs"] == 2 and cell["mpjpe_mm"] == pytest.approx(np.mean(rows))
+    assert cell["mpjpe_mm_std"] == pytest.approx(np.std(rows, ddof=1))
+    assert result["ratios"]["mpjpe_mm"]["pf-diffusion-local"]["clean"] == pytest.approx(1.0)
+    with pytest.raises(PriortrackError, match="seeds must be at least 1"):
+        eval_tracking(["pf-diffusion-local"], seeds=0)

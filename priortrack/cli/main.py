@@ -166,16 +166,18 @@ def _eval_tracking(args: argparse.Namespace) -> None:
         _print_json(result)
         return
     scenarios = list(args.scenarios)
-    print(f"MPJPE (mm), mean ± std over {len(args.motions)} motions × {args.seeds} seeds; "
-          f"ratio to pf-diffusion-local in brackets")
-    print("| preset | " + " | ".join(scenarios) + " |")
-    print("|---|" + "---|" * len(scenarios))
-    for name, row in result["table"].items():
-        cells = []
-        for s in scenarios:
-            ratio = result["ratios"].get(name, {}).get(s)
-            cells.append(f"{row[s]['mpjpe_mm']:.0f} ± {row[s]['std_mm']:.0f}" + (f" ({ratio:.2f})" if ratio else ""))
-        print(f"| {name} | " + " | ".join(cells) + " |")
+    for key, label in (("mpjpe_mm", "MPJPE"), ("mpjpe_root_rel_mm", "root-relative MPJPE")):
+        print(f"{label} (mm), mean ± std over {len(args.motions)} motions × {args.seeds} seeds; "
+              f"ratio to pf-diffusion-local in brackets")
+        print("| preset | " + " | ".join(scenarios) + " |")
+        print("|---|" + "---|" * len(scenarios))
+        for name, row in result["table"].items():
+            cells = []
+            for s in scenarios:
+                ratio = result["ratios"].get(key, {}).get(name, {}).get(s)
+                cells.append(f"{row[s][key]:.0f} ± {row[s][key + '_std']:.0f}" + (f" ({ratio:.2f})" if ratio else ""))
+            print(f"| {name} | " + " | ".join(cells) + " |")
+        print()
 
 
 def _print_json(result: dict) -> None:

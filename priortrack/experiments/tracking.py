@@ -34,6 +34,13 @@ TABLE_SCENARIOS = ("clean:sigma_px=5", "occlusion:sigma_px=5", "blackout:sigma_p
 TABLE_PRESETS = ("pf-diffusion-global", "pf-diffusion-local", "pf-gpdm", "pf-lie", "apf-diffusion-local",
                  "ukf-diffusion-local", "ukf-gpdm", "map-gpdm")
 TABLE_SEEDS = 5
+#: The preset every other is compared with.
+BASELINE = "pf-diffusion-local"
+
+
+def _mean_std(rows: list[dict], key: str) -> dict[str, float]:
+    values = np.array([r[key] for r in rows])
+    return {key: float(values.mean()), f"{key}_std": float(values.std(ddof=1)) if len(values) > 1 else 0.0}
 
 
 @dataclass
@@ -91,9 +98,10 @@ def eval_tracking(presets: Sequence[str] = TABLE_PRESETS, scenarios: Sequence[st
                   progress: Callable[[dict], None] | None = None) -> dict:
     """The accuracy table: every preset × scenario, MPJPE mean ± std over motions × seeds.
 
-    Returns {"table": {preset: {scenario: {"mpjpe_mm", "std_mm", "root_rel_mm", "runs",
-    "seconds_per_frame"}}}, "ratios": {preset: {scenario: its MPJPE / pf-diffusion-local's}},
-    "motions", "seeds", "seconds"}. ``progress`` sees every run's result row.
+    Returns {"table": {preset: {scenario: {"mpjpe_mm", "mpjpe_mm_std", "mpjpe_root_rel_mm",
+    "mpjpe_root_rel_mm_std", "runs", "seconds_per_frame"}}}, "ratios": {"mpjpe_mm" or
+    "mpjpe_root_rel_mm": {preset: {scenario: its mean / pf-diffusion-local's}}}, "motions", "seeds",
+    "seconds"}. ``progress`` sees every run's result row.
     """
     if seeds < 1:
         raise PriortrackError(f"seeds must be at least 1, got {seeds}")
@@ -112,17 +120,15 @@ def eval_tracking(presets: Sequence[str] = TABLE_PRESETS, scenarios: Sequence[st
                     rows.append(row)
                     if progress:
                         progress(row)
-            errors = np.array([r["mpjpe_mm"] for r in rows])
             table[name][scenario] = {
-                "mpjpe_mm": float(errors.mean()), "std_mm": float(errors.std(ddof=1)) if len(errors) > 1 else 0.0,
-                "root_rel_mm": float(np.mean([r["mpjpe_root_rel_mm"] for r in rows])),
+                **_mean_std(rows, "mpjpe_mm"), **_mean_std(rows, "mpjpe_root_rel_mm"),
                 "seconds_per_frame": float(np.mean([r["seconds_per_frame"] for r in rows])),
                 "runs": len(rows),
             }
     ratios = {}
-    if "pf-diffusion-local" in table:
-        base = table["pf-diffusion-local"]
-        ratios = {name: {s: row[s]["mpjpe_mm"] / base[s]["mpjpe_mm"] for s in row if s in base}
-                  for name, row in table.items()}
+    if BASELINE in table:
+        base = table[BASELINE]
+        ratios = {key: {name: {s: row[s][key] / base[s][key] for s in row if s in base} for name, row in table.items()}
+                  for key in ("mpjpe_mm", "mpjpe_root_rel_mm")}
     return {"table": table, "ratios": ratios, "motions": list(motions), "seeds": seeds,
             "seconds": time.perf_counter() - start}
