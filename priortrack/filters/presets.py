@@ -145,7 +145,9 @@ class Preset:
 
         prior = self.prior(cache, progress)
         model = TrackingModel(prior, self.global_motion(prior), self.likelihood(camera))
-        return filter_class(self.filter_kind)(model, seed=seed, **self.filter_options)
+        cls = filter_class(self.filter_kind)
+        seeded = {"seed": seed} if "seed" in inspect.signature(cls.__init__).parameters else {}  # the UKF is deterministic
+        return cls(model, **seeded, **self.filter_options)
 
 
 def cache_dir() -> Path:
