@@ -2,11 +2,27 @@
 
 For every joint (see :mod:`priortrack.body.skeleton`)
 
-    L_j = Π_k R_{a_k}(θ_k),   R_a(θ) = I + sin θ [a]_× + (1 − cos θ) [a]_×²   (Rodrigues),
-    G_j = G_parent · L_j,     p_j = p_parent + G_parent · (o_j + T_j).
+    L_j = Π_k R_{a_k}(θ_k),   G_j = G_parent · L_j,   p_j = p_parent + G_parent · (o_j + T_j).
 
-All joints' local rotations are built at once; the tree is then walked one depth level at a
-time, so a skeleton of depth D costs D batched 3×3 products, whatever the batch size.
+A joint's axes are taken as signed columns of an orthonormal frame C built from them:
+a_k = σ_k C e_k, the first axis the first column, the second (orthogonal to it) the second,
+their cross product the third (an ASF bone's axis matrix up to signs; the coordinate axes of a
+BVH joint in its channel order). Then R_{a_k}(θ) = C R_k(σ_k θ) Cᵀ, R_k the rotation about
+coordinate axis k, and carrying H_j = G_j C_j instead of G_j,
+
+    H_j = H_parent · (C_parentᵀ C_j) · R_0(σ_0 θ_0) R_1(σ_1 θ_1) R_2(σ_2 θ_2),
+    p_j = p_parent + H_parent · (C_parentᵀ (o_j + T_j)),           G_j = H_j C_jᵀ,
+
+a constant 3×3 product and, per angle, a plane rotation of two columns of H,
+(h_p, h_q) ← (c h_p + s h_q, c h_q − s h_p) with (p, q) = (k + 1, k + 2) mod 3,
+c = cos σθ, s = sin σθ. Axes that are not such a triad (a repeated axis, non-orthogonal
+axes) start a new frame: the joint becomes a chain of such segments at zero offset.
+
+The tree of segments is walked one depth level at a time, the segments of a level sorted by
+their number of angles, so that one batched product places all children, one applies all
+frame changes and four multiply-adds apply the k-th rotation of every segment that has one.
+Tensors are batch-last, a matrix as its columns (3, 3, B), so that every elementwise
+operation runs over the contiguous batch.
 """
 
 from __future__ import annotations
@@ -17,20 +33,35 @@ import torch
 from priortrack.body.skeleton import SLOTS, Skeleton, check_channels
 from priortrack.errors import PriortrackError
 
-
-def _cross_matrix(a: np.ndarray) -> np.ndarray:
-    """(..., 3) → (..., 3, 3) the matrix [a]_× with [a]_× v = a × v."""
-    K = np.zeros(a.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2] = -a[..., 2], a[..., 1]
-    K[..., 1, 0], K[..., 1, 2] = a[..., 2], -a[..., 0]
-    K[..., 2, 0], K[..., 2, 1] = -a[..., 1], a[..., 0]
-    return K
+#: An axis within this (max-norm) of a signed frame column rotates about that column.
+_ALIGNED = 1e-12
 
 
-def _matmul3(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) @ (..., 3, 3) as three broadcast multiply-adds: on CPU much faster than
-    a batched matmul for millions of 3×3 products."""
-    return A[..., :, 0:1] * B[..., 0:1, :] + A[..., :, 1:2] * B[..., 1:2, :] + A[..., :, 2:3] * B[..., 2:3, :]
+def _frame_from(first: np.ndarray, second: np.ndarray | None) -> np.ndarray:
+    """The orthonormal frame (det +1) [first, second, first × second]; any unit vector
+    orthogonal to ``first`` where ``second`` is None or not orthogonal to it."""
+    if second is None or abs(second @ first) >= _ALIGNED:
+        second = np.cross(first, np.eye(3)[np.argmin(np.abs(first))])
+        second = second / np.linalg.norm(second)
+    return np.stack([first, second, np.cross(first, second)], axis=1)
+
+
+def _segments(skeleton: Skeleton, j: int) -> list[tuple[np.ndarray, list[tuple[int, float]]]]:
+    """Joint j's segments [(frame C (3, 3), [(channel, σ_k)] with a_k = σ_k C e_k)]."""
+    used = [k for k in range(SLOTS) if skeleton.rot_channels[j, k] >= 0]
+    axes = [skeleton.rot_axes[j, k] for k in used]
+    segments: list[tuple[np.ndarray, list]] = []
+    for k, a in enumerate(axes):
+        channel = int(skeleton.rot_channels[j, used[k]])
+        if segments and len(segments[-1][1]) < 3:
+            frame, slots = segments[-1]
+            column = frame[:, len(slots)]
+            sign = 1.0 if np.abs(a - column).max() < _ALIGNED else -1.0 if np.abs(a + column).max() < _ALIGNED else 0.0
+            if sign:
+                slots.append((channel, sign))
+                continue
+        segments.append((_frame_from(a, axes[k + 1] if k + 1 < len(axes) else None), [(channel, 1.0)]))
+    return segments
 
 
 class ForwardKinematics:
@@ -41,9 +72,6 @@ class ForwardKinematics:
         fk = ForwardKinematics(skeleton, dtype=torch.float32)
         positions = fk(channels)          # (B, C) → (B, J, 3), metres
         positions, G = fk(channels, rotations=True)   # G: (B, J, 3, 3) global rotations
-
-    Internally tensors are joint-major, (J, B, 3, 3), so that gathering the parents of a
-    depth level copies contiguous blocks.
     """
 
     def __init__(self, skeleton: Skeleton, device: str | torch.device = "cpu",
@@ -53,53 +81,72 @@ class ForwardKinematics:
         self.dtype = dtype
         as_t = lambda a, **kw: torch.as_tensor(a, device=self.device, **kw)  # noqa: E731
         J = skeleton.num_joints
-        used = skeleton.rot_channels >= 0
-        # Every used rotation slot, joint-major: its channel and [a]×, [a]×² of its axis.
-        self._slot_channel = as_t(skeleton.rot_channels[used])
-        K = _cross_matrix(skeleton.rot_axes[used])[:, None]            # (N, 1, 3, 3)
-        self._K, self._K2 = as_t(K, dtype=dtype), as_t(K @ K, dtype=dtype)
-        # L_j = Π_k E_{slot(j, k)}: for slot position k, which joints have it and where.
-        slot_id = -np.ones_like(skeleton.rot_channels)
-        slot_id[used] = np.arange(used.sum())
-        self._rotating = as_t(np.flatnonzero(used[:, 0]))
-        self._slots = [(as_t(np.flatnonzero(used[used[:, 0], k])), as_t(slot_id[used[:, k], k]))
-                       for k in range(SLOTS)]
-        self._offsets = as_t(skeleton.offsets[:, None, :], dtype=dtype)   # (J, 1, 3)
-        trans = skeleton.trans_channels
-        self._translated = as_t(np.flatnonzero(np.any(trans >= 0, axis=1)))
-        self._trans_index = as_t(np.where(trans < 0, skeleton.num_channels, trans)[np.any(trans >= 0, axis=1)])
-        depth = np.zeros(J, dtype=int)
-        for j in range(1, J):
-            depth[j] = depth[skeleton.parents[j]] + 1
-        # Joints grouped by depth; each level's parents indexed within the previous level.
-        self._levels: list[tuple[torch.Tensor, torch.Tensor]] = []
-        order: list[int] = []
-        previous: list[int] = []
+        # Nodes (segments), parents first: parent node (-1: the world), offset in the parent's
+        # frame, the joint whose translation channels it adds (-1: none), C_parentᵀ C, angles.
+        parent, offset, translated, A_T, slots = [], [], [], [], []
+        frames = np.zeros((J, 3, 3))
+        first, last = np.zeros(J, dtype=int), np.zeros(J, dtype=int)
+        for j in range(J):
+            C = frames[skeleton.parents[j]] if j else np.eye(3)
+            first[j] = len(parent)
+            for k, (frame, angles) in enumerate(_segments(skeleton, j) or [(C, [])]):
+                parent.append(len(parent) - 1 if k else last[skeleton.parents[j]] if j else -1)
+                offset.append(np.zeros(3) if k else C.T @ skeleton.offsets[j])
+                translated.append(j if not k and np.any(skeleton.trans_channels[j] >= 0) else -1)
+                A_T.append((C.T @ frame).T)
+                slots.append(angles)
+                C = frame
+            frames[j], last[j] = C, len(parent) - 1
+        depth = np.zeros(len(parent), dtype=int)
+        for v, u in enumerate(parent):
+            depth[v] = depth[u] + 1 if u >= 0 else 0
+        has_children = np.isin(np.arange(len(parent)), parent)
+        # Levels: rotating nodes first (most angles first), then those that pass their parent's
+        # H to children, then the other leaves (positions only). Angle rows by level, then k,
+        # then node; a rotating node with fewer than k + 1 angles gets θ = 0 there (σ = 0 times
+        # its own first angle, so that a NaN stays in its joint), an exact identity (c = 1,
+        # s = 0), so every step turns all the level's rotating nodes.
+        place, row = np.zeros(len(parent), dtype=int), np.zeros(len(parent), dtype=int)
+        frame_row = np.zeros(len(parent), dtype=int)          # the row of the H each node uses
+        slot_channel, slot_sign = [], []
+        self._levels = []
+        kept_before = 0
         for d in range(depth.max() + 1):
-            joints = [int(j) for j in np.flatnonzero(depth == d)]
-            parent_pos = [previous.index(skeleton.parents[j]) for j in joints] if d else []
-            self._levels.append((as_t(joints), as_t(parent_pos, dtype=torch.long)))
-            order += joints
-            previous = joints
-        self._inverse_order = as_t(np.argsort(order))
-
-    def _local(self, channels: torch.Tensor) -> torch.Tensor:
-        """(B, C) → (J, B, 3, 3) local rotations, R_a(θ) = I + sin θ [a]× + (1 − cos θ) [a]×²."""
-        B = channels.shape[0]
-        theta = channels[:, self._slot_channel].T[..., None, None]        # (N, B, 1, 1)
-        E = torch.sin(theta) * self._K + (1.0 - torch.cos(theta)) * self._K2
-        E.diagonal(dim1=-2, dim2=-1).add_(1.0)
-        L = torch.eye(3, dtype=self.dtype, device=self.device).repeat(self.skeleton.num_joints, B, 1, 1)
-        rotating = E[self._slots[0][1]]
-        for joints, slots in self._slots[1:]:
-            rotating[joints] = _matmul3(rotating[joints], E[slots])
-        L[self._rotating] = rotating
-        return L
-
-    def local_rotations(self, channels) -> torch.Tensor:
-        """(B, C) channels → (B, J, 3, 3) local rotations L_j."""
-        channels = self._as_batch(channels)
-        return self._local(channels).transpose(0, 1)
+            nodes = sorted(np.flatnonzero(depth == d), key=lambda v: (-len(slots[v]), not has_children[v]))
+            row[nodes] = np.sum(depth < d)
+            place[nodes] = np.arange(len(nodes))
+            up = place[[parent[v] for v in nodes]] if d else np.zeros(len(nodes), dtype=int)
+            r = sum(bool(slots[v]) for v in nodes)
+            kept = r + sum(not slots[v] and (has_children[v] or not d) for v in nodes)
+            for i, v in enumerate(nodes):
+                frame_row[v] = kept_before + i if i < kept else frame_row[parent[v]]
+            kept_before += kept
+            steps = []
+            for k in range(max((len(slots[v]) for v in nodes), default=0)):
+                steps.append((len(slot_channel), (k + 1) % 3, (k + 2) % 3))
+                slot_channel += [slots[v][min(k, len(slots[v]) - 1)][0] for v in nodes[:r]]
+                slot_sign += [slots[v][k][1] if k < len(slots[v]) else 0.0 for v in nodes[:r]]
+            self._levels.append({
+                # the parents' places in the level above: a slice where consecutive
+                "parents": slice(up[0], up[0] + len(up)) if np.all(np.diff(up) == 1) else as_t(up),
+                "offsets": as_t(np.array([offset[v] for v in nodes])[:, None, :], dtype=dtype),  # (n, 1, 3)
+                "A_T": as_t(np.array([A_T[v] for v in nodes[:r]]).reshape(-1, 3, 3), dtype=dtype),
+                "steps": steps,                     # per k: (first angle row, p, q)
+                "kept": kept,                       # nodes whose H is kept (rotating, then passing)
+                # (place, joint, C_parentᵀ) of the nodes that add a joint's translation channels
+                "translated": [(as_t([i]), translated[v], as_t(frames[skeleton.parents[translated[v]]].T.copy()
+                                                            if translated[v] else np.eye(3), dtype=dtype))
+                               for i, v in enumerate(nodes) if translated[v] >= 0],
+            })
+        self._frames = as_t(frames, dtype=dtype)                                  # C_j (J, 3, 3)
+        self._slot_channel = as_t(np.array(slot_channel, dtype=np.int64))
+        self._slot_sign = as_t(np.array(slot_sign)[:, None], dtype=dtype)        # (N, 1)
+        self._trans_index = as_t(np.maximum(skeleton.trans_channels, 0))          # (J, 3)
+        self._trans_used = as_t((skeleton.trans_channels >= 0)[:, :, None], dtype=dtype)   # (J, 3, 1)
+        self._position_node = as_t(row[first] + place[first])                      # (J,) rows of all nodes
+        self._frame_node = as_t(frame_row[last])                                   # (J,) rows of kept H
+        self._depth = depth[last]                                                  # (J,) level of each joint's H
+        self._rotating = np.array([any(slots[v] for v in range(first[j], last[j] + 1)) for j in range(J)])
 
     def _as_batch(self, channels) -> torch.Tensor:
         channels = torch.as_tensor(channels, dtype=self.dtype, device=self.device)
@@ -109,37 +156,85 @@ class ForwardKinematics:
                                   f"{self.skeleton.num_channels}) or ({self.skeleton.num_channels},)")
         return channels
 
-    def __call__(self, channels, rotations: bool = False):
+    def _world(self, channels: torch.Tensor, levels: int | None = None) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """Every node's position (nodes, 3, B) and, per level, the kept H as columns
+        (kept, 3, 3, B), level by level (the first ``levels`` levels only, if given)."""
+        B = channels.shape[0]
+        theta = channels.T.index_select(0, self._slot_channel) * self._slot_sign   # (N, B)
+        cos, sin = torch.cos(theta)[:, None], torch.sin(theta)[:, None]          # (N, 1, B)
+        H = torch.eye(3, dtype=self.dtype, device=self.device).view(1, 3, 3, 1).expand(1, 3, 3, B)
+        p = torch.zeros(1, 3, B, dtype=self.dtype, device=self.device)
+        positions, frames = [], []
+        for level in self._levels[:levels]:
+            up = level["parents"]
+            if isinstance(up, slice):
+                H_parent, p_parent = H[up], p[up]
+            else:
+                H_parent, p_parent = H.index_select(0, up), p.index_select(0, up)
+            n = len(H_parent)
+            p = torch.baddbmm(p_parent.reshape(n, 1, -1), level["offsets"], H_parent.reshape(n, 3, -1)).view(n, 3, B)
+            for i, j, frame_T in level["translated"]:
+                T = frame_T @ (channels.T[self._trans_index[j]] * self._trans_used[j])   # C_parentᵀ T_j (3, B)
+                p = p.index_add(0, i, (H_parent[i] * T[:, None, :]).sum(1))
+            r, kept = len(level["A_T"]), level["kept"]
+            if r:
+                columns = list(torch.bmm(level["A_T"], H_parent[:r].reshape(r, 3, -1)).view(r, 3, 3, B).unbind(1))
+                for start, p_, q in level["steps"]:
+                    c, s = cos[start:start + r], sin[start:start + r]
+                    columns[p_], columns[q] = torch.addcmul(columns[p_] * c, columns[q], s), \
+                        torch.addcmul(columns[q] * c, columns[p_], s, value=-1.0)
+                H = torch.stack(columns, 1)
+                H = torch.cat([H, H_parent[r:kept]]) if r < kept else H
+            else:
+                H = H_parent[:kept]
+            positions.append(p)
+            frames.append(H.expand(kept, 3, 3, B))
+        return torch.cat(positions), frames
+
+    def _chosen(self, joints) -> np.ndarray:
+        J = self.skeleton.num_joints
+        chosen = np.arange(J) if joints is None else np.asarray(joints, dtype=int).reshape(-1)
+        if len(chosen) and not 0 <= chosen.min() <= chosen.max() < J:
+            raise PriortrackError(f"joints {chosen.tolist()} outside the skeleton's {J} joints")
+        return chosen
+
+    def _rotations(self, frames: list[torch.Tensor], chosen: np.ndarray) -> torch.Tensor:
+        """G_j = H_j C_jᵀ (B, K, 3, 3) of the chosen joints."""
+        H = torch.cat(frames).index_select(0, self._frame_node[chosen])
+        return torch.einsum("jmib,jkm->bjik", H, self._frames[chosen])
+
+    def local_rotations(self, channels, joints=None) -> torch.Tensor:
+        """(B, C) channels → (B, J, 3, 3) local rotations L_j = G_parentᵀ G_j (L_root = G_root,
+        exactly I for a joint without rotation channels); (B, K, 3, 3) for ``joints`` (K,)."""
+        channels = self._as_batch(channels)
+        chosen = self._chosen(joints)
+        _, frames = self._world(channels, int(self._depth[chosen].max(initial=0)) + 1)
+        parents = self.skeleton.parents[chosen]
+        G = self._rotations(frames, np.concatenate([chosen, np.maximum(parents, 0)]))
+        G, G_parent = G[:, :len(chosen)], G[:, len(chosen):]
+        L = torch.where(torch.as_tensor(parents >= 0, device=self.device)[:, None, None],
+                        G_parent.transpose(-1, -2) @ G, G)
+        eye = torch.eye(3, dtype=self.dtype, device=self.device)
+        return torch.where(torch.as_tensor(self._rotating[chosen], device=self.device)[:, None, None], L, eye)
+
+    def __call__(self, channels, rotations: bool = False, joints=None):
         """Joint positions (B, J, 3) in metres (and global rotations (B, J, 3, 3) if asked).
 
         Args:
             channels: (B, C) or (C,) tensor or array, translations in metres, rotations in
                 radians, in ``skeleton.channel_names`` order.
+            joints: indices (K,) of the joints to return, (B, K, 3) (default all).
         """
         single = torch.as_tensor(channels).dim() == 1
         channels = self._as_batch(channels[None] if single else channels)
-        B = channels.shape[0]
-        L = self._local(channels)
-        t = self._offsets.expand(-1, B, -1)
-        if len(self._translated):
-            padded = torch.nn.functional.pad(channels, (0, 1))
-            t = t.clone()
-            t[self._translated] += padded[:, self._trans_index.reshape(-1)].T.reshape(-1, 3, B).transpose(1, 2)
-        joints, _ = self._levels[0]
-        G_level, p_level = L[joints], t[joints]
-        G_parts, p_parts = [G_level], [p_level]
-        for joints, parent_pos in self._levels[1:]:
-            G_parent = G_level[parent_pos]
-            p_level = p_level[parent_pos] + (G_parent * t[joints][..., None, :]).sum(-1)
-            G_level = _matmul3(G_parent, L[joints])
-            G_parts.append(G_level)
-            p_parts.append(p_level)
-        positions = torch.cat(p_parts)[self._inverse_order].transpose(0, 1)
+        chosen = self._chosen(joints)
+        p, frames = self._world(channels)
+        positions = p.index_select(0, self._position_node[torch.as_tensor(chosen)]).permute(2, 0, 1).contiguous()
         if single:
             positions = positions[0]
         if not rotations:
             return positions
-        G = torch.cat(G_parts)[self._inverse_order].transpose(0, 1)
+        G = self._rotations(frames, chosen)
         return positions, (G[0] if single else G)
 
 

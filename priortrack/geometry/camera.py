@@ -320,12 +320,12 @@ class PinholeCamera:
         if not points.is_floating_point():
             points = points.to(torch.float64)
         P, p = self._projection_for(points.device, points.dtype)
-        h = torch.matmul(points, P.transpose(0, 1)) + p
+        h = torch.addmm(p, points.reshape(-1, 3), P.transpose(0, 1)).view(points.shape)
         z = h[..., 2]
         in_front = z > MIN_DEPTH
-        z_safe = torch.where(in_front, z, torch.ones_like(z))
+        z_safe = torch.where(in_front, z, 1.0)
         uv = h[..., :2] / z_safe.unsqueeze(-1)
-        uv = torch.where(in_front.unsqueeze(-1), uv, torch.full_like(uv, float("nan")))
+        uv = torch.where(in_front.unsqueeze(-1), uv, float("nan"))
         return uv, in_front
 
     @staticmethod

@@ -1,8 +1,10 @@
-"""Rotations as rotation vectors: exp and log maps of SO(3), batched in torch.
+"""Rotations as rotation vectors: exp and log maps of SO(3), batched in torch, and the same
+maps to and from unit quaternions, which compose a batch of rotations more cheaply than matrices.
 
 exp(ω) = I + sin θ [u]× + (1 − cos θ) [u]×²,  θ = |ω|, u = ω/θ   (Rodrigues);
 log(R) = θ u with cos θ = (tr R − 1)/2, taken from the skew part for θ < π/2 and from the
 symmetric part R + Rᵀ = 2 cos θ I + 2 (1 − cos θ) u uᵀ near θ = π, so both ends are accurate.
+Both are written entry by entry over the batch (no 3 × 3 products).
 """
 
 from __future__ import annotations
@@ -17,46 +19,90 @@ def _check(x: torch.Tensor, shape: tuple[int, ...], name: str) -> None:
         raise PriortrackError(f"{name} has shape {tuple(x.shape)}; expected (..., {', '.join(map(str, shape))})")
 
 
-def hat(w: torch.Tensor) -> torch.Tensor:
-    """(..., 3) → (..., 3, 3) the skew matrix [w]× with [w]× v = w × v."""
-    zero = torch.zeros_like(w[..., 0])
-    return torch.stack([
-        torch.stack([zero, -w[..., 2], w[..., 1]], -1),
-        torch.stack([w[..., 2], zero, -w[..., 0]], -1),
-        torch.stack([-w[..., 1], w[..., 0], zero], -1),
-    ], -2)
-
-
 def exp(w: torch.Tensor) -> torch.Tensor:
-    """Rotation vectors (..., 3) → rotation matrices (..., 3, 3)."""
+    """Rotation vectors (..., 3) → rotation matrices (..., 3, 3).
+
+    Written out entry by entry, I + a [w]× + b [w]×² with [w]×² = w wᵀ − θ² I,
+    a = sin θ / θ and b = (1 − cos θ) / θ² (their Taylor series below θ = 10⁻⁴), so that
+    every operation runs over the batch rather than over 3 × 3 blocks.
+    """
     _check(w, (3,), "rotation vector")
-    theta_sq = (w * w).sum(-1, keepdim=True)[..., None]
-    theta = theta_sq.sqrt()
+    x, y, z = w.unbind(-1)
+    xx, yy, zz = x * x, y * y, z * z
+    theta_sq = xx + yy + zz
     small = theta_sq < 1e-8
-    safe = torch.where(small, torch.ones_like(theta), theta)
+    safe = torch.where(small, torch.ones_like(theta_sq), theta_sq).sqrt()
     a = torch.where(small, 1 - theta_sq / 6, torch.sin(safe) / safe)              # sin θ / θ
     b = torch.where(small, 0.5 - theta_sq / 24, (1 - torch.cos(safe)) / safe ** 2)  # (1 − cos θ) / θ²
-    K = hat(w)
-    return torch.eye(3, dtype=w.dtype, device=w.device) + a * K + b * (K @ K)
+    ax, ay, az = a * x, a * y, a * z
+    bxy, bxz, byz = b * x * y, b * x * z, b * y * z
+    return torch.stack([1 - b * (yy + zz), bxy - az, bxz + ay,
+                        bxy + az, 1 - b * (xx + zz), byz - ax,
+                        bxz - ay, byz + ax, 1 - b * (xx + yy)], -1).unflatten(-1, (3, 3))
 
 
 def log(R: torch.Tensor) -> torch.Tensor:
     """Rotation matrices (..., 3, 3) → rotation vectors (..., 3) with |ω| ∈ [0, π]."""
     _check(R, (3, 3), "rotation matrix")
-    skew = 0.5 * torch.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
-                              R[..., 1, 0] - R[..., 0, 1]], -1)                  # sin θ · u
-    cos = ((R.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R.flatten(-2).unbind(-1)
+    skew = 0.5 * torch.stack([R21 - R12, R02 - R20, R10 - R01], -1)                # sin θ · u
+    cos = ((R00 + R11 + R22 - 1) / 2).clamp(-1, 1)
     sin = skew.norm(dim=-1)
     theta = torch.atan2(sin, cos)
     # Small and moderate angles: ω = θ / sin θ · (sin θ u).
     scale = torch.where(sin < 1e-12, torch.ones_like(theta), theta / sin.clamp_min(1e-300))
     scale = torch.where(theta < 1e-6, 1 + theta ** 2 / 6, scale)
-    near_pi = cos < 0
-    # Near π: u uᵀ = (R + Rᵀ − 2 cos θ I) / (2 (1 − cos θ)); take the largest column, sign from skew.
-    S = (R + R.transpose(-1, -2)) / 2 - cos[..., None, None] * torch.eye(3, dtype=R.dtype, device=R.device)
-    S = S / (1 - cos).clamp_min(1e-300)[..., None, None]
-    column = S.diagonal(dim1=-2, dim2=-1).argmax(-1)
-    u = torch.take_along_dim(S, column[..., None, None].expand(*column.shape, 3, 1), dim=-1)[..., 0]
+    # Near π: u uᵀ = S = (R + Rᵀ − 2 cos θ I) / (2 (1 − cos θ)); take the column of S with the
+    # largest diagonal entry, its sign from the skew part.
+    inv = 1 / (1 - cos).clamp_min(1e-300)
+    S00, S11, S22 = (R00 - cos) * inv, (R11 - cos) * inv, (R22 - cos) * inv
+    S01, S02, S12 = (R01 + R10) / 2 * inv, (R02 + R20) / 2 * inv, (R12 + R21) / 2 * inv
+    column = torch.stack([S00, S11, S22], -1).argmax(-1)[..., None]
+    u = torch.where(column == 0, torch.stack([S00, S01, S02], -1),
+                    torch.where(column == 1, torch.stack([S01, S11, S12], -1), torch.stack([S02, S12, S22], -1)))
     u = u / u.norm(dim=-1, keepdim=True).clamp_min(1e-300)
     u = torch.where((u * skew).sum(-1, keepdim=True) < 0, -u, u)
-    return torch.where(near_pi[..., None], theta[..., None] * u, scale[..., None] * skew)
+    return torch.where((cos < 0)[..., None], theta[..., None] * u, scale[..., None] * skew)
+
+
+def quaternion(w: torch.Tensor) -> torch.Tensor:
+    """Rotation vectors (..., 3) → unit quaternions (..., 4), q = (cos θ/2, sin(θ/2) ω/θ), θ = |ω|.
+
+    q and −q are the same rotation; this one has a non-negative real part. The ratio
+    sin(θ/2)/θ is its Taylor series 1/2 − θ²/48 below θ = 10⁻⁴.
+    """
+    _check(w, (3,), "rotation vector")
+    x, y, z = w.unbind(-1)
+    theta_sq = x * x + y * y + z * z
+    small = theta_sq < 1e-8
+    half = 0.5 * torch.where(small, torch.ones_like(theta_sq), theta_sq).sqrt()
+    s = torch.where(small, 0.5 - theta_sq / 48, torch.sin(half) / (2 * half))     # sin(θ/2) / θ
+    c = torch.where(small, 1 - theta_sq / 8, torch.cos(half))
+    return torch.stack([c, s * x, s * y, s * z], -1)
+
+
+def quaternion_log(q: torch.Tensor) -> torch.Tensor:
+    """Unit quaternions (..., 4) → rotation vectors (..., 3) with |ω| ∈ [0, π]:
+    ω = 2 atan2(|v|, |w|) / |v| · sign(w) v for q = (w, v) (2 / |w| · sign(w) v as |v| → 0)."""
+    _check(q, (4,), "quaternion")
+    w, x, y, z = q.unbind(-1)
+    sign = torch.where(w < 0, -1.0, 1.0).to(q.dtype)
+    w = w * sign
+    n_sq = x * x + y * y + z * z
+    small = n_sq < 1e-16
+    n = torch.where(small, torch.ones_like(n_sq), n_sq).sqrt()
+    f = torch.where(small, 2 / w, 2 * torch.atan2(n, w) / n) * sign
+    return torch.stack([f * x, f * y, f * z], -1)
+
+
+def quaternion_product(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """The Hamilton product q r (..., 4), the rotation of q after that of r."""
+    a, b, c, d = q.unbind(-1)
+    e, f, g, h = r.unbind(-1)
+    return torch.stack([a * e - b * f - c * g - d * h, a * f + b * e + c * h - d * g,
+                        a * g - b * h + c * e + d * f, a * h + b * g - c * f + d * e], -1)
+
+
+def quaternion_conjugate(q: torch.Tensor) -> torch.Tensor:
+    """q* = (w, −v) (..., 4), the inverse rotation of a unit quaternion."""
+    return torch.cat([q[..., :1], -q[..., 1:]], -1)

@@ -49,12 +49,16 @@ class JointLikelihood:
         if joints.dim() != 3 or joints.shape[1:] != z.shape[:1] + (3,) or z.shape[-1:] != (2,):
             raise PriortrackError(f"joints {tuple(joints.shape)} and observation {tuple(z.shape)}: "
                                   f"expected (P, J, 3) and (J, 2)")
-        seen = torch.isfinite(z).all(dim=-1)                                 # (J,)
-        if not seen.any():
+        seen = torch.isfinite(z).all(dim=-1).nonzero()[:, 0]                  # observed joints
+        if not len(seen):
             return torch.zeros(joints.shape[0], dtype=joints.dtype, device=joints.device)
-        uv, in_front = self.camera.project(joints[:, seen])
-        d_sq = ((uv - z[seen]) ** 2).sum(dim=-1)
-        d_sq = torch.where(in_front, d_sq, torch.full_like(d_sq, self._miss_sq))
+        uv, in_front = self.camera.project(joints.index_select(1, seen))
+        d = uv - z[seen]
+        d_sq = torch.addcmul(d[..., 0] * d[..., 0], d[..., 1], d[..., 1])
+        d_sq = torch.where(in_front, d_sq, self._miss_sq)
+        if self.robust_nu is None:      # the Gaussian's sum over joints, taken before its affine map
+            var = self.sigma_px ** 2
+            return -0.5 / var * d_sq.sum(dim=-1) - len(seen) * math.log(2 * math.pi * var)
         return self.per_joint(d_sq).sum(dim=-1)
 
     def per_joint(self, d_sq: torch.Tensor) -> torch.Tensor:

@@ -10,6 +10,7 @@ placement is predicted at constant velocity and perturbed by Gaussian noise:
 
 the rotation's constant-velocity step taken on SO(3) and its noise a world-frame rotation
 vector. σ_t and σ_ω (per axis) are fitted by maximum likelihood to training placements.
+Rotations are composed as unit quaternions (:func:`priortrack.geometry.so3.quaternion`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ SIGMA_FLOOR = 1e-4
 def to_world(body_joints: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     """X = exp(ω) · B + t: body joints (P, J, 3) placed by g (P, 6) → world joints (P, J, 3)."""
     R = so3.exp(g[:, 3:])
-    return body_joints @ R.transpose(-1, -2) + g[:, None, :3]
+    return torch.baddbmm(g[:, None, :3], body_joints, R.transpose(-1, -2))
 
 
 class GlobalMotion:
@@ -57,25 +58,32 @@ class GlobalMotion:
         return cls(torch.clamp(r.pow(2).mean(dim=0).sqrt(), min=SIGMA_FLOOR))
 
     @staticmethod
-    def predict(g1: torch.Tensor, g2: torch.Tensor) -> torch.Tensor:
+    def _predicted(g1: torch.Tensor, g2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """t̂_t (P, 3) and R̂_t as a unit quaternion q̂ = q_1 q_2* q_1 (P, 4) from g_{t-1}, g_{t-2}."""
+        q1 = so3.quaternion(g1[:, 3:])
+        q2_inverse = so3.quaternion_conjugate(so3.quaternion(g2[:, 3:]))
+        return 2 * g1[:, :3] - g2[:, :3], so3.quaternion_product(so3.quaternion_product(q1, q2_inverse), q1)
+
+    @classmethod
+    def predict(cls, g1: torch.Tensor, g2: torch.Tensor) -> torch.Tensor:
         """ĝ_t (P, 6) from g_{t-1}, g_{t-2} (P, 6): constant velocity in R³ and on SO(3)."""
-        R1, R2 = so3.exp(g1[:, 3:]), so3.exp(g2[:, 3:])
-        return torch.cat([2 * g1[:, :3] - g2[:, :3], so3.log(R1 @ R2.transpose(-1, -2) @ R1)], dim=-1)
+        t_hat, q_hat = cls._predicted(g1, g2)
+        return torch.cat([t_hat, so3.quaternion_log(q_hat)], dim=-1)
 
     @classmethod
     def residual(cls, g: torch.Tensor, g1: torch.Tensor, g2: torch.Tensor) -> torch.Tensor:
-        """(ε, η) (P, 6): the noise that takes ĝ_t to g_t."""
-        g_hat = cls.predict(g1, g2)
-        eta = so3.log(so3.exp(g[:, 3:]) @ so3.exp(g_hat[:, 3:]).transpose(-1, -2))
-        return torch.cat([g[:, :3] - g_hat[:, :3], eta], dim=-1)
+        """(ε, η) (P, 6): the noise that takes ĝ_t to g_t, η = log(R_t R̂_tᵀ)."""
+        t_hat, q_hat = cls._predicted(g1, g2)
+        eta = so3.quaternion_log(so3.quaternion_product(so3.quaternion(g[:, 3:]), so3.quaternion_conjugate(q_hat)))
+        return torch.cat([g[:, :3] - t_hat, eta], dim=-1)
 
     def sample(self, g1: torch.Tensor, g2: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """One draw of g_t (P, 6) per row of g_{t-1}, g_{t-2}."""
-        g_hat = self.predict(g1, g2)
-        noise = torch.randn(g_hat.shape, generator=generator, dtype=g_hat.dtype, device=g_hat.device)
-        noise = noise * self.sigma.to(g_hat)
-        rotation = so3.exp(noise[:, 3:]) @ so3.exp(g_hat[:, 3:])
-        return torch.cat([g_hat[:, :3] + noise[:, :3], so3.log(rotation)], dim=-1)
+        t_hat, q_hat = self._predicted(g1, g2)
+        noise = torch.randn(g1.shape, generator=generator, dtype=g1.dtype, device=g1.device)
+        noise = noise * self.sigma.to(g1)
+        rotation = so3.quaternion_product(so3.quaternion(noise[:, 3:]), q_hat)
+        return torch.cat([t_hat + noise[:, :3], so3.quaternion_log(rotation)], dim=-1)
 
     def log_prob(self, g: torch.Tensor, g1: torch.Tensor, g2: torch.Tensor) -> torch.Tensor:
         """(P,) log p(g_t | g_{t-1}, g_{t-2}), the Gaussian density of the residual (ε, η)."""

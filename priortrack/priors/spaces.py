@@ -187,7 +187,7 @@ class AngleSpace(EuclideanSpace):
         root = motion.skeleton.trans_channels[0]
         t = torch.as_tensor(motion.skeleton.offsets[0]).expand(len(motion), 3).clone()
         t[:, root >= 0] += channels[:, root[root >= 0]]
-        return torch.cat([t, so3.log(fk.local_rotations(channels)[:, 0])], dim=-1)
+        return torch.cat([t, so3.log(fk.local_rotations(channels, joints=[0])[:, 0])], dim=-1)
 
     def for_body(self, motion: Motion) -> AngleSpace:
         """The same channels and reference pose on ``motion``'s skeleton (same channel layout)."""

@@ -1,0 +1,158 @@
+"""Benchmark: particle-filter throughput, particle-steps per second, for each pose prior.
+
+A particle-step is one particle carried through everything a real filter step does
+(:meth:`priortrack.filters.particle.ParticleFilter.step`): the transition (pose prior and
+global motion), forward kinematics / decoding to joints, projection, the 2D likelihood, the
+weight normalisation and estimate, and resampling when the ESS falls below P/2. For P
+particles and a median step time t, the throughput is P / t.
+
+Setup, per prior: the prior is fitted on the subject-35 training walks of the bundled walk/jog
+set (the GPDM on their first ``gpdm_frames`` frames, :func:`priortrack.experiments.bench_gpdm.bench_walks`,
+so that its fit stays short), global motion by :meth:`GlobalMotion.fit` on the same walks, the
+likelihood a :class:`JointLikelihood` through :func:`priortrack.observation.default_camera`;
+observations are the ``noise`` scenario of the first test walk (the paper's eight joints). The
+filters of all priors start on that walk's first two frames and step through its frames in
+lockstep (diffusion, gpdm, lie, diffusion, …), so that machine noise hits every prior alike;
+fitting and the warm-up steps are not timed.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+
+import numpy as np
+import torch
+
+from priortrack.data.bundled import load_walkjog
+from priortrack.errors import PriortrackError
+from priortrack.experiments.bench_gpdm import bench_walks
+from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.tracking_model import TrackingModel
+from priortrack.observation import default_camera, synthesize
+from priortrack.observation.likelihood import JointLikelihood
+from priortrack.priors.base import TransitionModel
+from priortrack.priors.diffusion import Diffusion
+from priortrack.priors.global_motion import GlobalMotion
+from priortrack.priors.gpdm import GPDM
+from priortrack.priors.lie import LiePrior
+
+logger = logging.getLogger(__name__)
+
+#: The priors timed, in the order their filters are stepped.
+PRIORS = ("diffusion", "gpdm", "lie")
+#: The phases of :attr:`priortrack.filters.snapshot.Snapshot.timings`.
+PHASES = ("predict", "weight", "estimate", "resample")
+#: The dtypes the particles' forward kinematics may run in.
+JOINTS_DTYPES = {"float64": torch.float64, "float32": torch.float32}
+
+
+def bench_priors(seed: int = 0, gpdm_frames: int = 100) -> dict[str, TransitionModel]:
+    """The three priors of the benchmark, fitted on the bundled subject-35 training walks:
+    local Gaussian diffusion in angle space, a balanced GPDM (d = 3) on the first
+    ``gpdm_frames`` frames of those walks, and the Lie-algebra mixture."""
+    train = list(load_walkjog().walks("train"))
+    return {"diffusion": Diffusion.fit(train, local=True, space="angles"),
+            "gpdm": GPDM.fit(bench_walks(gpdm_frames), balanced=True, d=3, seed=seed),
+            "lie": LiePrior.fit(train, seed=seed)}
+
+
+def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: int = 2, warmup: int = 2,
+             gpdm_frames: int = 100, joints_dtype: str = "float64",
+             priors: dict[str, TransitionModel] | None = None) -> dict:
+    """Time ``steps`` particle-filter steps with ``particles`` particles for every prior.
+
+    Args:
+        particles: P.
+        steps: timed steps per prior (after ``warmup`` untimed ones); the test walk has 125
+            frames, so warmup + steps ≤ 123.
+        seed: seeds the fits, the observation noise and the filters.
+        threads: torch intra-op threads during the timed steps.
+        gpdm_frames: training frames of the GPDM (its step cost grows with them).
+        joints_dtype: "float64" (the states' own, the default of :class:`TrackingModel`) or
+            "float32": the dtype of the particles' forward kinematics
+            (``TrackingModel(joints_dtype=...)``).
+        priors: name → fitted prior, instead of :func:`bench_priors` (tests pass small ones).
+
+    Returns:
+        ``{"particles", "particle_steps_per_s": {prior: P / median step}, "ms_per_step":
+        {prior: median ms}, "ms_per_step_range": {prior: [min, max] ms}, "cpu_ms_per_step":
+        {prior: median process CPU ms, all threads}, "phases_ms": {prior: {phase: median ms}},
+        "resamples": {prior: count over the timed steps}, "steps", "threads", "load_average":
+        [1-minute load before, after], "dtype", "joints_dtype"}``; the phases are those of
+        ``Snapshot.timings`` (predict, weight = joints + projection + likelihood +
+        normalisation, estimate, resample).
+        On a machine busy with other work the wall time exceeds the CPU time (waiting for a
+        core, and intra-op threads waiting on each other): compare the two and the load.
+    """
+    if particles < 1 or steps < 1 or threads < 1 or warmup < 0:
+        raise PriortrackError(f"bench pf: particles, steps and threads must be positive and warmup ≥ 0 "
+                              f"(got {particles}, {steps}, {threads}, {warmup})")
+    if joints_dtype not in JOINTS_DTYPES:
+        raise PriortrackError(f"bench pf: joints_dtype must be one of {', '.join(JOINTS_DTYPES)}, got {joints_dtype!r}")
+    walk = load_walkjog().walks("test")[0]
+    if warmup + steps > len(walk) - 2:
+        raise PriortrackError(f"bench pf: warmup + steps = {warmup + steps} exceeds the {len(walk) - 2} "
+                              f"frames of the test walk {walk.name!r} after its two known frames")
+    priors = bench_priors(seed, gpdm_frames) if priors is None else priors
+    unknown = set(priors) - set(PRIORS)
+    if unknown or not priors:
+        raise PriortrackError(f"bench pf: prior names {sorted(priors)}; expected some of {', '.join(PRIORS)}")
+    if any(prior.fps != walk.fps for prior in priors.values()):
+        raise PriortrackError(f"bench pf: every prior must run at the test walk's {walk.fps:g} fps, got "
+                              f"{ {name: prior.fps for name, prior in priors.items()} }")
+    train = list(load_walkjog().walks("train"))
+    X = walk.positions("eval15")
+    observations = synthesize(X, walk.fps, default_camera(X), "noise", seed=seed)
+    filters = {}
+    for name, prior in priors.items():
+        global_motion = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
+        model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera),
+                              joints_dtype=JOINTS_DTYPES[joints_dtype])
+        filters[name] = ParticleFilter(model, particles, seed=seed)
+        filters[name].initialise(walk)
+
+    times = {name: [] for name in filters}
+    cpu = {name: [] for name in filters}
+    phases = {name: {phase: [] for phase in PHASES} for name in filters}
+    resamples = dict.fromkeys(filters, 0)
+    load = os.getloadavg()[0]
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        for t in range(2, 2 + warmup + steps):
+            for name, pf in filters.items():
+                start, start_cpu = time.perf_counter(), time.process_time()
+                snap = pf.step(observations.uv[t])
+                seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - start_cpu
+                if t < 2 + warmup:
+                    continue
+                times[name].append(seconds)
+                cpu[name].append(cpu_seconds)
+                for phase in PHASES:
+                    phases[name][phase].append(snap.timings[phase])
+                resamples[name] += snap.ancestors is not None
+    finally:
+        torch.set_num_threads(previous)
+    ms = {name: 1000.0 * float(np.median(t)) for name, t in times.items()}
+    result = {
+        "particles": particles,
+        "particle_steps_per_s": {name: particles / (ms[name] / 1000.0) for name in filters},
+        "ms_per_step": ms,
+        "ms_per_step_range": {name: [1000.0 * min(t), 1000.0 * max(t)] for name, t in times.items()},
+        "cpu_ms_per_step": {name: 1000.0 * float(np.median(t)) for name, t in cpu.items()},
+        "phases_ms": {name: {phase: 1000.0 * float(np.median(v)) for phase, v in p.items()}
+                      for name, p in phases.items()},
+        "resamples": resamples,
+        "steps": steps,
+        "threads": threads,
+        "load_average": [load, os.getloadavg()[0]],
+        "dtype": str(next(iter(filters.values())).states.dtype).removeprefix("torch."),
+        "joints_dtype": joints_dtype,
+    }
+    for name in filters:
+        logger.info("bench pf %s: %.0f particle-steps/s (%.1f ms per step of %d particles; %s)", name,
+                    result["particle_steps_per_s"][name], ms[name], particles,
+                    ", ".join(f"{k} {v:.1f} ms" for k, v in result["phases_ms"][name].items()))
+    return result

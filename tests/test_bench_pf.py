@@ -1,0 +1,55 @@
+"""The particle-filter throughput benchmark on tiny priors: what it reports and its bad input."""
+
+import pytest
+import torch
+
+from priortrack import PriortrackError, load_walkjog
+from priortrack.experiments.bench_pf import PHASES, bench_pf
+from priortrack.priors import Diffusion
+from priortrack.priors.gpdm import GPDM
+from priortrack.priors.lie import LiePrior
+
+
+@pytest.fixture(scope="module")
+def priors():
+    walks = list(load_walkjog().walks("train"))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)                        # small fits: one thread is the fastest
+    try:
+        return {"diffusion": Diffusion.fit(walks[:2], local=True),
+                "gpdm": GPDM.fit([m[:15] for m in walks[:2]], seed=0),
+                "lie": LiePrior.fit(walks[:3], seed=0, max_components=2)}
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_reports_every_prior_from_real_steps(priors):
+    threads = torch.get_num_threads()
+    result = bench_pf(particles=64, steps=3, warmup=1, threads=1, joints_dtype="float32", priors=priors)
+    assert torch.get_num_threads() == threads                                   # restored
+    assert result["particles"] == 64 and result["steps"] == 3 and result["threads"] == 1
+    assert result["dtype"] == "float64" and result["joints_dtype"] == "float32"
+    for name in priors:
+        ms = result["ms_per_step"][name]
+        low, high = result["ms_per_step_range"][name]
+        assert 0 < low <= ms <= high
+        assert result["particle_steps_per_s"][name] == pytest.approx(64 / (ms / 1000))
+        assert set(result["phases_ms"][name]) == set(PHASES)
+        # Every phase is a part of a step: each is positive, and none is slower than the slowest step.
+        assert all(0 < v <= high for v in result["phases_ms"][name].values())
+        assert 0 <= result["resamples"][name] <= 3
+        assert result["cpu_ms_per_step"][name] > 0
+
+
+def test_bad_arguments(priors):
+    with pytest.raises(PriortrackError, match="positive"):
+        bench_pf(particles=0, priors=priors)
+    with pytest.raises(PriortrackError, match="joints_dtype"):
+        bench_pf(particles=8, joints_dtype="float16", priors=priors)
+    with pytest.raises(PriortrackError, match="exceeds"):
+        bench_pf(particles=8, steps=200, priors=priors)
+    with pytest.raises(PriortrackError, match="expected some of"):
+        bench_pf(particles=8, steps=1, priors={"kalman": priors["diffusion"]})
+    slow = Diffusion.fit(list(load_walkjog().walks("train"))[:2], fps=15.0)
+    with pytest.raises(PriortrackError, match="fps"):
+        bench_pf(particles=8, steps=1, priors={"diffusion": slow})
