@@ -2,6 +2,7 @@
 scoring, files and bad input."""
 
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -384,6 +385,96 @@ def test_seeded_sampling_is_reproducible_in_both_precisions(walk_split):
         assert (a.reshape(-1, B, 3).norm(dim=-1) - 1).abs().max() < (1e-6 if dtype == torch.float32 else 1e-14)
     init = prior.initial(x[0], 16, torch.Generator().manual_seed(1))
     assert init.shape == (16, 3 * B) and torch.equal(init[0], x[0])
+
+
+def test_draws_in_both_precisions_match_each_components_analytic_conditional(monkeypatch):
+    """Three components with pose means a few degrees apart, so that π(x) differs from α and from
+    pose to pose, and velocity means 30 σ apart in one coordinate, so that each draw's component
+    is the one under which its velocity is most likely. Draws at two distinct poses, interleaved
+    over several blocks: per precision and pose, the component frequencies match π(x) (float64
+    closed form), and each component's draws, in its coordinates b = E_k Γ_{x→μ_k}(v) (numpy
+    reference), have the conditional mean m + R a and covariance C."""
+    rng = np.random.default_rng(26)
+    k, n = 3, 15000
+    centre = random_unit(rng, B)
+    means = np.stack([near(rng, centre, 0.05) for _ in range(k)])                 # (3, B, 3)
+    cov = random_blocks(rng, k, B, pose_std=0.15, vel_std=0.1)
+    vel = rng.normal(size=(k, B, 2)) * 0.05
+    vel[:, 0, 0] = [-3.0, 0.0, 3.0]
+    prior = LiePrior(DirectionSpace(np.ones(B)), GeodesicMixture([0.3, 0.3, 0.4], means, vel, cov), scale=SCALE)
+    m = prior.mixture
+    basis = m.basis.numpy()
+    poses = torch.as_tensor(np.stack([near(rng, centre, 0.05) for _ in range(2)])).reshape(2, -1)
+    monkeypatch.setattr(lie_module, "SAMPLE_CHUNK", 4096)                        # 8 blocks
+    for dtype in (torch.float32, torch.float64):
+        x = poses.to(dtype)                                                     # the poses as the sampler sees them
+        nxt = prior.sample(x.repeat(n, 1), torch.Generator().manual_seed(8)).double()
+        x = x.double()
+        pi = torch.exp(m.log_responsibilities(x)).numpy()
+        for i in range(2):
+            xi = x[i].expand(n, -1)
+            v = SCALE * np_log(xi.reshape(n, B, 3).numpy(), nxt[i::2].reshape(n, B, 3).numpy())     # (n, B, 3)
+            dens = torch.stack([m._component(xi, torch.as_tensor(v).reshape(n, -1), j)[2] for j in range(k)], -1)
+            comp = dens.argmax(-1).numpy()
+            freq = np.bincount(comp, minlength=k) / n
+            assert np.all(np.abs(freq - pi[i]) < 4 * np.sqrt(pi[i] * (1 - pi[i]) / n)), (dtype, i, freq, pi[i])
+            x3 = x[i].reshape(B, 3).numpy()
+            for j in range(k):
+                vj = v[comp == j]
+                b = np.einsum("nbj,bij->nbi", np_transport(x3[None], means[j][None], vj), basis[j]).reshape(len(vj), -1)
+                a = np.einsum("bj,bij->bi", np_log(means[j], x3), basis[j])
+                s_aa, s_ab, s_bb = cov[j][:, :2, :2], cov[j][:, :2, 2:], cov[j][:, 2:, 2:]
+                mean = (vel[j] + np.einsum("bji,bj->bi", np.linalg.solve(s_aa, s_ab), a)).reshape(-1)
+                covariance = s_bb - np.einsum("bji,bjk->bik", s_ab, np.linalg.solve(s_aa, s_ab))
+                std = np.sqrt(np.concatenate([np.diag(c) for c in covariance]))
+                assert np.all(np.abs(b.mean(0) - mean) < 5 * std / math.sqrt(len(b))), (dtype, i, j)
+                empirical = np.cov(b.T)
+                for bone in range(B):
+                    block = empirical[2 * bone:2 * bone + 2, 2 * bone:2 * bone + 2]
+                    tol = 6 * np.outer(std[2 * bone:2 * bone + 2], std[2 * bone:2 * bone + 2]).max() / math.sqrt(len(b))
+                    np.testing.assert_allclose(block, covariance[bone], atol=tol)
+
+
+def test_the_inverse_cdf_gives_each_component_its_weight():
+    """On the grid u = i / n every component k gets w_k n ± 1 of the u; a weight below e^−80 of the
+    largest (here e^−1000) is never drawn, u = 0 included, in either precision."""
+    n = 1000
+    weights = torch.tensor([0.2, 0.0, 0.5, 0.3], dtype=torch.float64)
+    logits = torch.log(weights).clamp(min=-1000.0)
+    u = torch.arange(n, dtype=torch.float64) / n
+    for dtype in (torch.float64, torch.float32):
+        comp = lie_module._inverse_cdf(logits.to(dtype)[:, None].repeat(1, n), u.to(dtype))
+        counts = torch.bincount(comp, minlength=4).double()
+        assert counts[1] == 0
+        assert (counts - n * weights).abs().max() <= 1, counts
+
+
+def test_draws_do_not_depend_on_the_thread_count(walk_split, monkeypatch):
+    """Blocks sampled by the worker pool (2 threads) equal those sampled in the calling thread (1
+    thread), bit for bit; the workers' one-thread setting stays theirs (the caller and new threads
+    keep 2), and the draws are ordinary tensors (not inference tensors) that can be updated."""
+    prior, train, _ = walk_split
+    frames = prior.encode(train[0])
+    x = frames[torch.randint(len(frames), (3000,), generator=torch.Generator().manual_seed(0))]
+    monkeypatch.setattr(lie_module, "SAMPLE_CHUNK", 512)                         # 6 blocks
+    monkeypatch.setattr(lie_module, "_pool", None)                               # a fresh pool
+    try:
+        for dtype in (torch.float64, torch.float32):
+            torch.set_num_threads(1)
+            one = prior.sample(x.to(dtype), torch.Generator().manual_seed(3))
+            torch.set_num_threads(2)
+            two = prior.sample(x.to(dtype), torch.Generator().manual_seed(3))
+            assert torch.equal(one, two), dtype
+        assert torch.get_num_threads() == 2
+        seen = []
+        thread = threading.Thread(target=lambda: seen.append(torch.get_num_threads()))
+        thread.start()
+        thread.join()
+        assert seen == [2]
+    finally:
+        torch.set_num_threads(1)
+    two.add_(1.0)
+    assert not one.is_inference() and not two.is_inference()
 
 
 # ---------------------------------------------------------------------------------------------

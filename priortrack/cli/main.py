@@ -150,7 +150,8 @@ def _track(args: argparse.Namespace) -> None:
     r = run.result
     print(f"{r['filter']} on {r['motion']} ({r['frames']} frames, scenario {r['scenario']}, seed {r['seed']}): "
           f"MPJPE {r['mpjpe_mm']:.1f} mm, root-relative {r['mpjpe_root_rel_mm']:.1f} mm, 2D {r['err2d_px']:.1f} px, "
-          f"{1000 * r['seconds_per_frame']:.0f} ms/frame, mean ESS {r['mean_ess']:.0f}"
+          f"{1000 * r['seconds_per_frame']:.0f} ms/frame"
+          + (f", mean ESS {r['mean_ess']:.0f}" if r["mean_ess"] is not None else "")
           + (f"; wrote {args.rrd}" if args.rrd else ""))
 
 

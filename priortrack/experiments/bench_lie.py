@@ -11,6 +11,7 @@ medians over interleaved repeats (:func:`priortrack.experiments.bench.interleave
 from __future__ import annotations
 
 import logging
+import os
 
 import numpy as np
 import torch
@@ -56,9 +57,10 @@ def bench_lie_sample(n: int = 200_000, threads: int = 2, seed: int = 0, repeats:
 
     Returns:
         ``{"samples_per_s", "clusters", "dims", "sklearn_gmm_samples_per_s", "n", "threads",
-        "single_thread_samples_per_s"}``, dims the dimension of the joint (pose, velocity)
-        tangent space (56); the last, the Lie sampler again with one thread, shows whether the
-        threads had the cores to themselves.
+        "single_thread_samples_per_s", "load_average"}``, dims the dimension of the joint (pose,
+        velocity) tangent space (56); single_thread_samples_per_s, the Lie sampler again with one
+        thread, and load_average, the machine's 1, 5 and 15 minute load averages when the timing
+        ended (``os.getloadavg``; None where the system has none), show whether the threads had the cores to themselves.
     """
     try:
         from sklearn.mixture import GaussianMixture
@@ -92,12 +94,12 @@ def bench_lie_sample(n: int = 200_000, threads: int = 2, seed: int = 0, repeats:
         torch.set_num_threads(previous)
     result = {"samples_per_s": n / (ms["lie"] / 1000), "clusters": prior.clusters, "dims": means.shape[1],
               "sklearn_gmm_samples_per_s": n / (ms["sklearn"] / 1000), "n": n, "threads": threads,
-              "single_thread_samples_per_s": n / (one / 1000)}
+              "single_thread_samples_per_s": n / (one / 1000),
+              "load_average": [round(load, 2) for load in os.getloadavg()] if hasattr(os, "getloadavg") else None}
     logger.info("bench lie: %.0f samples/s with %d threads (%.0f/s with one), sklearn GaussianMixture.sample "
                 "%.0f/s; %d clusters", result["samples_per_s"], threads, result["single_thread_samples_per_s"],
                 result["sklearn_gmm_samples_per_s"], prior.clusters)
     if threads > 1 and result["samples_per_s"] < result["single_thread_samples_per_s"]:
         logger.warning("bench lie: %d threads ran slower than one: the cores are busy with other work "
-                       "(torch's intra-op threads wait on each other), so the timing understates the sampler",
-                       threads)
+                       "(load average %s), so the timing understates the sampler", threads, result["load_average"])
     return result

@@ -88,7 +88,8 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
         "mpjpe_root_rel_mm": float(mpjpe_root_relative(est, truth).mean()),
         "err2d_px": float(np.nanmean(error_2d(uv_est.numpy(), uv_true.numpy()))),
         "seconds_per_frame": result_track.seconds_per_frame,
-        "mean_ess": float(np.nanmean(result_track.ess)),
+        # The MAP tracker keeps no weighted set: no ESS (null in JSON).
+        "mean_ess": float(np.nanmean(result_track.ess)) if np.isfinite(result_track.ess).any() else None,
     }
     return TrackingRun(result, motion, observations, result_track)
 

@@ -38,10 +38,15 @@ log p(v | x) itself.
 
 **Sampling** (:meth:`LiePrior.sample`): per row, k ~ π(x) by the inverse CDF of one uniform,
 z ~ N(0, I_2B), b = m_k + R_k a_k + L_c z (L_c the Cholesky factor of C_k), and
-x_next = exp_x(Γ_{μ_k→x}(E_kᵀ b) / s). π(x) is evaluated for all K components from one batched
-product per bone (c = μ·x and L_xx⁻¹ E x, see :meth:`GeodesicMixture._planar_logits`); the rows
-are then sorted by component so that each component's rows take one batched step. It runs in
-the input's dtype (float32 is fine there) and on its device, with the caller's generator.
+x_next = exp_x(Γ_{μ_k→x}(E_kᵀ b) / s). The rows go in blocks of :data:`SAMPLE_CHUNK`, held
+"planar" (B, 3, n) so that every step is an elementwise operation along the rows. π(x) is
+evaluated for all K components from c = μ·x and G x = L_xx⁻¹ E x (:meth:`GeodesicMixture._planar_logits`);
+the rows are then sorted by component so that each component's affine terms take a few
+operations over its own columns, and the rest (θ / sin θ, the transport, the exponential map)
+is done once per block. With torch set to T > 1 threads on the CPU, the blocks are sampled by
+T worker threads, each running its operations single-threaded; the uniforms and normals are
+drawn in the calling thread, block by block, from the caller's generator, so the draws do not
+depend on T. It runs in the input's dtype (float32 is fine there) and on its device.
 :meth:`LiePrior.mean` is exp_x(E[v | x] / s) with the mixture's mean velocity.
 
 **Learning** (Figueiredo & Jain, PAMI 2002): component-wise EM with the minimum-message-length
@@ -61,7 +66,11 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import queue
+import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,9 +89,17 @@ logger = logging.getLogger(__name__)
 DEFAULT_SCALE = 30.0
 #: Parameters per bone of one component: 2 (pose mean) + 2 (velocity mean) + 10 (4×4 block).
 PARAMETERS_PER_BONE = 14
-#: Rows per chunk in :meth:`GeodesicMixture.sample_next`: large enough to amortise the per-call
-#: overhead of the per-component loop, small enough that the (B, 3K, n) work set stays in cache.
-SAMPLE_CHUNK = 4096
+#: Rows per block of :meth:`GeodesicMixture.sample_next`. A block costs some 150 tensor operations
+#: whatever its size, so it must be large enough to amortise their dispatch (a few µs each), and
+#: small enough that its work set (about 1 kB a row in float32) stays in the last-level cache.
+SAMPLE_CHUNK = 8192
+#: Columns per slice in :meth:`GeodesicMixture._planar_logits`: the (B, 3K, n) products of a slice
+#: stay in cache while the elementwise steps pass over them.
+LOGIT_SLICE = 2048
+#: Floor on ln(π_k / max_j π_j) in the inverse CDF: e^−80 ≈ 1.8e−35 is still a normal float32
+#: (subnormal arithmetic is some 100× slower), and a weight that small is never drawn anyway, since
+#: it is below the resolution of a uniform of either dtype (2⁻²⁴, 2⁻⁵³).
+LOG_WEIGHT_FLOOR = -80.0
 _LOG_2PI = math.log(2 * math.pi)
 
 
@@ -171,6 +188,58 @@ def _coordinates(x: torch.Tensor, v: torch.Tensor | None, frame: torch.Tensor, b
     return a, yv[..., 1:] - (yv[..., 0] / (1 + c)).unsqueeze(-1) * ex
 
 
+def _columns(matrices: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """The c columns (..., r, 1) of a batch of matrices (..., r, c), so that Σ_j columns[j] X[..., j:j+1, :]
+    is the product with a planar X (..., c, n)."""
+    return matrices.unsqueeze(-1).unbind(-2)
+
+
+def _inverse_cdf(logits: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """Draws k (n,) ~ softmax(logits[:, i]) for logits (K, n) (overwritten), by the inverse CDF of u (n,) ∈ [0, 1).
+
+    With w_k = exp(max(l_k − max_j l_j, :data:`LOG_WEIGHT_FLOOR`)) and W_k = Σ_{j≤k} w_j, the draw
+    is the number of k with W_k < (1 − u) W_{K−1}: 1 − u ∈ (0, 1], so the threshold lies in
+    (0, W_{K−1}] and k is drawn with probability w_k / W_{K−1}.
+    """
+    cdf = logits.sub_(logits.amax(dim=0)).clamp_(min=LOG_WEIGHT_FLOOR).exp_().cumsum_(dim=0)
+    return (cdf < torch.rsub(u, 1).mul_(cdf[-1])).sum(dim=0)
+
+
+_POOL_LOCK = threading.Lock()
+_pool: tuple[int, int, ThreadPoolExecutor] | None = None                               # (pid, threads, pool)
+
+
+def _single_threaded_worker() -> None:
+    """Initialiser of :func:`_block_pool`'s threads: torch set to one thread in this thread. torch
+    initialises a thread's count on its first use there (to the default), so that comes first."""
+    torch.get_num_threads()
+    torch.set_num_threads(1)
+
+
+def _block_pool(workers: int) -> ThreadPoolExecutor:
+    """The process's pool of block samplers, with at least ``workers`` threads (rebuilt after a fork).
+
+    Each worker sets torch to one thread for itself: OpenMP's and MKL's thread counts are per-thread
+    settings, so T blocks sampled side by side keep T threads busy instead of starting T teams (in
+    builds with MKL, its vector math behind acos, exp, sin and cos would otherwise thread each call).
+    Since ``torch.set_num_threads`` also sets the default that threads take on their first use of
+    torch, that default is put back once every worker has started.
+    """
+    global _pool
+    with _POOL_LOCK:
+        if _pool is None or _pool[0] != os.getpid() or _pool[1] < workers:
+            threads = torch.get_num_threads()
+            pool = ThreadPoolExecutor(workers, thread_name_prefix="priortrack-lie",
+                                      initializer=_single_threaded_worker)
+            started = threading.Barrier(workers + 1)
+            for _ in range(workers):
+                pool.submit(started.wait)
+            started.wait()
+            torch.set_num_threads(threads)
+            _pool = (os.getpid(), workers, pool)
+        return _pool[2]
+
+
 # ---------------------------------------------------------------------------------------------
 # the mixture
 # ---------------------------------------------------------------------------------------------
@@ -180,24 +249,24 @@ def _coordinates(x: torch.Tensor, v: torch.Tensor | None, frame: torch.Tensor, b
 class _Hot:
     """The mixture's constants for the sampling path, in one dtype and device. A batch of n
     poses is held "planar", as X (B, 3, n): X[b, j] the j-th coordinate of bone b of every pose.
+    Products with X are written as sums over its 3 rows of (column of a matrix) × (row of X), so
+    the matrices below are stored column by column, each column as a (…, r, 1) tensor.
 
     With s the velocity scale and, per component k and bone b, E (2×3), G = L_xx⁻¹ E,
     R, L_c (2×2), m (2,):
 
-    - ``pi_w`` (B, 3K, 3): rows μ_kb (k = 0…K−1), then the rows 1 and 2 of G_kb, so that
-      pi_w @ X gives c = μ·x and g = G x for every (b, k, pose);
+    - ``pi_w``: the 3 columns (B, 3K, 1) of the (3K × 3) matrix with rows μ_kb (k = 0…K−1), then
+      the rows 1 and 2 of G_kb, so that Σ_j pi_w[j] X[:, j] gives c = μ·x and g = G x;
     - ``pi_c`` (K, 1): ln α_k − ½ Σ_b ln det Sxx_kb − B ln 2π;
-    - ``cond_w`` (K, B, 4, 3): rows Eᵀ R E / s (3) and μᵀ (1), so cond_w[k] @ X = (R-part, c);
-    - ``noise_w`` (K, B, 3, 2): Eᵀ L_c / s;  ``cond_b`` (K, B, 3, 1): Eᵀ m / s;
-    - ``mu`` (K, B, 3, 1): the means.
+    - ``affine[k]``, component k's (cond_b, cond_w columns 0…2, noise_b, noise_w columns 0…1):
+      cond_b + Σ_j cond_w[j] x_j gives (Eᵀ R E x / s, c, x + μ) (B, 7, 1 each: the rows Eᵀ R E / s,
+      μᵀ and I, the offset (0, 0, 0, 0, μ)), and noise_b + Σ_j noise_w[j] z_j gives Eᵀ (m + L_c z) / s
+      (B, 3, 1 each: the columns of Eᵀ L_c / s and Eᵀ m / s).
     """
 
-    pi_w: torch.Tensor
+    pi_w: tuple[torch.Tensor, ...]
     pi_c: torch.Tensor
-    cond_w: torch.Tensor
-    noise_w: torch.Tensor
-    cond_b: torch.Tensor
-    mu: torch.Tensor
+    affine: list[tuple[torch.Tensor, ...]]
 
 
 class GeodesicMixture:
@@ -323,7 +392,7 @@ class GeodesicMixture:
         joint = torch.stack([p[0] + p[2] for p in parts], dim=-1)
         return torch.logsumexp(joint, dim=-1) - torch.logsumexp(marginal, dim=-1)
 
-    # ---- the sampling path (any dtype and device, chunked) --------------------------------------
+    # ---- the sampling path (any dtype and device, planar, in blocks) ------------------------------
     def _hot(self, dtype: torch.dtype, device: torch.device, scale: float) -> _Hot:
         key = (dtype, str(device), float(scale))
         if key not in self._hot_cache:
@@ -333,53 +402,86 @@ class GeodesicMixture:
     def _build_hot(self, scale: float, dtype: torch.dtype, device: torch.device) -> _Hot:
         """The :class:`_Hot` constants (computed in float64, then cast)."""
         basis, mu = self.basis, self.means
+        k, b = self.components, self.bones
         g = _whitening(self._chol_xx) @ basis                                           # (K, B, 2, 3)
         pi_w = torch.cat([mu, g[:, :, 0], g[:, :, 1]]).transpose(0, 1)                  # (B, 3K, 3)
         basis_t = basis.transpose(-1, -2)                                               # Eᵀ (K, B, 3, 2)
-        cond_w = torch.cat([basis_t @ self.regression @ basis / scale, mu.unsqueeze(-2)], dim=-2)
+        eye = torch.eye(3, dtype=mu.dtype).expand(k, b, 3, 3)
+        cond_w = torch.cat([basis_t @ self.regression @ basis / scale, mu.unsqueeze(-2), eye], dim=-2)
+        cond_b = torch.cat([torch.zeros(k, b, 4, dtype=mu.dtype), mu], dim=-1).unsqueeze(-1)
         noise_w = basis_t @ self._chol_c / scale
-        cond_b = basis_t @ self.velocity_means.unsqueeze(-1) / scale
-        return _Hot(*(t.to(dtype=dtype, device=device).contiguous()
-                      for t in (pi_w, self._log_norm_x.unsqueeze(-1), cond_w, noise_w, cond_b, mu.unsqueeze(-1))))
+        noise_b = basis_t @ self.velocity_means.unsqueeze(-1) / scale
+
+        def cast(t: torch.Tensor) -> torch.Tensor:
+            return t.to(dtype=dtype, device=device).contiguous()
+
+        affine = [(cast(cond_b[i]), *map(cast, _columns(cond_w[i])),
+                   cast(noise_b[i]), *map(cast, _columns(noise_w[i]))) for i in range(k)]
+        return _Hot(tuple(map(cast, _columns(pi_w))), cast(self._log_norm_x.unsqueeze(-1)), affine)
 
     def _planar(self, x: torch.Tensor) -> torch.Tensor:
         """Flat poses (n, 3B) → planar (B, 3, n)."""
         return x.t().contiguous().view(self.bones, 3, x.shape[0])
 
     def _planar_logits(self, xp: torch.Tensor, hot: _Hot) -> torch.Tensor:
-        """ln α_k N(a_k; 0, Sxx_k) (K, n) for planar poses X (B, 3, n).
+        """ln α_k N(a_k; 0, Sxx_k) (K, n) for planar poses X (B, 3, n), :data:`LOGIT_SLICE` columns at a time.
 
         |L_xx⁻¹ a|² = (θ / sin θ)² |G x|², since a = (θ / sin θ) E x (E ⊥ μ) and G = L_xx⁻¹ E,
         with (θ / sin θ)² = arccos(c)² / (1 − c²), c clamped as in :func:`_clamped`. 1 − c² loses
         relative precision as θ → 0, but there |G x|² ~ λ θ² and the error in the product stays
-        below λ ε (λ the largest eigenvalue of Sxx⁻¹, ε the dtype's epsilon).
+        below λ ε (λ the largest eigenvalue of Sxx⁻¹, ε the dtype's epsilon). G x is formed as such
+        (not as the quadratic form xᵀ GᵀG x, whose rounding error is λ ε at every θ).
         """
-        k = self.components
-        y = torch.bmm(hot.pi_w, xp)                                                     # (B, 3K, n)
-        g1, g2 = y[:, k:2 * k], y[:, 2 * k:]
-        q = g1 * g1
-        q.addcmul_(g2, g2)
-        c_max = 1.0 - torch.finfo(y.dtype).eps / 2
-        c = y[:, :k].clamp_(-c_max, c_max)                                              # as _clamped, in place
-        q.div_(torch.addcmul(torch.ones((), dtype=c.dtype, device=c.device), c, c, value=-1.0))
-        q.mul_(c.acos_().square_())
-        return hot.pi_c - 0.5 * q.sum(dim=0)
+        k, n = self.components, xp.shape[-1]
+        quad = torch.empty(k, n, dtype=xp.dtype, device=xp.device)
+        one = torch.ones((), dtype=xp.dtype, device=xp.device)
+        c_max = 1.0 - torch.finfo(xp.dtype).eps / 2
+        pi_w0, pi_w1, pi_w2 = hot.pi_w
+        for start in range(0, n, LOGIT_SLICE):
+            cols = slice(start, start + LOGIT_SLICE)
+            x0, x1, x2 = xp[..., cols].unsqueeze(2).unbind(1)                           # (B, 1, n') each
+            y = pi_w0 * x0
+            y.addcmul_(pi_w1, x1).addcmul_(pi_w2, x2)                                   # (B, 3K, n')
+            c, g1, g2 = y.view(self.bones, 3, k, -1).unbind(1)
+            q = g1 * g1
+            q.addcmul_(g2, g2)
+            c.clamp_(-c_max, c_max)                                                     # as _clamped, in place
+            q.div_(torch.addcmul(one, c, c, value=-1.0))
+            q.mul_(c.acos_().square_())
+            torch.sum(q, dim=0, out=quad[:, cols])
+        return quad.mul_(-0.5).add_(hot.pi_c)
 
-    def _planar_velocity(self, xp: torch.Tensor, hot: _Hot, k: int, z: torch.Tensor | None) -> torch.Tensor:
-        """Velocity / s (B, 3, n) at planar poses X (B, 3, n) from component k: Γ_{μ→x}(Eᵀ (m + R a + L_c z)) / s.
+    def _affine_terms(self, xp: torch.Tensor, z: torch.Tensor | None, hot: _Hot, k: int,
+                      lin: torch.Tensor, vel: torch.Tensor) -> None:
+        """Component k's affine terms at planar poses X (B, 3, n) with normals z (B, 2, n), per bone:
+        lin (B, 7, n) ← (Eᵀ R E x / s, c = μ·x, x + μ) and vel (B, 3, n) ← Eᵀ (m + L_c z) / s, or
+        Eᵀ m / s for z None (the conditional mean)."""
+        cond_b, cond_w0, cond_w1, cond_w2, noise_b, noise_w0, noise_w1 = hot.affine[k]
+        x0, x1, x2 = xp.unsqueeze(2).unbind(1)                                         # (B, 1, n) each
+        torch.addcmul(cond_b, cond_w0, x0, out=lin)
+        lin.addcmul_(cond_w1, x1).addcmul_(cond_w2, x2)
+        if z is None:
+            vel.copy_(noise_b.expand_as(vel))
+            return
+        z0, z1 = z.unsqueeze(2).unbind(1)
+        torch.addcmul(noise_b, noise_w0, z0, out=vel)
+        vel.addcmul_(noise_w1, z1)
 
-        z (B, 2, n) standard normal, or None for the conditional mean. The transport is the
-        closed form Γ_{μ→x}(V) = V − (x·V) / (1 + μ·x) (x + μ) for V ⊥ μ.
+    @staticmethod
+    def _planar_step(xp: torch.Tensor, lin: torch.Tensor, vel: torch.Tensor) -> torch.Tensor:
+        """The step u = Γ_{μ→x}(V) (B, 3, n) at planar poses X (B, 3, n) from the affine terms of
+        :meth:`_affine_terms`, written into vel:
+
+            V = vel + (θ / sin θ) Eᵀ R E x / s = Eᵀ (m + R a + L_c z) / s   (a = (θ / sin θ) E x),
+            Γ_{μ→x}(V) = V − (x·V) / (1 + c) (x + μ)   (V ⊥ μ).
         """
-        y = torch.bmm(hot.cond_w[k], xp)                                                # (B, 4, n)
-        c = _clamped(y[:, 3])
-        vel = hot.cond_b[k].expand(-1, -1, xp.shape[-1]).clone() if z is None \
-            else torch.baddbmm(hot.cond_b[k], hot.noise_w[k], z)
-        vel.addcmul_(y[:, :3], _theta_over_sin(c).unsqueeze(1))
-        along = torch.addcmul(torch.addcmul(xp[:, 0] * vel[:, 0], xp[:, 1], vel[:, 1]), xp[:, 2], vel[:, 2])
-        along.div_(c.add_(1))
-        vel.addcmul_(xp + hot.mu[k], along.unsqueeze(1), value=-1.0)
-        return vel
+        c = _clamped(lin[:, 3])
+        vel.addcmul_(lin[:, :3], _theta_over_sin(c).unsqueeze(1))
+        x0, x1, x2 = xp.unbind(1)
+        v0, v1, v2 = vel.unbind(1)
+        along = x0 * v0
+        along.addcmul_(x1, v1).addcmul_(x2, v2).div_(c.add_(1))
+        return vel.addcmul_(lin[:, 4:], along.unsqueeze(1), value=-1.0)
 
     @staticmethod
     def _planar_exp(xp: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
@@ -388,10 +490,14 @@ class GeodesicMixture:
         exp_x(u)_b = cos|u_b| x_b + (sin|u_b| / |u_b|) u_b; sin t / (t + tiny) is exact for t > 0
         and multiplies u_b = 0 when t = 0.
         """
-        t = torch.addcmul(torch.addcmul(u[:, 0] * u[:, 0], u[:, 1], u[:, 1]), u[:, 2], u[:, 2]).sqrt_()
+        u0, u1, u2 = u.unbind(1)
+        t = u0 * u0
+        t.addcmul_(u1, u1).addcmul_(u2, u2).sqrt_()
         out = xp * torch.cos(t).unsqueeze(1)
         out.addcmul_(u, torch.sin(t).div_(t.add_(torch.finfo(t.dtype).tiny)).unsqueeze(1))
-        norm_sq = torch.addcmul(torch.addcmul(out[:, 0] * out[:, 0], out[:, 1], out[:, 1]), out[:, 2], out[:, 2])
+        o0, o1, o2 = out.unbind(1)
+        norm_sq = o0 * o0
+        norm_sq.addcmul_(o1, o1).addcmul_(o2, o2)
         return out.mul_(norm_sq.rsqrt_().unsqueeze(1))
 
     def fast_log_responsibilities(self, x: torch.Tensor) -> torch.Tensor:
@@ -399,36 +505,70 @@ class GeodesicMixture:
         logits = self._planar_logits(self._planar(x), self._hot(x.dtype, x.device, 1.0))
         return (logits - torch.logsumexp(logits, dim=0)).T
 
+    def _sample_block(self, x: torch.Tensor, u: torch.Tensor, z: torch.Tensor, hot: _Hot,
+                      out: torch.Tensor) -> None:
+        """x_next (n, 3B) into out for flat poses x (n, 3B), given uniforms u (n,) and normals z (B, 2, n).
+
+        k ~ π(x) by :func:`_inverse_cdf`; the poses are sorted by k (stable) and take the columns of
+        z in that order; each component's affine terms (:meth:`_affine_terms`) fill its columns, and
+        the step and the exponential map are taken for the whole block.
+        """
+        b, n = self.bones, x.shape[0]
+        xp = self._planar(x)
+        comp = _inverse_cdf(self._planar_logits(xp, hot), u)
+        order = torch.sort(comp, stable=True).indices
+        xp = xp.view(3 * b, n).index_select(1, order).view(b, 3, n)
+        lin = torch.empty(b, 7, n, dtype=x.dtype, device=x.device)
+        vel = torch.empty(b, 3, n, dtype=x.dtype, device=x.device)
+        begin = 0
+        for k, count in enumerate(torch.bincount(comp, minlength=self.components).tolist()):
+            if count:
+                cols = slice(begin, begin + count)
+                self._affine_terms(xp[..., cols], z[..., cols], hot, k, lin[..., cols], vel[..., cols])
+                begin += count
+        nxt = self._planar_exp(xp, self._planar_step(xp, lin, vel)).view(3 * b, n)
+        inverse = torch.empty_like(order).index_copy_(0, order, torch.arange(n, device=x.device))
+        out.copy_(nxt.index_select(1, inverse).t())
+
     def sample_next(self, x: torch.Tensor, generator: torch.Generator, scale: float) -> torch.Tensor:
         """One draw x_next = exp_x(v / s), v ~ p(v | x), per row of flat poses x (P, 3B).
 
-        Per chunk of :data:`SAMPLE_CHUNK` rows: k ~ π(x) by the inverse CDF of one uniform per
-        row, z ~ N(0, I_2B); rows sorted by k (stable) and each component's rows advanced
-        together. Works in x's dtype and on its device.
+        The rows go in blocks of :data:`SAMPLE_CHUNK` (:meth:`_sample_block`); for each block, in
+        order, one uniform per row and z ~ N(0, I) (B, 2, n) are drawn from ``generator`` in the
+        calling thread. On the CPU with torch set to T > 1 threads, min(T, blocks) workers of
+        :func:`_block_pool` sample the blocks meanwhile, each single-threaded, so the result does
+        not depend on T. Works in x's dtype and on its device.
         """
         hot = self._hot(x.dtype, x.device, scale)
         out = torch.empty_like(x)
-        b = self.bones
-        for start in range(0, x.shape[0], SAMPLE_CHUNK):
-            chunk = x[start:start + SAMPLE_CHUNK]
-            n = chunk.shape[0]
-            cdf = torch.softmax(self._planar_logits(self._planar(chunk), hot), dim=0).cumsum_(dim=0)   # (K, n)
-            u = torch.rand(n, generator=generator, dtype=x.dtype, device=x.device)
-            comp = (cdf < u * cdf[-1]).sum(dim=0).clamp_(max=self.components - 1)
-            z = torch.randn(b, 2, n, generator=generator, dtype=x.dtype, device=x.device)
-            order = torch.sort(comp, stable=True).indices
-            inverse = torch.empty_like(order).index_copy_(0, order, torch.arange(n, device=x.device))
-            counts = torch.bincount(comp, minlength=self.components).tolist()
-            xp = self._planar(chunk.index_select(0, order))
-            step = torch.empty_like(xp)
-            begin = 0
-            for k, count in enumerate(counts):
-                if count:
-                    cols = slice(begin, begin + count)
-                    step[..., cols] = self._planar_velocity(xp[..., cols], hot, k, z[..., cols])
-                    begin += count
-            nxt = self._planar_exp(xp, step).view(3 * b, n).t().contiguous()
-            torch.index_select(nxt, 0, inverse, out=out[start:start + n])
+        blocks = [(start, min(start + SAMPLE_CHUNK, len(x))) for start in range(0, len(x), SAMPLE_CHUNK)]
+
+        def variates(start: int, stop: int) -> tuple[torch.Tensor, torch.Tensor]:
+            return (torch.rand(stop - start, generator=generator, dtype=x.dtype, device=x.device),
+                    torch.randn(self.bones, 2, stop - start, generator=generator, dtype=x.dtype, device=x.device))
+
+        workers = min(torch.get_num_threads(), len(blocks)) if x.device.type == "cpu" else 1
+        if workers <= 1:
+            with torch.inference_mode():
+                for start, stop in blocks:
+                    self._sample_block(x[start:stop], *variates(start, stop), hot, out[start:stop])
+            return out
+        jobs: queue.SimpleQueue = queue.SimpleQueue()
+
+        def work() -> None:
+            with torch.inference_mode():
+                while (job := jobs.get()) is not None:
+                    start, stop, u, z = job
+                    self._sample_block(x[start:stop], u, z, hot, out[start:stop])
+
+        pool = _block_pool(workers)
+        running = [pool.submit(work) for _ in range(workers)]
+        for start, stop in blocks:
+            jobs.put((start, stop, *variates(start, stop)))
+        for _ in running:
+            jobs.put(None)
+        for future in running:
+            future.result()
         return out
 
     def mean_next(self, x: torch.Tensor, scale: float) -> torch.Tensor:
@@ -437,12 +577,16 @@ class GeodesicMixture:
         E[v | x] = Σ_k π_k(x) Γ_{μ_k→x}(E_kᵀ (m_k + R_k a_k)), the mixture's mean velocity.
         """
         hot = self._hot(x.dtype, x.device, scale)
+        b, n = self.bones, x.shape[0]
         xp = self._planar(x)
         weights = torch.softmax(self._planar_logits(xp, hot), dim=0)                    # (K, P)
+        lin = torch.empty(b, 7, n, dtype=x.dtype, device=x.device)
+        vel = torch.empty(b, 3, n, dtype=x.dtype, device=x.device)
         mean = torch.zeros_like(xp)
         for k in range(self.components):
-            mean.addcmul_(self._planar_velocity(xp, hot, k, None), weights[k])
-        return self._planar_exp(xp, mean).view(x.shape[1], x.shape[0]).t().contiguous()
+            self._affine_terms(xp, None, hot, k, lin, vel)
+            mean.addcmul_(self._planar_step(xp, lin, vel), weights[k])
+        return self._planar_exp(xp, mean).view(3 * b, n).t().contiguous()
 
     # ---- learning --------------------------------------------------------------------------------
     @classmethod
