@@ -18,6 +18,7 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 
 demo: install
 	$(BIN)/priortrack replay cmu:07_01 --scenario occlusion --out walk.rrd
+	$(BIN)/priortrack track cmu:07_10 --filter pf-lie --scenario occlusion:sigma_px=5 --rrd track.rrd
 
 test: install
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
