@@ -527,8 +527,7 @@ class GeodesicMixture:
                 self._affine_terms(xp[..., cols], z[..., cols], hot, k, lin[..., cols], vel[..., cols])
                 begin += count
         nxt = self._planar_exp(xp, self._planar_step(xp, lin, vel)).view(3 * b, n)
-        inverse = torch.empty_like(order).index_copy_(0, order, torch.arange(n, device=x.device))
-        out.copy_(nxt.index_select(1, inverse).t())
+        out.index_copy_(0, order, nxt.t().contiguous())
 
     def sample_next(self, x: torch.Tensor, generator: torch.Generator, scale: float) -> torch.Tensor:
         """One draw x_next = exp_x(v / s), v ~ p(v | x), per row of flat poses x (P, 3B).
@@ -563,10 +562,12 @@ class GeodesicMixture:
 
         pool = _block_pool(workers)
         running = [pool.submit(work) for _ in range(workers)]
-        for start, stop in blocks:
-            jobs.put((start, stop, *variates(start, stop)))
-        for _ in running:
-            jobs.put(None)
+        try:
+            for start, stop in blocks:
+                jobs.put((start, stop, *variates(start, stop)))
+        finally:                                                                        # the workers end in any case
+            for _ in running:
+                jobs.put(None)
         for future in running:
             future.result()
         return out
