@@ -8,6 +8,10 @@ import numpy as np
 import torch
 
 
+#: Frames a run starts from (pose and placement known), before the first filtered one.
+KNOWN_FRAMES = 2
+
+
 @dataclass
 class Snapshot:
     """One filter step, for a notebook to look at or a recording to log.
@@ -56,5 +60,6 @@ class Track:
 
     @property
     def seconds_per_frame(self) -> float:
-        filtered = int(np.sum(~np.isnan(self.ess)))
-        return self.seconds / max(filtered, 1)
+        """Run time per filtered frame (every frame after the two known ones; a MAP tracker or a
+        UKF has no ESS to count them by)."""
+        return self.seconds / max(len(self.estimates) - KNOWN_FRAMES, 1)
