@@ -13,6 +13,7 @@ from priortrack.experiments import fill_in
 from priortrack.priors.base import load_prior
 from priortrack.priors.gpdm import GPDM, KAPPA, gpdm_objective
 from priortrack.priors.spaces import AngleSpace
+from priortrack.threads import torch_threads
 from priortrack.viz.latent_plot import plot_latent
 
 
@@ -270,7 +271,7 @@ def test_fill_floor_recovers_poses_between_training_frames(model):
 
 def test_torch_threads_is_scoped():
     before = torch.get_num_threads()
-    with pytest.raises(RuntimeError), fill_in.torch_threads(1):
+    with pytest.raises(RuntimeError), torch_threads(1):
         assert torch.get_num_threads() == 1
         raise RuntimeError
     assert torch.get_num_threads() == before

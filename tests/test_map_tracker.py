@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from priortrack import PriortrackError, load_walkjog
 from priortrack.data.motion import Motion
 from priortrack.experiments.metrics import mpjpe, mpjpe_root_relative
-from priortrack.filters.map_tracker import MapTracker, single_thread
+from priortrack.filters.map_tracker import MapTracker
+from priortrack.threads import torch_threads
 from priortrack.filters.tracking_model import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
@@ -37,7 +38,7 @@ def setting():
     small torch operations run several times slower on two busy cores)."""
     walks = load_walkjog().walks("train")[:2]
     train = [at_15fps(m, 20) for m in walks]
-    with single_thread():
+    with torch_threads(1):
         prior = GPDM.fit(train, balanced=True, fps=FPS)
     global_motion = GlobalMotion.fit([prior.space.global_pose(at_15fps(m, 45)) for m in walks])
     motion = at_15fps(walks[0], FRAMES)
@@ -113,7 +114,7 @@ def test_energy_terms_match_a_direct_evaluation(setting):
                                                                SIGMA_PX)["image"], rel=1e-10)
     # The gradient the optimiser follows is the energy's.
     inputs = (g.clone().requires_grad_(True), x.clone().requires_grad_(True))
-    with single_thread():
+    with torch_threads(1):
         assert torch.autograd.gradcheck(lambda g, x: tracker.energy(g, None, x), inputs, eps=1e-4, atol=1e-5, rtol=1e-5)
 
 

@@ -20,6 +20,7 @@ from priortrack.data.bundled import load_bundled, load_walkjog
 from priortrack.errors import PriortrackError
 from priortrack.experiments.bench import interleaved_median_ms
 from priortrack.priors.lie import LiePrior
+from priortrack.threads import torch_threads
 
 logger = logging.getLogger(__name__)
 
@@ -82,16 +83,12 @@ def bench_lie_sample(n: int = 200_000, threads: int = 2, seed: int = 0, repeats:
     gmm.means_ = means
     gmm.covariances_ = covariances                      # all that GaussianMixture.sample reads
 
-    previous = torch.get_num_threads()
-    try:
-        with torch.inference_mode(), threadpool_limits(limits=threads):
-            torch.set_num_threads(threads)
+    with torch.inference_mode(), threadpool_limits(limits=threads):
+        with torch_threads(threads):
             ms = interleaved_median_ms({"sklearn": lambda: gmm.sample(n), "lie": lambda: prior.sample(x, g)},
                                        repeats)
-            torch.set_num_threads(1)
+        with torch_threads(1):
             one = interleaved_median_ms({"lie": lambda: prior.sample(x, g)}, repeats)["lie"]
-    finally:
-        torch.set_num_threads(previous)
     result = {"samples_per_s": n / (ms["lie"] / 1000), "clusters": prior.clusters, "dims": means.shape[1],
               "sklearn_gmm_samples_per_s": n / (ms["sklearn"] / 1000), "n": n, "threads": threads,
               "single_thread_samples_per_s": n / (one / 1000),

@@ -37,6 +37,7 @@ from priortrack.priors.diffusion import Diffusion
 from priortrack.priors.global_motion import GlobalMotion
 from priortrack.priors.gpdm import GPDM
 from priortrack.priors.lie import LiePrior
+from priortrack.threads import torch_threads
 
 logger = logging.getLogger(__name__)
 
@@ -118,9 +119,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
     phases = {name: {phase: [] for phase in PHASES} for name in filters}
     resamples = dict.fromkeys(filters, 0)
     load = os.getloadavg()[0]
-    previous = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
+    with torch_threads(threads):
         for t in range(2, 2 + warmup + steps):
             for name, pf in filters.items():
                 start, start_cpu = time.perf_counter(), time.process_time()
@@ -133,8 +132,6 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
                 for phase in PHASES:
                     phases[name][phase].append(snap.timings[phase])
                 resamples[name] += snap.ancestors is not None
-    finally:
-        torch.set_num_threads(previous)
     ms = {name: 1000.0 * float(np.median(t)) for name, t in times.items()}
     result = {
         "particles": particles,

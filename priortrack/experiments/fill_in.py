@@ -79,10 +79,8 @@ Checked, all on this protocol:
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import time
-from collections.abc import Iterator
 
 import numpy as np
 import torch
@@ -91,6 +89,7 @@ from scipy.interpolate import CubicSpline
 from priortrack.data.bundled import load_bundled, load_walkjog
 from priortrack.data.motion import Motion
 from priortrack.priors.gpdm import GPDM
+from priortrack.threads import torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -195,17 +194,6 @@ def fill_floor(model: GPDM, truth: np.ndarray) -> np.ndarray:
     :meth:`~priortrack.priors.gpdm.GPDM.encode_poses`, no dynamics): what the model reconstructs
     were the gap observed. truth (M, D) radians → (M, D); its error is the window's floor."""
     return model.reconstruct(model.encode_poses(torch.as_tensor(truth)))[0].numpy()
-
-
-@contextlib.contextmanager
-def torch_threads(n: int) -> Iterator[None]:
-    """Run torch's intra-op work on ``n`` threads inside the block, restoring the count after."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 def eval_fill_in(seed: int = 0) -> dict:

@@ -42,7 +42,6 @@ not its own reported estimate).
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import time
 
@@ -52,11 +51,12 @@ from scipy.optimize import minimize
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.tracking_model import TrackingModel
 from priortrack.priors.global_motion import GlobalMotion, to_world
 from priortrack.priors.gpdm import GPDM
+from priortrack.threads import torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -72,20 +72,7 @@ GTOL = 1e-2
 FTOL = 1e-6
 
 
-@contextlib.contextmanager
-def single_thread():
-    """Run torch on one intra-op thread, restoring the previous count after. The window holds a
-    few hundred numbers, so extra threads only add synchronisation: on 2 busy cores a frame took
-    4.1 s with torch's default 2 threads and 0.78 s with one (tiny GPDM, fast mode, 10 iterations)."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
-
-
-class MapTracker:
+class MapTracker(SequentialFilter):
     """Sliding-window MAP tracker for a (balanced) GPDM prior (module docstring: eq. 21, Algorithm 1).
 
     Args:
@@ -274,7 +261,9 @@ class MapTracker:
         if z.shape != self.model.observation_shape:
             raise PriortrackError(f"observation has shape {tuple(z.shape)}; expected {self.model.observation_shape}")
         flags = [] if torch.isfinite(z).any() else ["no-observation"]
-        with single_thread():
+        # The window holds a few hundred numbers: extra threads only add synchronisation (on 2 busy
+        # cores a frame took 4.1 s with torch's default 2 threads and 0.78 s with one).
+        with torch_threads(1):
             t0 = time.perf_counter()
             self._shift(z)
             t1 = time.perf_counter()
@@ -302,7 +291,3 @@ class MapTracker:
         timings = {"predict": t1 - t0, "latents": latents, "states": states, "estimate": time.perf_counter() - t2}
         return Snapshot(self.frame, particles, torch.ones(n, dtype=torch.float64), float("nan"), None,
                         estimate, estimate.copy(), joints, flags, timings)
-
-    #: The driver the filters share: initialise on the first two frames of a known motion, step
-    #: through the rest; returns a Track (its ``ess`` NaN for every frame).
-    run = ParticleFilter.run

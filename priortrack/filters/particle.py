@@ -16,19 +16,18 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 
-import numpy as np
 import torch
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
+from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.resampling import resampler
-from priortrack.filters.snapshot import Snapshot, Track
+from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.tracking_model import TrackingModel
 
 
-class ParticleFilter:
+class ParticleFilter(SequentialFilter):
     """Sequential importance resampling with P particles.
 
     Args:
@@ -114,33 +113,3 @@ class ParticleFilter:
             flags.append("weights-underflow")
             return torch.full_like(log_weights, -math.log(self.P))
         return log_weights - total
-
-    def run(self, observations, motion: Motion, keep_snapshots: bool = False,
-            progress: Callable[[int, int], None] | None = None) -> Track:
-        """Initialise on the first two frames of ``motion`` and filter the rest.
-
-        Args:
-            observations: (T, 15, 2) pixels at the prior's frame rate, NaN where missing.
-            motion: the known motion whose first two frames start the filter.
-        """
-        observations = np.asarray(observations, dtype=float)
-        T = len(observations)
-        if observations.ndim != 3 or observations.shape[1:] != (15, 2) or T < 3:
-            raise PriortrackError(f"observations have shape {observations.shape}; expected (T ≥ 3, 15, 2)")
-        start = time.perf_counter()
-        self.initialise(motion)
-        known = motion if motion.fps == self.model.prior.fps else motion.resample(self.model.prior.fps)
-        estimates = np.full((T, 15, 3), np.nan)
-        estimates[:2] = known.positions("eval15")[:2]
-        ess = np.full(T, np.nan)
-        flags: list[list[str]] = [[], []]
-        snapshots = []
-        for t in range(2, T):
-            snap = self.step(observations[t])
-            estimates[t], ess[t] = snap.estimate, snap.ess
-            flags.append(snap.flags)
-            if keep_snapshots:
-                snapshots.append(snap)
-            if progress:
-                progress(t, T)
-        return Track(estimates, ess, flags, time.perf_counter() - start, snapshots if keep_snapshots else None)

@@ -74,7 +74,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unsce
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.tracking_model import GLOBAL_DIM, TrackingModel
 from priortrack.geometry import so3
@@ -406,7 +406,7 @@ class BatchedUKF(UnscentedKalmanFilter):
         return (self.state_residual(sigmas_f, x).T * self.Wc) @ (sigmas_h - z)
 
 
-class UnscentedFilter:
+class UnscentedFilter(SequentialFilter):
     """The unscented Kalman filter over a prior with a Gaussian transition (module docstring).
 
     Args:
@@ -519,8 +519,3 @@ class UnscentedFilter:
         gamma = self.unscented.transport(torch.from_numpy(x_prior), torch.from_numpy(kf.x)).numpy()
         kf.P, repaired = repaired_covariance(gamma @ kf.P @ gamma.T)
         kf.repairs += repaired
-
-    # run(observations, motion, keep_snapshots, progress) -> Track: initialise on the first two
-    # frames of ``motion`` and filter the rest. The particle filter's run loop, shared: it uses
-    # only ``initialise``, ``step`` and ``model.prior``.
-    run = ParticleFilter.run

@@ -1,0 +1,55 @@
+"""What every filter shares: running over a whole sequence of observations.
+
+A filter (particle, annealed, unscented, MAP) keeps ``model`` (its ``prior.fps`` is the frame
+rate of the observations), ``initialise(motion)`` (start on the first two, known frames) and
+``step(z) -> Snapshot``; :class:`SequentialFilter` turns those into ``run(observations, motion)
+-> Track``, so a notebook can step frame by frame and a script can run the whole clip.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.filters.snapshot import KNOWN_FRAMES, Track
+
+
+class SequentialFilter:
+    """The ``run`` loop over ``initialise`` and ``step``, which subclasses provide."""
+
+    def run(self, observations, motion: Motion, keep_snapshots: bool = False,
+            progress: Callable[[int, int], None] | None = None) -> Track:
+        """Initialise on the first two frames of ``motion`` and filter the rest.
+
+        Args:
+            observations: (T, 15, 2) pixels at the prior's frame rate, NaN where missing.
+            motion: the known motion whose first two frames start the filter.
+            keep_snapshots: keep every step's Snapshot in the Track.
+            progress: called as progress(t, T) after each frame.
+        """
+        observations = np.asarray(observations, dtype=float)
+        T = len(observations)
+        if observations.ndim != 3 or observations.shape[1:] != (15, 2) or T < KNOWN_FRAMES + 1:
+            raise PriortrackError(f"observations have shape {observations.shape}; expected (T ≥ 3, 15, 2)")
+        start = time.perf_counter()
+        self.initialise(motion)
+        fps = self.model.prior.fps
+        known = motion if motion.fps == fps else motion.resample(fps)
+        estimates = np.full((T, 15, 3), np.nan)
+        estimates[:KNOWN_FRAMES] = known.positions("eval15")[:KNOWN_FRAMES]
+        ess = np.full(T, np.nan)
+        flags: list[list[str]] = [[] for _ in range(KNOWN_FRAMES)]
+        snapshots = []
+        for t in range(KNOWN_FRAMES, T):
+            snap = self.step(observations[t])
+            estimates[t], ess[t] = snap.estimate, snap.ess
+            flags.append(snap.flags)
+            if keep_snapshots:
+                snapshots.append(snap)
+            if progress:
+                progress(t, T)
+        return Track(estimates, ess, flags, time.perf_counter() - start, snapshots if keep_snapshots else None)
