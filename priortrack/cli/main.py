@@ -135,7 +135,7 @@ def _plot(args: argparse.Namespace) -> None:
 
 def _track(args: argparse.Namespace) -> None:
     from priortrack.experiments.tracking import track
-    from priortrack.viz.replay import replay_track
+    from priortrack.viz.replay import replay
 
     progress = _Progress(f"track {args.filter}", "frame {0} of {1}") if sys.stderr.isatty() else None
     run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd), progress=progress,
@@ -143,7 +143,7 @@ def _track(args: argparse.Namespace) -> None:
     if progress:
         progress.close()
     if args.rrd:
-        replay_track(run.motion, run.observations, run.track, args.rrd)
+        replay(run.motion, run.observations, args.rrd, track=run.track)
     if args.json:
         _print_json(run.result)
         return

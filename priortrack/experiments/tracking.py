@@ -23,7 +23,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import error_2d, mpjpe, mpjpe_root_relative
 from priortrack.filters.presets import Preset, load_preset
-from priortrack.filters.snapshot import Track
+from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 from priortrack.observation.synthetic import Observations, default_camera, parse_scenario, synthesize
 
 log = logging.getLogger(__name__)
@@ -78,7 +78,7 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
     torch.manual_seed(seed)
     filt = preset.build(camera, seed=seed, cache=cache)
     result_track = filt.run(observations.uv, motion, keep_snapshots=keep_snapshots, progress=progress)
-    est, truth = result_track.estimates[2:], X[2:]
+    est, truth = result_track.estimates[KNOWN_FRAMES:], X[KNOWN_FRAMES:]
     uv_est, _ = camera.project(torch.as_tensor(est))
     uv_true, _ = camera.project(torch.as_tensor(truth))
     result = {

@@ -8,40 +8,30 @@ import numpy as np
 import torch
 
 from priortrack.data.motion import Motion
-from priortrack.filters.snapshot import Track
+from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 from priortrack.observation.synthetic import Observations
 from priortrack.viz.recording import Recording
 
+ESTIMATE_COLOR = (255, 90, 60)
 
-def replay(motion: Motion, observations: Observations, path: str | Path) -> Path:
-    """Write the ground-truth eval15 skeleton over time, the camera as a pinhole entity and
-    the 2D observations in its image to ``path`` (an ``.rrd`` file). Returns the path."""
+
+def replay(motion: Motion, observations: Observations, path: str | Path, track: Track | None = None) -> Path:
+    """Write the ground-truth eval15 skeleton over time, the camera as a pinhole entity and the 2D
+    observations in its image to ``path`` (an ``.rrd`` file). With a tracking run ``track``, also
+    the filter's estimate (after the known frames) and its projection, and the particle cloud or
+    sigma points coloured by weight (if ``track`` kept its snapshots). Returns the path."""
     positions = motion.positions("eval15")
+    snapshots = {s.frame: s for s in track.snapshots or []} if track is not None else {}
     with Recording(path) as rec:
         rec.camera(observations.camera)
         for i, pose in enumerate(positions):
             rec.frame(i)
             rec.skeleton("truth", pose)
             rec.points_2d("observations", observations.uv[i])
-    return Path(path)
-
-
-def replay_track(motion: Motion, observations: Observations, track: Track, path: str | Path) -> Path:
-    """Write a tracking run: the ground truth, the filter's estimate (from frame 2), the particle
-    cloud or sigma points coloured by weight (``track`` must keep its snapshots), the 2D
-    observations and the estimate's projection. Returns the path."""
-    positions = motion.positions("eval15")
-    snapshots = {s.frame: s for s in track.snapshots or []}
-    with Recording(path) as rec:
-        rec.camera(observations.camera)
-        for i, pose in enumerate(positions):
-            rec.frame(i)
-            rec.skeleton("truth", pose)
-            rec.points_2d("observations", observations.uv[i])
-            if i >= 2 and np.isfinite(track.estimates[i]).all():
-                rec.skeleton("estimate", track.estimates[i], color=(255, 90, 60))
+            if track is not None and i >= KNOWN_FRAMES and np.isfinite(track.estimates[i]).all():
+                rec.skeleton("estimate", track.estimates[i], color=ESTIMATE_COLOR)
                 uv, _ = observations.camera.project(torch.as_tensor(track.estimates[i]))
-                rec.points_2d("estimate", uv.numpy(), color=(255, 90, 60))
+                rec.points_2d("estimate", uv.numpy(), color=ESTIMATE_COLOR)
             if i in snapshots:
                 rec.cloud("estimate", snapshots[i].joints.cpu().numpy(), snapshots[i].weights.cpu().numpy())
     return Path(path)
