@@ -24,8 +24,8 @@ import torch
 
 from priortrack.errors import PriortrackError
 from priortrack.filters.particle import ParticleFilter
-from priortrack.filters.tracking_model import GLOBAL_DIM, TrackingModel
-from priortrack.geometry import so3
+from priortrack.filters.tracking_model import TrackingModel
+from priortrack.priors.global_motion import GlobalMotion
 
 #: Bisection steps for β (the survival rate is matched to about 2^-40 in β).
 BISECTION_STEPS = 40
@@ -122,8 +122,4 @@ class AnnealedParticleFilter(ParticleFilter):
         space = self.model.prior.space
         scale = shrink ** 0.5
         x = space.boxplus(x, space.tangent_noise(x, scale * std_x, self.generator))
-        noise = torch.randn((len(s), GLOBAL_DIM), generator=self.generator, dtype=s.dtype, device=s.device)
-        noise = noise * (scale * std_g)
-        rotation = so3.exp(noise[:, 3:]) @ so3.exp(g[:, 3:])
-        g = torch.cat([g[:, :3] + noise[:, :3], so3.log(rotation)], -1)
-        return torch.cat([x, g, g_prev], -1)
+        return torch.cat([x, GlobalMotion.perturb(g, scale * std_g, self.generator), g_prev], -1)

@@ -80,10 +80,20 @@ class GlobalMotion:
     def sample(self, g1: torch.Tensor, g2: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """One draw of g_t (P, 6) per row of g_{t-1}, g_{t-2}."""
         t_hat, q_hat = self._predicted(g1, g2)
-        noise = torch.randn(g1.shape, generator=generator, dtype=g1.dtype, device=g1.device)
-        noise = noise * self.sigma.to(g1)
-        rotation = so3.quaternion_product(so3.quaternion(noise[:, 3:]), q_hat)
-        return torch.cat([t_hat + noise[:, :3], so3.quaternion_log(rotation)], dim=-1)
+        return self._perturbed(t_hat, q_hat, self.sigma.to(g1), generator)
+
+    @classmethod
+    def perturb(cls, g: torch.Tensor, std: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """g (P, 6) with the model's kind of noise, per axis std (6,): t + ε, exp(η) R."""
+        return cls._perturbed(g[:, :3], so3.quaternion(g[:, 3:]), std, generator)
+
+    @staticmethod
+    def _perturbed(t: torch.Tensor, q: torch.Tensor, std: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """(t + ε, log(exp(η) R)) for translations t (P, 3) and rotations R as quaternions q (P, 4),
+        (ε, η) ~ N(0, diag std²) (P, 6)."""
+        noise = torch.randn((len(t), 6), generator=generator, dtype=t.dtype, device=t.device) * std
+        rotation = so3.quaternion_product(so3.quaternion(noise[:, 3:]), q)
+        return torch.cat([t + noise[:, :3], so3.quaternion_log(rotation)], dim=-1)
 
     def log_prob(self, g: torch.Tensor, g1: torch.Tensor, g2: torch.Tensor) -> torch.Tensor:
         """(P,) log p(g_t | g_{t-1}, g_{t-2}), the Gaussian density of the residual (ε, η)."""
