@@ -87,7 +87,7 @@ def test_a_second_run_reads_the_cache_and_predicts_identically(tmp_path, monkeyp
 
     monkeypatch.setattr(presets_module, "fit_prior", no_refit)
     second = preset.prior(cache=tmp_path)
-    x = first.encode(preset.training_motions()[0])[:5]
+    x = first.encode(preset.training_motions[0])[:5]
     g = torch.Generator().manual_seed(0), torch.Generator().manual_seed(0)
     assert torch.equal(first.sample(x, g[0]), second.sample(x, g[1]))
     other = parse_preset(table(prior__train=["walkjog:35_03"]), "small")
@@ -98,7 +98,7 @@ def test_build_gives_the_named_filter_with_its_parameters(tmp_path):
     from priortrack.observation import default_camera
 
     preset = parse_preset(table(), "small")
-    motion = preset.training_motions()[0]
+    motion = preset.training_motions[0]
     filt = preset.build(default_camera(motion.positions("eval15")), seed=3, cache=tmp_path)
     assert type(filt).__name__ == "ParticleFilter" and filt.P == 50
     assert np.isclose(filt.model.likelihood.sigma_px, 10.0)

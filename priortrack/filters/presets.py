@@ -35,11 +35,13 @@ import os
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 from priortrack.data.bundled import expand_sources
 from priortrack.data.load import load_motion
+from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.observation.likelihood import JointLikelihood
@@ -120,7 +122,7 @@ class Preset:
         if path.exists():
             log.info("prior from cache %s", path)
             return load_prior(path)
-        prior = fit_prior(self.prior_kind, self.training_motions(), progress=progress, fps=self.fps,
+        prior = fit_prior(self.prior_kind, self.training_motions, progress=progress, fps=self.fps,
                           **self.prior_options)
         cache.mkdir(parents=True, exist_ok=True)
         partial = path.with_suffix(".partial.npz")
@@ -129,12 +131,15 @@ class Preset:
         log.info("fitted %s prior cached at %s", self.prior_kind, path)
         return prior
 
-    def training_motions(self):
-        return prepare_motions([load_motion(source) for source in self.train], self.fps)
+    @cached_property
+    def training_motions(self) -> tuple[Motion, ...]:
+        """The ``train`` motions at the prior's rate, loaded once per preset (a table reuses them
+        for the global motion of every run)."""
+        return tuple(prepare_motions([load_motion(source) for source in self.train], self.fps))
 
     def global_motion(self, prior: TransitionModel) -> GlobalMotion:
         """The second-order placement model, fitted to the training motions' placements."""
-        return GlobalMotion.fit([prior.space.global_pose(m) for m in self.training_motions()])
+        return GlobalMotion.fit([prior.space.global_pose(m) for m in self.training_motions])
 
     def likelihood(self, camera: PinholeCamera) -> JointLikelihood:
         return JointLikelihood(camera, **self.observation)
