@@ -291,6 +291,31 @@ def test_karcher_mean_satisfies_first_order_condition(data):
     assert_close(mean.norm(dim=-1), 1.0, 1e-14)
 
 
+@pytest.mark.parametrize("spread", [1e-9, 1e-4, 0.1, 0.5])
+def test_fast_mean_step_equals_the_sum_of_logs(spread):
+    """The batched step Σ_i a_i x_i − (Σ_i a_i c_i) μ (points within 90° of μ) against Σ_i w_i log_μ(x_i)
+    from log_map, including the Taylor branch (spread 1e-9: c rounds to 1)."""
+    from priortrack.geometry.sphere import _mean_step
+
+    gen = torch.Generator().manual_seed(1)
+    mean = torch.nn.functional.normalize(torch.randn(5, 3, dtype=torch.float64, generator=gen), dim=-1)
+    offsets = project_to_tangent(mean, spread * torch.randn(400, 5, 3, dtype=torch.float64, generator=gen))
+    points = exp_map(mean, offsets.clamp(-1.4, 1.4))
+    weights = torch.rand(400, dtype=torch.float64, generator=gen)
+    weights /= weights.sum()
+    expected = (weights[:, None, None] * log_map(mean, points)).sum(0)
+    step = _mean_step(mean, points.permute(1, 2, 0).contiguous(), weights)
+    assert_close(step, expected, 1e-15 + 1e-13 * spread)
+
+
+def test_fast_mean_step_declines_points_beyond_90_degrees():
+    from priortrack.geometry.sphere import _mean_step
+
+    mean = t([[0.0, 0.0, 1.0]])
+    points = t([[[1.0, 0.0, 0.0]], [[0.0, 0.6, -0.8]]])
+    assert _mean_step(mean, points.permute(1, 2, 0).contiguous(), t([0.5, 0.5])) is None
+
+
 def test_karcher_mean_falls_back_to_heaviest_point_when_euclidean_mean_vanishes():
     x = t([[[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]]])
     mean = karcher_mean(x)

@@ -177,3 +177,4 @@ def generator_for(seed: int | torch.Generator, device: str | torch.device = "cpu
     if isinstance(seed, torch.Generator):
         return seed
     return torch.Generator(device=device).manual_seed(int(seed))
+

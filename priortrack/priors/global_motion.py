@@ -22,6 +22,7 @@ import torch
 
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
+from priortrack.randomness import standard_normal
 
 #: Smallest σ a fit may return (metres or radians per frame).
 SIGMA_FLOOR = 1e-4
@@ -91,7 +92,7 @@ class GlobalMotion:
     def _perturbed(t: torch.Tensor, q: torch.Tensor, std: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """(t + ε, log(exp(η) R)) for translations t (P, 3) and rotations R as quaternions q (P, 4),
         (ε, η) ~ N(0, diag std²) (P, 6)."""
-        noise = torch.randn((len(t), 6), generator=generator, dtype=t.dtype, device=t.device) * std
+        noise = standard_normal((len(t), 6), generator, t) * std
         rotation = so3.quaternion_product(so3.quaternion(noise[:, 3:]), q)
         return torch.cat([t + noise[:, :3], so3.quaternion_log(rotation)], dim=-1)
 

@@ -78,6 +78,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
 from priortrack.priors.spaces import AngleSpace, EuclideanSpace
+from priortrack.randomness import standard_normal
 
 log = logging.getLogger(__name__)
 
@@ -421,7 +422,7 @@ class GPDM(TransitionModel):
         """(P, d) → (P, d): x_t ~ N(μ_X(x), σ_X²(x) I_d) per row, noise drawn from ``generator``."""
         x = torch.as_tensor(x)
         mu, var = self._dynamics64(self._latent(x))
-        noise = torch.randn(mu.shape, generator=generator, dtype=x.dtype, device=x.device)
+        noise = standard_normal(mu.shape, generator, x)
         return (mu + var.sqrt()[:, None] * noise.to(torch.float64)).to(x.dtype)
 
     def log_prob(self, x_next, x) -> torch.Tensor:

@@ -82,6 +82,7 @@ from priortrack.geometry.sphere import karcher_mean, log_map
 from priortrack.geometry.tangent_basis import tangent_basis, to_coordinates
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
 from priortrack.priors.spaces import DirectionSpace
+from priortrack.randomness import standard_normal
 
 logger = logging.getLogger(__name__)
 
@@ -544,7 +545,7 @@ class GeodesicMixture:
 
         def variates(start: int, stop: int) -> tuple[torch.Tensor, torch.Tensor]:
             return (torch.rand(stop - start, generator=generator, dtype=x.dtype, device=x.device),
-                    torch.randn(self.bones, 2, stop - start, generator=generator, dtype=x.dtype, device=x.device))
+                    standard_normal((self.bones, 2, stop - start), generator, x))
 
         workers = min(torch.get_num_threads(), len(blocks)) if x.device.type == "cpu" else 1
         if workers <= 1:

@@ -30,6 +30,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
 from priortrack.geometry.sphere import exp_map, karcher_mean, log_map, project_to_tangent
+from priortrack.randomness import standard_normal
 
 #: Channels of a CMU angle whose training spread is below this (radians) are constants
 #: (CMU's finger and thumb bones carry no data) and are not modelled.
@@ -106,7 +107,7 @@ class EuclideanSpace(StateSpace):
         return y - x
 
     def tangent_noise(self, x, std, generator):
-        return torch.randn(x.shape, generator=generator, dtype=x.dtype, device=x.device) * std
+        return standard_normal(x.shape, generator, x) * std
 
     def mean(self, x, weights=None):
         if weights is None:
@@ -249,7 +250,7 @@ class DirectionSpace(StateSpace):
         return log_map(self._spheres(x), self._spheres(y)).reshape(y.shape)
 
     def tangent_noise(self, x, std, generator):
-        ambient = torch.randn(x.shape, generator=generator, dtype=x.dtype, device=x.device) * std
+        ambient = standard_normal(x.shape, generator, x) * std
         return project_to_tangent(self._spheres(x), self._spheres(ambient)).reshape(x.shape)
 
     def mean(self, x, weights=None):
