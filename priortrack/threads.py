@@ -1,11 +1,18 @@
-"""Scoped torch thread counts, for work whose tensors are too small to gain from threads."""
+"""Threads for torch work: scoped thread counts, and a pool of single-threaded workers that
+run blocks of a batch side by side (the Lie prior's sampler)."""
 
 from __future__ import annotations
 
 import contextlib
+import os
+import threading
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 
 import torch
+
+_POOL_LOCK = threading.Lock()
+_pool: tuple[int, int, ThreadPoolExecutor] | None = None                               # (pid, threads, pool)
 
 
 @contextlib.contextmanager
@@ -17,3 +24,35 @@ def torch_threads(n: int) -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(previous)
+
+
+def _single_threaded_worker() -> None:
+    """Initialiser of :func:`block_pool`'s threads: torch set to one thread in this thread. torch
+    initialises a thread's count on its first use there (to the default), so that comes first."""
+    torch.get_num_threads()
+    torch.set_num_threads(1)
+
+
+def block_pool(workers: int) -> ThreadPoolExecutor:
+    """The process's pool of block workers, with at least ``workers`` threads (rebuilt after a fork).
+
+    It lives for the life of the process. Each worker sets torch to one thread for itself:
+    OpenMP's and MKL's thread counts are per-thread settings, so T blocks run side by side keep
+    T threads busy instead of starting T teams (in builds with MKL, its vector math behind acos,
+    exp, sin and cos would otherwise thread each call). Since ``torch.set_num_threads`` also sets
+    the default that threads take on their first use of torch, that default is put back once
+    every worker has started.
+    """
+    global _pool
+    with _POOL_LOCK:
+        if _pool is None or _pool[0] != os.getpid() or _pool[1] < workers:
+            threads = torch.get_num_threads()
+            pool = ThreadPoolExecutor(workers, thread_name_prefix="priortrack-blocks",
+                                      initializer=_single_threaded_worker)
+            started = threading.Barrier(workers + 1)
+            for _ in range(workers):
+                pool.submit(started.wait)
+            started.wait()
+            torch.set_num_threads(threads)
+            _pool = (os.getpid(), workers, pool)
+        return _pool[2]

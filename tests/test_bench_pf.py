@@ -25,10 +25,10 @@ def priors():
 
 def test_reports_every_prior_from_real_steps(priors):
     threads = torch.get_num_threads()
-    result = bench_pf(particles=64, steps=3, warmup=1, threads=1, joints_dtype="float32", priors=priors)
+    result = bench_pf(particles=64, steps=3, warmup=1, threads=1, dtype="float32", priors=priors)
     assert torch.get_num_threads() == threads                                   # restored
     assert result["particles"] == 64 and result["steps"] == 3 and result["threads"] == 1
-    assert result["dtype"] == "float64" and result["joints_dtype"] == "float32"
+    assert result["dtype"] == "float32"
     for name in priors:
         ms = result["ms_per_step"][name]
         low, high = result["ms_per_step_range"][name]
@@ -44,8 +44,8 @@ def test_reports_every_prior_from_real_steps(priors):
 def test_bad_arguments(priors):
     with pytest.raises(PriortrackError, match="positive"):
         bench_pf(particles=0, priors=priors)
-    with pytest.raises(PriortrackError, match="joints_dtype"):
-        bench_pf(particles=8, joints_dtype="float16", priors=priors)
+    with pytest.raises(PriortrackError, match="dtype"):
+        bench_pf(particles=8, dtype="float16", priors=priors)
     with pytest.raises(PriortrackError, match="exceeds"):
         bench_pf(particles=8, steps=200, priors=priors)
     with pytest.raises(PriortrackError, match="expected some of"):

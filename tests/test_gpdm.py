@@ -133,6 +133,9 @@ def test_reconstruction_interpolates_with_small_noise_and_variance_grows_away(mo
     assert sharp.reconstruct(ray)[1][-1] > 1e6 * var.max()
     mu_d, var_d = model.dynamics(ray)
     assert mu_d.shape == (30, 3) and var_d[-1] > var_d[0]
+    # The mean-only paths (no variance solve) give the same means.
+    torch.testing.assert_close(model.pose_mean(ray), model.reconstruct(ray)[0], atol=0, rtol=0)
+    torch.testing.assert_close(model.mean(ray), mu_d, atol=0, rtol=0)
 
 
 def test_save_load_gives_identical_predictions(model, tmp_path):

@@ -11,6 +11,7 @@ from scipy.special import logsumexp
 from scipy.stats import multivariate_normal
 
 from priortrack import PriortrackError, load_motion, load_walkjog
+from priortrack import threads as threads_module
 from priortrack.data.motion import Motion
 from priortrack.geometry.sphere import karcher_mean, log_map, transport
 from priortrack.geometry.tangent_basis import from_coordinates, tangent_basis, to_coordinates
@@ -457,7 +458,7 @@ def test_draws_do_not_depend_on_the_thread_count(walk_split, monkeypatch):
     frames = prior.encode(train[0])
     x = frames[torch.randint(len(frames), (3000,), generator=torch.Generator().manual_seed(0))]
     monkeypatch.setattr(lie_module, "SAMPLE_CHUNK", 512)                         # 6 blocks
-    monkeypatch.setattr(lie_module, "_pool", None)                               # a fresh pool
+    monkeypatch.setattr(threads_module, "_pool", None)                           # a fresh pool
     try:
         for dtype in (torch.float64, torch.float32):
             torch.set_num_threads(1)

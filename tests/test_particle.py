@@ -80,9 +80,12 @@ def test_bad_observation_shape_and_uninitialised(linear):
         pf.step(np.zeros(3))
     with pytest.raises(PriortrackError, match="particles"):
         ParticleFilter(linear, 0)
+    with pytest.raises(PriortrackError, match="dtype must be one of float64, float32"):
+        ParticleFilter(linear, 10, dtype="float16")
 
 
-def test_tracks_a_walk_better_than_holding_the_first_pose():
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_tracks_a_walk_better_than_holding_the_first_pose(dtype):
     walkjog = load_walkjog()
     train = list(walkjog.walks("train"))
     prior = Diffusion.fit(train, local=True)
@@ -91,7 +94,9 @@ def test_tracks_a_walk_better_than_holding_the_first_pose():
     obs = synthesize(X, motion.fps, default_camera(X), "clean", seed=0)
     model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
                           JointLikelihood(obs.camera))
-    track = ParticleFilter(model, 300, seed=0).run(obs.uv, motion)
+    pf = ParticleFilter(model, 300, dtype=dtype, seed=0)
+    track = pf.run(obs.uv, motion)
+    assert pf.states.dtype == getattr(torch, dtype) and pf.log_weights.dtype == torch.float64
     filtered = mpjpe(track.estimates[2:], X[2:]).mean()
     still = mpjpe(np.repeat(X[1:2], len(X) - 2, 0), X[2:]).mean()
     assert filtered < 0.5 * still

@@ -310,6 +310,20 @@ def test_fast_mean_step_equals_the_sum_of_logs(spread):
     assert_close(step, expected, 1e-15 + 1e-13 * spread)
 
 
+def test_karcher_mean_of_many_float32_points_converges_to_the_float64_mean(caplog):
+    """10⁴ float32 points: the iteration runs in float64 (a float32 sum would stall above the
+    float32 tolerance), converges without a warning and agrees with the float64 mean."""
+    gen = torch.Generator().manual_seed(3)
+    centre = torch.nn.functional.normalize(torch.randn(14, 3, dtype=torch.float64, generator=gen), dim=-1)
+    points = exp_map(centre, project_to_tangent(centre, 0.2 * torch.randn(10_000, 14, 3, dtype=torch.float64,
+                                                                                generator=gen)))
+    weights = torch.rand(10_000, dtype=torch.float64, generator=gen)
+    with caplog.at_level("WARNING", logger="priortrack.geometry.sphere"):
+        mean32 = karcher_mean(points.float(), weights.float())
+    assert "no convergence" not in caplog.text and mean32.dtype == torch.float32
+    assert_close(mean32.double(), karcher_mean(points, weights), 1e-6)
+
+
 def test_fast_mean_step_declines_points_beyond_90_degrees():
     from priortrack.geometry.sphere import _mean_step
 

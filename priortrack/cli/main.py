@@ -230,7 +230,8 @@ def _bench_ukf(args: argparse.Namespace) -> None:
 def _bench_pf(args: argparse.Namespace) -> None:
     from priortrack.experiments.bench_pf import bench_pf
 
-    _print_json(bench_pf(particles=args.particles, steps=args.steps, seed=args.seed, threads=args.threads))
+    _print_json(bench_pf(particles=args.particles, steps=args.steps, seed=args.seed, threads=args.threads,
+                         dtype=args.dtype))
 
 
 def _bench_fk(args: argparse.Namespace) -> None:
@@ -328,6 +329,8 @@ def build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--particles", type=int, default=10_000)
     pf.add_argument("--steps", type=int, default=20, help="timed steps per prior")
     pf.add_argument("--threads", type=int, default=2)
+    pf.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+                    help="the particles' dtype (the particle-filter presets run float32)")
     pf.add_argument("--seed", type=int, default=0)
     pf.add_argument("--json", action="store_true", help="(the output is always JSON)")
     pf.set_defaults(run=_bench_pf)

@@ -28,7 +28,7 @@ import torch
 from priortrack.data.bundled import load_walkjog
 from priortrack.errors import PriortrackError
 from priortrack.experiments.bench_gpdm import bench_walks
-from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.particle import DTYPES, ParticleFilter
 from priortrack.filters.tracking_model import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
@@ -45,8 +45,6 @@ logger = logging.getLogger(__name__)
 PRIORS = ("diffusion", "gpdm", "lie")
 #: The phases of :attr:`priortrack.filters.snapshot.Snapshot.timings`.
 PHASES = ("predict", "weight", "estimate", "resample")
-#: The dtypes the particles' forward kinematics may run in.
-JOINTS_DTYPES = {"float64": torch.float64, "float32": torch.float32}
 
 
 def bench_priors(seed: int = 0, gpdm_frames: int = 100) -> dict[str, TransitionModel]:
@@ -60,7 +58,7 @@ def bench_priors(seed: int = 0, gpdm_frames: int = 100) -> dict[str, TransitionM
 
 
 def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: int = 2, warmup: int = 2,
-             gpdm_frames: int = 100, joints_dtype: str = "float64",
+             gpdm_frames: int = 100, dtype: str = "float32",
              priors: dict[str, TransitionModel] | None = None) -> dict:
     """Time ``steps`` particle-filter steps with ``particles`` particles for every prior.
 
@@ -71,9 +69,8 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         seed: seeds the fits, the observation noise and the filters.
         threads: torch intra-op threads during the timed steps.
         gpdm_frames: training frames of the GPDM (its step cost grows with them).
-        joints_dtype: "float64" (the states' own, the default of :class:`TrackingModel`) or
-            "float32": the dtype of the particles' forward kinematics
-            (``TrackingModel(joints_dtype=...)``).
+        dtype: the particles' dtype (``ParticleFilter(dtype=...)``): "float32", as the
+            particle-filter presets run, or "float64".
         priors: name → fitted prior, instead of :func:`bench_priors` (tests pass small ones).
 
     Returns:
@@ -81,7 +78,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         {prior: median ms}, "ms_per_step_range": {prior: [min, max] ms}, "cpu_ms_per_step":
         {prior: median process CPU ms, all threads}, "phases_ms": {prior: {phase: median ms}},
         "resamples": {prior: count over the timed steps}, "steps", "threads", "load_average":
-        [1-minute load before, after], "dtype", "joints_dtype"}``; the phases are those of
+        [1-minute load before, after], "dtype"}``; the phases are those of
         ``Snapshot.timings`` (predict, weight = joints + projection + likelihood +
         normalisation, estimate, resample).
         On a machine busy with other work the wall time exceeds the CPU time (waiting for a
@@ -90,8 +87,8 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
     if particles < 1 or steps < 1 or threads < 1 or warmup < 0:
         raise PriortrackError(f"bench pf: particles, steps and threads must be positive and warmup ≥ 0 "
                               f"(got {particles}, {steps}, {threads}, {warmup})")
-    if joints_dtype not in JOINTS_DTYPES:
-        raise PriortrackError(f"bench pf: joints_dtype must be one of {', '.join(JOINTS_DTYPES)}, got {joints_dtype!r}")
+    if dtype not in DTYPES:
+        raise PriortrackError(f"bench pf: dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
     walk = load_walkjog().walks("test")[0]
     if warmup + steps > len(walk) - 2:
         raise PriortrackError(f"bench pf: warmup + steps = {warmup + steps} exceeds the {len(walk) - 2} "
@@ -109,9 +106,8 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
     filters = {}
     for name, prior in priors.items():
         global_motion = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
-        model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera),
-                              joints_dtype=JOINTS_DTYPES[joints_dtype])
-        filters[name] = ParticleFilter(model, particles, seed=seed)
+        model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera))
+        filters[name] = ParticleFilter(model, particles, dtype=dtype, seed=seed)
         filters[name].initialise(walk)
 
     times = {name: [] for name in filters}
@@ -146,7 +142,6 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         "threads": threads,
         "load_average": [load, os.getloadavg()[0]],
         "dtype": str(next(iter(filters.values())).states.dtype).removeprefix("torch."),
-        "joints_dtype": joints_dtype,
     }
     for name in filters:
         logger.info("bench pf %s: %.0f particle-steps/s (%.1f ms per step of %d particles; %s)", name,

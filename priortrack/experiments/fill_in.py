@@ -186,14 +186,14 @@ def fill_gpdm(model: GPDM, y: np.ndarray, missing: np.ndarray, dynamics: float =
     starts[1][missing] = (1 - s) * start[before] + s * start[after]
     optima = [model.map_latents(y_obs, x0, dynamics=dynamics, maxiter=MAP_MAXITER) for x0 in starts]
     x = min(optima, key=lambda x: window_energy(model, x, y_obs, dynamics))
-    return model.reconstruct(x[missing])[0].numpy()
+    return model.pose_mean(x[missing]).numpy()
 
 
 def fill_floor(model: GPDM, truth: np.ndarray) -> np.ndarray:
     """μ_Y at each missing frame's own latent, inferred from its true pose alone (eq. 18 through
     :meth:`~priortrack.priors.gpdm.GPDM.encode_poses`, no dynamics): what the model reconstructs
     were the gap observed. truth (M, D) radians → (M, D); its error is the window's floor."""
-    return model.reconstruct(model.encode_poses(torch.as_tensor(truth)))[0].numpy()
+    return model.pose_mean(model.encode_poses(torch.as_tensor(truth))).numpy()
 
 
 def eval_fill_in(seed: int = 0) -> dict:

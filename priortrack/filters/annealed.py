@@ -66,18 +66,19 @@ class AnnealedParticleFilter(ParticleFilter):
         layers: L ≥ 1 annealing layers per frame.
         survival: the target survival rate α in (0, 1) of every layer.
         resampling: the resampling scheme between layers and at the end of a frame.
+        dtype: the particles' dtype (as :class:`ParticleFilter`).
         seed: seeds the filter's torch.Generator.
     """
 
     def __init__(self, model: TrackingModel, particles: int = 1000, layers: int = 5, survival: float = 0.5,
-                 resampling: str = "systematic", seed: int = 0):
+                 resampling: str = "systematic", dtype: str = "float64", seed: int = 0):
         if not isinstance(model, TrackingModel):
             raise PriortrackError("the annealed particle filter diffuses states in a prior's space: it needs a TrackingModel")
         if layers < 1:
             raise PriortrackError(f"layers must be at least 1, got {layers}")
         if not 0.0 < survival < 1.0:
             raise PriortrackError(f"survival must be in (0, 1), got {survival}")
-        super().__init__(model, particles, resampling, ess_threshold=1.0, seed=seed)
+        super().__init__(model, particles, resampling, ess_threshold=1.0, dtype=dtype, seed=seed)
         self.layers, self.survival = int(layers), float(survival)
         self.betas: list[float] = []
 

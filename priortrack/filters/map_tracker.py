@@ -162,7 +162,7 @@ class MapTracker(SequentialFilter):
         unknown = set(terms) - set(TERMS)
         if unknown:
             raise PriortrackError(f"unknown energy terms {sorted(unknown)}; terms: {', '.join(TERMS)}")
-        poses = self.prior.reconstruct(x)[0] if y is None else y
+        poses = self.prior.pose_mean(x) if y is None else y
         out = {}
         if "image" in terms:
             world = to_world(self.angles.joints(poses), g)                               # (n, 15, 3)
@@ -236,7 +236,7 @@ class MapTracker(SequentialFilter):
         self.x, self.g = torch.cat([self.x, x_new]), torch.cat([self.g, g_new])
         self.observations.append(z)
         if self.y is not None:
-            self.y = torch.cat([self.y, self.prior.reconstruct(x_new)[0]])
+            self.y = torch.cat([self.y, self.prior.pose_mean(x_new)])
         if self.free > self.tau + 1:
             self.observations.pop(0)
             if self.y is not None:
@@ -282,7 +282,7 @@ class MapTracker(SequentialFilter):
         n = self.free
         g, x = self.g[-n:], self.x[-n:]
         with torch.no_grad():
-            poses = self.prior.reconstruct(x)[0] if self.y is None else self.y
+            poses = self.prior.pose_mean(x) if self.y is None else self.y
             joints = to_world(self.angles.joints(poses), g)
         particles = torch.cat([x, g, self.g[-n - 1:-1]], dim=1)
         estimate = joints[-1].numpy()

@@ -25,22 +25,14 @@ class TrackingModel:
 
     The interface every filter uses (a linear-Gaussian model in the tests keeps it too):
     ``dim``, ``observation_shape``, ``predict``, ``mean_step``, ``observe`` (states → what
-    the likelihood scores: world joints), ``log_likelihood(observed, z)``, ``mean``.
-
-    Args:
-        joints_dtype: the dtype in which ``observe`` decodes poses into body joints (the
-            forward kinematics of every particle); None (the default) for the states' own.
-            float32, for the hot particle path, is within 1e-6 m of float64 on mocap poses and
-            runs the FK of 10⁴ poses about 2.5 times faster; the placement stays in the states'
-            dtype.
+    the likelihood scores: world joints), ``log_likelihood(observed, z)``, ``mean``. Everything
+    runs in the dtype of the states it is given.
     """
 
     observation_shape = (15, 2)
 
-    def __init__(self, prior: TransitionModel, global_motion: GlobalMotion, likelihood: JointLikelihood,
-                 joints_dtype: torch.dtype | None = None):
+    def __init__(self, prior: TransitionModel, global_motion: GlobalMotion, likelihood: JointLikelihood):
         self.prior, self.global_motion, self.likelihood = prior, global_motion, likelihood
-        self.joints_dtype = joints_dtype
         #: The state space that decodes joints: the prior's, with the tracked subject's body
         #: (bone lengths) once :meth:`initial_states` has seen the subject's known first frames.
         self.body = prior.space
@@ -71,11 +63,9 @@ class TrackingModel:
         return torch.cat([self.prior.mean(x), GlobalMotion.predict(g, g_prev), g], -1)
 
     def observe(self, s: torch.Tensor) -> torch.Tensor:
-        """(P, S + 12) → (P, 15, 3) world joints, metres, in s's dtype (body joints decoded in
-        ``joints_dtype``)."""
+        """(P, S + 12) → (P, 15, 3) world joints, metres, in s's dtype."""
         x, g, _ = self.split(s)
-        body = self.body.joints(x if self.joints_dtype is None else x.to(self.joints_dtype))
-        return to_world(body.to(s.dtype), g)
+        return to_world(self.body.joints(x), g)
 
     def log_likelihood(self, joints: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         """(P, 15, 3) world joints, z (15, 2) pixels with NaN → (P,) log p(z | joints)."""

@@ -280,7 +280,7 @@ class LatentSpace(EuclideanSpace):
 
     def joints(self, x: torch.Tensor) -> torch.Tensor:
         flat = x.reshape(-1, self.dim)
-        return self.angles.joints(self.model.reconstruct(flat)[0]).reshape(x.shape[:-1] + (15, 3))
+        return self.angles.joints(self.model.pose_mean(flat)).reshape(x.shape[:-1] + (15, 3))
 
     def for_body(self, motion: Motion) -> LatentSpace:
         return LatentSpace(self.model, self.angles.for_body(motion))
@@ -387,17 +387,25 @@ class GPDM(TransitionModel):
         """Check (P, d) latent rows and return them as float64 on their device."""
         return self.check_state(x, name).to(torch.float64)
 
-    def _reconstruct64(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _reconstruct64(self, x: torch.Tensor, variance: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """μ_Y(x) (eq. 19) and σ²(x) (eq. 20), or None for σ² when ``variance`` is False (it
+        costs a triangular solve against the (N, N) factor, as much as the rest together)."""
         t = self._on(x.device)
         k = k_Y(x, t["X"], t["log_beta"])                                       # (P, N)
+        mu = t["mean_pose"] + k @ t["A_Y"]
+        if not variance:
+            return mu, None
         v = torch.linalg.solve_triangular(t["L_Y"], k.T, upper=False)           # L_Y⁻¹ k_Y(x)
         noise = 1.0 / t["beta"][2]
         var = t["beta"][0] + noise - v.pow(2).sum(0)
-        return t["mean_pose"] + k @ t["A_Y"], torch.clamp(var, min=noise)
+        return mu, torch.clamp(var, min=noise)
 
-    def _dynamics64(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _dynamics64(self, x: torch.Tensor, variance: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """μ_X(x) and σ_X²(x), or None for σ_X² when ``variance`` is False (as :meth:`_reconstruct64`)."""
         t = self._on(x.device)
         k = k_X(x, t["X_in"], t["log_alpha"])                                   # (P, N−S)
+        if not variance:
+            return k @ t["A_X"], None
         v = torch.linalg.solve_triangular(t["L_X"], k.T, upper=False)
         noise = 1.0 / t["alpha"][3]
         var = t["alpha"][0] + t["alpha"][2] * x.pow(2).sum(-1) + noise - v.pow(2).sum(0)
@@ -409,6 +417,12 @@ class GPDM(TransitionModel):
         x = torch.as_tensor(x)
         mu, var = self._reconstruct64(self._latent(x))
         return mu.to(x.dtype), var.to(x.dtype)
+
+    def pose_mean(self, x) -> torch.Tensor:
+        """Latent rows x (P, d) → μ_Y(x) (P, D) radians including the mean pose (eq. 19), without
+        the variance; in x's dtype."""
+        x = torch.as_tensor(x)
+        return self._reconstruct64(self._latent(x), variance=False)[0].to(x.dtype)
 
     def dynamics(self, x) -> tuple[torch.Tensor, torch.Tensor]:
         """Latent rows x (P, d) → (μ_X(x) (P, d), σ_X²(x) (P,)): the next state's mean and the
@@ -435,7 +449,8 @@ class GPDM(TransitionModel):
 
     def mean(self, x) -> torch.Tensor:
         """(P, d) → (P, d) μ_X(x)."""
-        return self.dynamics(x)[0]
+        x = torch.as_tensor(x)
+        return self._dynamics64(self._latent(x), variance=False)[0].to(x.dtype)
 
     def transition_covariance(self, x) -> torch.Tensor:
         """(P, d) → (P, d, d) σ_X²(x) I_d, the covariance of x_t given x_{t−1} = x (the latent

@@ -66,11 +66,8 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import queue
-import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,6 +80,7 @@ from priortrack.geometry.tangent_basis import tangent_basis, to_coordinates
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
 from priortrack.priors.spaces import DirectionSpace
 from priortrack.randomness import standard_normal
+from priortrack.threads import block_pool
 
 logger = logging.getLogger(__name__)
 
@@ -204,41 +202,6 @@ def _inverse_cdf(logits: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     """
     cdf = logits.sub_(logits.amax(dim=0)).clamp_(min=LOG_WEIGHT_FLOOR).exp_().cumsum_(dim=0)
     return (cdf < torch.rsub(u, 1).mul_(cdf[-1])).sum(dim=0)
-
-
-_POOL_LOCK = threading.Lock()
-_pool: tuple[int, int, ThreadPoolExecutor] | None = None                               # (pid, threads, pool)
-
-
-def _single_threaded_worker() -> None:
-    """Initialiser of :func:`_block_pool`'s threads: torch set to one thread in this thread. torch
-    initialises a thread's count on its first use there (to the default), so that comes first."""
-    torch.get_num_threads()
-    torch.set_num_threads(1)
-
-
-def _block_pool(workers: int) -> ThreadPoolExecutor:
-    """The process's pool of block samplers, with at least ``workers`` threads (rebuilt after a fork).
-
-    Each worker sets torch to one thread for itself: OpenMP's and MKL's thread counts are per-thread
-    settings, so T blocks sampled side by side keep T threads busy instead of starting T teams (in
-    builds with MKL, its vector math behind acos, exp, sin and cos would otherwise thread each call).
-    Since ``torch.set_num_threads`` also sets the default that threads take on their first use of
-    torch, that default is put back once every worker has started.
-    """
-    global _pool
-    with _POOL_LOCK:
-        if _pool is None or _pool[0] != os.getpid() or _pool[1] < workers:
-            threads = torch.get_num_threads()
-            pool = ThreadPoolExecutor(workers, thread_name_prefix="priortrack-lie",
-                                      initializer=_single_threaded_worker)
-            started = threading.Barrier(workers + 1)
-            for _ in range(workers):
-                pool.submit(started.wait)
-            started.wait()
-            torch.set_num_threads(threads)
-            _pool = (os.getpid(), workers, pool)
-        return _pool[2]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -536,7 +499,7 @@ class GeodesicMixture:
         The rows go in blocks of :data:`SAMPLE_CHUNK` (:meth:`_sample_block`); for each block, in
         order, one uniform per row and z ~ N(0, I) (B, 2, n) are drawn from ``generator`` in the
         calling thread. On the CPU with torch set to T > 1 threads, min(T, blocks) workers of
-        :func:`_block_pool` sample the blocks meanwhile, each single-threaded, so the result does
+        :func:`priortrack.threads.block_pool` sample the blocks meanwhile, each single-threaded, so the result does
         not depend on T. Works in x's dtype and on its device.
         """
         hot = self._hot(x.dtype, x.device, scale)
@@ -561,7 +524,7 @@ class GeodesicMixture:
                     start, stop, u, z = job
                     self._sample_block(x[start:stop], u, z, hot, out[start:stop])
 
-        pool = _block_pool(workers)
+        pool = block_pool(workers)
         running = [pool.submit(work) for _ in range(workers)]
         try:
             for start, stop in blocks:
