@@ -101,3 +101,24 @@ def test_tracks_a_walk_better_than_holding_the_first_pose(dtype):
     still = mpjpe(np.repeat(X[1:2], len(X) - 2, 0), X[2:]).mean()
     assert filtered < 0.5 * still
     assert np.isnan(track.ess[:2]).all() and np.all(track.ess[2:] >= 1)
+
+
+def test_mean_state_averages_placements_on_so3():
+    """TrackingModel.mean: translations by their weighted mean; rotations by the chordal mean, so
+    that rotations of ±θ about one axis with equal weights average to the identity, and a set of
+    copies of one rotation averages to it."""
+    walkjog = load_walkjog()
+    prior = Diffusion.fit(list(walkjog.walks("train"))[:2], local=True)
+    model = TrackingModel(prior, GlobalMotion(torch.full((6,), 0.01)), JointLikelihood(default_camera(
+        walkjog.test[1][:3].positions("eval15"))))
+    S = prior.state_dim
+    s = torch.zeros(4, S + 12, dtype=torch.float64)
+    s[:, S:S + 3] = torch.tensor([[0.0, 1, 2], [2, 3, 4], [1, 1, 1], [5, 5, 5]])
+    s[:, S + 3:S + 6] = torch.tensor([[0.0, 0.4, 0], [0, -0.4, 0], [0, 0.4, 0], [0, -0.4, 0]])
+    s[:, S + 9:S + 12] = torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64)
+    w = torch.tensor([1.0, 1.0, 1.0, 1.0])
+    mean = model.mean(s, w)
+    torch.testing.assert_close(mean[S:S + 3], s[:, S:S + 3].mean(0))
+    torch.testing.assert_close(mean[S + 3:S + 6], torch.zeros(3, dtype=torch.float64), atol=1e-12, rtol=0)
+    torch.testing.assert_close(mean[S + 9:S + 12], torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64),
+                               atol=1e-12, rtol=0)

@@ -94,11 +94,11 @@ class TrackingModel:
         onto SO(3) by SVD)."""
         x, g, g_prev = self.split(s)
         w = (weights / weights.sum()).to(s)
-        parts = [self.prior.space.mean(x, w)]
-        for placement in (g, g_prev):
-            M = (w @ so3.exp(placement[:, 3:]).reshape(-1, 9)).reshape(3, 3)
-            U, _, Vh = torch.linalg.svd(M)
-            D = torch.ones(3, dtype=M.dtype, device=M.device)
-            D[2] = torch.sign(torch.linalg.det(U @ Vh))
-            parts += [w @ placement[:, :3], so3.log((U * D) @ Vh)]
-        return torch.cat(parts)
+        placements = torch.stack([g, g_prev])                                     # (2, P, 6)
+        t = w @ placements[..., :3]                                               # (2, 3)
+        M = torch.einsum("p,kpij->kij", w, so3.exp(placements[..., 3:]))          # (2, 3, 3)
+        U, _, Vh = torch.linalg.svd(M)
+        D = torch.ones(2, 3, dtype=M.dtype, device=M.device)
+        D[:, 2] = torch.sign(torch.linalg.det(U @ Vh))
+        omega = so3.log((U * D[:, None, :]) @ Vh)                                 # (2, 3)
+        return torch.cat([self.prior.space.mean(x, w), t[0], omega[0], t[1], omega[1]])

@@ -436,22 +436,26 @@ def karcher_mean(
     if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) or max_iter < 1:
         raise PriortrackError(f"max_iter: expected a positive integer, got {max_iter!r}")
     dtype = x.dtype
-    # Sums over many points carry rounding of about sqrt(N) eps: accumulate in float64.
-    x = x.to(torch.float64)
-    flat_weights = _normalised_weights(weights, count, x)
-    point_weights = flat_weights.reshape((count,) + (1,) * (x.dim() - 1))
+    # Sums over many points carry rounding of about sqrt(N) eps: accumulate in float64, on the
+    # points batch-last (B, 3, N), B = the (..., K) spheres (one copy does both).
+    rows = x.reshape(count, -1, 3).permute(1, 2, 0).to(torch.float64, memory_format=torch.contiguous_format)
+    flat_weights = _normalised_weights(weights, count, rows)
+    mean_shape = x.shape[1:]
 
-    euclidean = (point_weights * x).sum(dim=0)
+    euclidean = torch.matmul(rows, flat_weights).reshape(mean_shape)
     norm = torch.linalg.vector_norm(euclidean, dim=-1, keepdim=True)
-    degenerate = norm < torch.finfo(x.dtype).eps ** 0.5
-    heaviest = x[int(torch.argmax(flat_weights))]
+    degenerate = norm < torch.finfo(torch.float64).eps ** 0.5
+    heaviest = x[int(torch.argmax(flat_weights))].to(torch.float64)
     mean = torch.where(degenerate, heaviest, euclidean / torch.where(degenerate, 1.0, norm))
 
-    # The points batch-last (B, 3, N) for the fast step, B = the (..., K) spheres.
-    rows = x.reshape(count, -1, 3).permute(1, 2, 0).contiguous()
+    points = None                                       # x in float64, only if a step needs _log
     for _ in range(max_iter):
         step = _mean_step(mean.reshape(-1, 3), rows, flat_weights)
-        step = (point_weights * _log(mean, x)).sum(dim=0) if step is None else step.reshape(mean.shape)
+        if step is None:
+            points = x.to(torch.float64) if points is None else points
+            step = torch.tensordot(flat_weights, _log(mean, points), dims=1)
+        else:
+            step = step.reshape(mean_shape)
         # log_map and exp_map assume unit rows; renormalising keeps rounding in the
         # iterate's norm from feeding back into the step and growing.
         mean = _exp(mean, step)

@@ -88,7 +88,7 @@ logger = logging.getLogger(__name__)
 DEFAULT_SCALE = 30.0
 #: Parameters per bone of one component: 2 (pose mean) + 2 (velocity mean) + 10 (4×4 block).
 PARAMETERS_PER_BONE = 14
-#: Rows per block of :meth:`GeodesicMixture.sample_next`. A block costs some 150 tensor operations
+#: Most rows per block of :meth:`GeodesicMixture.sample_next`. A block costs some 150 tensor operations
 #: whatever its size, so it must be large enough to amortise their dispatch (a few µs each), and
 #: small enough that its work set (about 1 kB a row in float32) stays in the last-level cache.
 SAMPLE_CHUNK = 8192
@@ -496,7 +496,7 @@ class GeodesicMixture:
     def sample_next(self, x: torch.Tensor, generator: torch.Generator, scale: float) -> torch.Tensor:
         """One draw x_next = exp_x(v / s), v ~ p(v | x), per row of flat poses x (P, 3B).
 
-        The rows go in blocks of :data:`SAMPLE_CHUNK` (:meth:`_sample_block`); for each block, in
+        The rows go in ⌈P / :data:`SAMPLE_CHUNK`⌉ blocks of equal size (:meth:`_sample_block`); for each block, in
         order, one uniform per row and z ~ N(0, I) (B, 2, n) are drawn from ``generator`` in the
         calling thread. On the CPU with torch set to T > 1 threads, min(T, blocks) workers of
         :func:`priortrack.threads.block_pool` sample the blocks meanwhile, each single-threaded, so the result does
@@ -504,7 +504,9 @@ class GeodesicMixture:
         """
         hot = self._hot(x.dtype, x.device, scale)
         out = torch.empty_like(x)
-        blocks = [(start, min(start + SAMPLE_CHUNK, len(x))) for start in range(0, len(x), SAMPLE_CHUNK)]
+        count = -(-len(x) // SAMPLE_CHUNK)                       # blocks of equal size, for balanced workers
+        bounds = [len(x) * i // count for i in range(count + 1)]
+        blocks = list(zip(bounds[:-1], bounds[1:]))
 
         def variates(start: int, stop: int) -> tuple[torch.Tensor, torch.Tensor]:
             return (torch.rand(stop - start, generator=generator, dtype=x.dtype, device=x.device),
