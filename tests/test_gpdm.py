@@ -158,6 +158,19 @@ def test_sample_is_seeded_and_matches_the_dynamics(model):
     se = (var / n).sqrt()
     assert ((draws.mean(0) - mu[0]).abs() < 5 * se).all()
     assert ((draws.var(0) / var - 1).abs() < 5 * math.sqrt(2 / n)).all()
+    # Annealed dynamics for the filters: variance σ_X²/λ in sample, log_prob and transition_covariance,
+    # the learned dynamics and the model's arrays unchanged.
+    hot = model.annealed(0.01)
+    assert hot.X is model.X and model.annealing == 1.0
+    draws = hot.sample(x[:1].expand(n, -1).contiguous(), torch.Generator().manual_seed(1))
+    assert ((draws.var(0) / (var / 0.01) - 1).abs() < 5 * math.sqrt(2 / n)).all()
+    torch.testing.assert_close(hot.transition_covariance(x[:1])[0], torch.eye(3, dtype=torch.float64) * var / 0.01)
+    z = model.X[[3]]
+    expected = torch.distributions.Normal(mu[0], (var / 0.01).sqrt()).log_prob(z[0]).sum()
+    torch.testing.assert_close(hot.log_prob(z, x[:1])[0], expected)
+    torch.testing.assert_close(hot.dynamics(x[:1])[1], var)
+    with pytest.raises(PriortrackError, match=r"annealing must be in \(0, 1\]"):
+        model.annealed(0.0)
     # float32 particles work and stay float32
     assert model.sample(x.float(), torch.Generator().manual_seed(7)).dtype == torch.float32
     assert model.mean(x.float()).dtype == torch.float32 and model.joints(x.float()).shape == (2, 15, 3)

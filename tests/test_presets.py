@@ -68,6 +68,19 @@ def test_a_filter_that_cannot_run_the_prior_says_so():
         parse_preset(table(filter__kind="ukf", prior__kind="lie", prior__options={}), "bad")
 
 
+def test_gpdm_dynamics_annealing_is_checked_and_kept_out_of_the_cache_key():
+    gpdm = {"prior__kind": "bgpdm", "prior__options": {"d": 3}}
+    annealed = parse_preset(table(**gpdm, prior__annealing=0.01), "ok")
+    assert annealed.annealing == 0.01 and annealed.cache_key == parse_preset(table(**gpdm), "ok").cache_key
+    assert load_preset("pf-gpdm").annealing < 1 and load_preset("ukf-gpdm").annealing == 1
+    with pytest.raises(PriortrackError, match=r"annealing must be a number in \(0, 1\], got 2"):
+        parse_preset(table(**gpdm, prior__annealing=2), "bad")
+    with pytest.raises(PriortrackError, match="the GPDM's dynamics annealing"):
+        parse_preset(table(prior__annealing=0.5), "bad")                       # a diffusion prior
+    with pytest.raises(PriortrackError, match=r"MAP tracker takes its own \[filter\] annealing"):
+        parse_preset({**table(**gpdm, prior__annealing=0.5), "filter": {"kind": "map"}}, "bad")
+
+
 def test_not_toml_and_unknown_name(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[filter\nkind = 'pf'")

@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 #: Where the shipped presets live: the repository's top-level ``filters/`` folder.
 PRESET_DIR = Path(__file__).resolve().parents[2] / "filters"
 TOP_KEYS = ("description", "filter", "prior", "observation")
-PRIOR_KEYS = ("kind", "train", "fps", "options")
+PRIOR_KEYS = ("kind", "train", "fps", "options", "annealing")
 GPDM_KINDS = ("gpdm", "bgpdm")
 GAUSSIAN_KINDS = ("diffusion-global", "diffusion-local", "gpdm", "bgpdm")
 
@@ -95,6 +95,8 @@ class Preset:
         name: the file's stem.
         filter_kind: "pf", "apf", "ukf" or "map"; filter_options: the filter's parameters.
         prior_kind, train (expanded sources), fps, prior_options: what the prior is fitted to.
+        annealing: the GPDM's dynamics annealing λ for filters that draw from it
+            (:meth:`GPDM.annealed`; 1 = as learned); applied after fitting, not part of the cache key.
         observation: JointLikelihood parameters (sigma_px, robust_nu).
     """
 
@@ -107,6 +109,7 @@ class Preset:
     fps: float = DEFAULT_FPS
     prior_options: dict[str, Any] = field(default_factory=dict)
     observation: dict[str, Any] = field(default_factory=dict)
+    annealing: float = 1.0
 
     @property
     def cache_key(self) -> str:
@@ -121,15 +124,16 @@ class Preset:
         path = cache / f"{self.prior_kind}-{self.cache_key}.npz"
         if path.exists():
             log.info("prior from cache %s", path)
-            return load_prior(path)
-        prior = fit_prior(self.prior_kind, self.training_motions, progress=progress, fps=self.fps,
-                          **self.prior_options)
-        cache.mkdir(parents=True, exist_ok=True)
-        partial = path.with_suffix(".partial.npz")
-        prior.save(partial)
-        partial.replace(path)
-        log.info("fitted %s prior cached at %s", self.prior_kind, path)
-        return prior
+            prior = load_prior(path)
+        else:
+            prior = fit_prior(self.prior_kind, self.training_motions, progress=progress, fps=self.fps,
+                              **self.prior_options)
+            cache.mkdir(parents=True, exist_ok=True)
+            partial = path.with_suffix(".partial.npz")
+            prior.save(partial)
+            partial.replace(path)
+            log.info("fitted %s prior cached at %s", self.prior_kind, path)
+        return prior if self.annealing == 1.0 else prior.annealed(self.annealing)
 
     @cached_property
     def training_motions(self) -> tuple[Motion, ...]:
@@ -215,10 +219,20 @@ def parse_preset(table: dict, name: str, where: str = "preset") -> Preset:
     prior_options = dict(prior.get("options", {}))
     _check_keys(f"{where} [prior] options ({prior_kind})", prior_options, _fit_parameters(prior_kind))
 
+    annealing = prior.get("annealing", 1.0)
+    if "annealing" in prior:
+        if prior_kind not in GPDM_KINDS or kind == "map":
+            raise PriortrackError(f"{where}: [prior] annealing is the GPDM's dynamics annealing for the filters that "
+                                  f"draw from it (pf, apf, ukf with {' or '.join(GPDM_KINDS)}); the MAP tracker takes "
+                                  f"its own [filter] annealing")
+        if isinstance(annealing, bool) or not isinstance(annealing, (int, float)) or not 0 < annealing <= 1:
+            raise PriortrackError(f"{where}: [prior] annealing must be a number in (0, 1], got {annealing!r}")
+
     observation = dict(table.get("observation", {}))
     _check_keys(f"{where} [observation]", observation, _parameters(JointLikelihood.__init__, ("self", "camera")))
     return Preset(name, str(table.get("description", "")), kind, options, prior_kind,
-                  tuple(expand_sources(train)), float(prior.get("fps", DEFAULT_FPS)), prior_options, observation)
+                  tuple(expand_sources(train)), float(prior.get("fps", DEFAULT_FPS)), prior_options, observation,
+                  float(annealing))
 
 
 def _fit_parameters(kind: str) -> list[str]:

@@ -59,6 +59,7 @@ The transition model is x_t ~ N(μ_X(x_{t−1}), σ_X²(x_{t−1}) I_d).
 from __future__ import annotations
 
 import contextlib
+import copy
 import itertools
 import logging
 import math
@@ -323,6 +324,8 @@ class GPDM(TransitionModel):
         self.alpha, self.beta = self.log_alpha.exp(), self.log_beta.exp()
         self.fit_summary = dict(fit_summary or {})
         self.objective = float(self.fit_summary.get("objective", float("nan")))
+        #: λ of :meth:`annealed`; 1 is the transition as learned.
+        self.annealing = 1.0
 
         first, inp, out = transition_rows(self.lengths)
         self.X_in, self.X_out = self.X[inp], self.X[out]
@@ -431,19 +434,41 @@ class GPDM(TransitionModel):
         mu, var = self._dynamics64(self._latent(x))
         return mu.to(x.dtype), var.to(x.dtype)
 
+    def annealed(self, annealing: float) -> GPDM:
+        """This model with its transition raised to the power λ = ``annealing`` and renormalised,
+
+            p(x_t | x_{t−1})^λ ∝ N(x_t; μ_X(x_{t−1}), σ_X²(x_{t−1})/λ I_d),
+
+        the dynamics annealing of Urtasun et al. (their λ weighs the dynamics term of the tracking
+        energy, eq. 21), here for the filters that draw from the prior: :meth:`sample`,
+        :meth:`log_prob` and :meth:`transition_covariance` use σ_X²/λ; :meth:`dynamics` stays the
+        learned model, and the MAP tracker takes its λ itself. λ ∈ (0, 1]; a tracking-time
+        setting, not saved with the model. Shares this model's arrays."""
+        if not 0.0 < annealing <= 1.0:
+            raise PriortrackError(f"GPDM dynamics annealing must be in (0, 1], got {annealing!r}")
+        model = copy.copy(self)
+        model.annealing = float(annealing)
+        return model
+
+    def _transition64(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """μ_X(x) and the transition's variance σ_X²(x)/λ (P,)."""
+        mu, var = self._dynamics64(x)
+        return mu, var / self.annealing
+
     # ---- the transition-model contract -----------------------------------------------------
     def sample(self, x, generator: torch.Generator) -> torch.Tensor:
-        """(P, d) → (P, d): x_t ~ N(μ_X(x), σ_X²(x) I_d) per row, noise drawn from ``generator``."""
+        """(P, d) → (P, d): x_t ~ N(μ_X(x), σ_X²(x)/λ I_d) per row (λ = 1 unless :meth:`annealed`),
+        noise drawn from ``generator``."""
         x = torch.as_tensor(x)
-        mu, var = self._dynamics64(self._latent(x))
+        mu, var = self._transition64(self._latent(x))
         noise = standard_normal(mu.shape, generator, x)
         return (mu + var.sqrt()[:, None] * noise.to(torch.float64)).to(x.dtype)
 
     def log_prob(self, x_next, x) -> torch.Tensor:
-        """(P, d), (P, d) → (P,) ln N(x_next; μ_X(x), σ_X²(x) I_d)."""
+        """(P, d), (P, d) → (P,) ln N(x_next; μ_X(x), σ_X²(x)/λ I_d)."""
         x = torch.as_tensor(x)
         x_next = self._latent(x_next, "x_next")
-        mu, var = self._dynamics64(self._latent(x))
+        mu, var = self._transition64(self._latent(x))
         lp = -0.5 * (x_next - mu).pow(2).sum(-1) / var - 0.5 * self.d * torch.log(2 * math.pi * var)
         return lp.to(x.dtype)
 
@@ -453,9 +478,10 @@ class GPDM(TransitionModel):
         return self._dynamics64(self._latent(x), variance=False)[0].to(x.dtype)
 
     def transition_covariance(self, x) -> torch.Tensor:
-        """(P, d) → (P, d, d) σ_X²(x) I_d, the covariance of x_t given x_{t−1} = x (the latent
+        """(P, d) → (P, d, d) σ_X²(x)/λ I_d, the covariance of x_t given x_{t−1} = x (the latent
         space is Euclidean: its tangent coordinates are the latent coordinates)."""
-        var = self.dynamics(x)[1]
+        x = torch.as_tensor(x)
+        var = self._transition64(self._latent(x))[1].to(x.dtype)
         return var[:, None, None] * torch.eye(self.d, dtype=var.dtype, device=var.device)
 
     def rollout(self, x0, steps: int, generator: torch.Generator | None = None) -> torch.Tensor:
