@@ -72,7 +72,7 @@ def test_gpdm_dynamics_annealing_is_checked_and_kept_out_of_the_cache_key():
     gpdm = {"prior__kind": "bgpdm", "prior__options": {"d": 3}}
     annealed = parse_preset(table(**gpdm, prior__annealing=0.01), "ok")
     assert annealed.annealing == 0.01 and annealed.cache_key == parse_preset(table(**gpdm), "ok").cache_key
-    assert load_preset("pf-gpdm").annealing < 1 and load_preset("ukf-gpdm").annealing == 1
+    assert load_preset("pf-gpdm").annealing < 1 and load_preset("map-gpdm").annealing == 1
     with pytest.raises(PriortrackError, match=r"annealing must be a number in \(0, 1\], got 2"):
         parse_preset(table(**gpdm, prior__annealing=2), "bad")
     with pytest.raises(PriortrackError, match="the GPDM's dynamics annealing"):
