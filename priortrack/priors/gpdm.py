@@ -149,7 +149,7 @@ def k_Y(A: torch.Tensor, B: torch.Tensor, log_beta: torch.Tensor) -> torch.Tenso
 
 def k_X(A: torch.Tensor, B: torch.Tensor, log_alpha: torch.Tensor) -> torch.Tensor:
     """Dynamics kernel without its noise term, α1 exp(−α2/2 |a − b|²) + α3 aᵀb: (n, m)."""
-    return rbf(A, B, log_alpha[0], log_alpha[1].exp()) + log_alpha[2].exp() * (A @ B.T)
+    return torch.addmm(rbf(A, B, log_alpha[0], log_alpha[1].exp()), log_alpha[2].exp() * A, B.T)
 
 
 def transition_rows(lengths: Sequence[int], device=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
