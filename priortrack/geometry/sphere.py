@@ -366,8 +366,7 @@ def _mean_step(mean: torch.Tensor, rows: torch.Tensor, weights: torch.Tensor) ->
 
     two batched products and one scalar function of c per point, instead of :func:`_log`'s
     row-wise vector algebra. θ/sin θ is a smooth function of c on (0, 1] (1 + (1 − c)/3 + …
-    near c = 1, where its Taylor series is used), so the sum is accurate to rounding in
-    absolute terms. For c ≤ 0 (θ ≥ 90°) that absolute accuracy is lost as θ → π, so the
+    near c = 1), so the sum is accurate to rounding in absolute terms. For c ≤ 0 (θ ≥ 90°) that absolute accuracy is lost as θ → π, so the
     caller falls back to :func:`_log`'s short-chord form.
 
     Args:
@@ -381,11 +380,9 @@ def _mean_step(mean: torch.Tensor, rows: torch.Tensor, weights: torch.Tensor) ->
     cos = torch.bmm(mean[:, None, :], rows).squeeze(1).clamp(max=1.0)            # (B, N)
     if not bool((cos > 0).all()):
         return None
-    gap = 1 - cos                                                                 # 1 − c
-    near = gap < _taylor_threshold(cos.dtype)
-    safe_cos = torch.where(near, torch.zeros_like(cos), cos)
-    ratio = torch.where(near, 1 + gap / 3 + 2 * gap**2 / 15,
-                        torch.acos(safe_cos) / torch.sqrt((1 - safe_cos) * (1 + safe_cos)))
+    # arccos is accurate to an ulp of θ near c = 1, where 1 − c is exact, so the ratio is accurate
+    # for every c < 1; c = 1 (θ = 0, 0/0) takes the limit 1.
+    ratio = torch.where(cos < 1, torch.acos(cos) / torch.sqrt((1 - cos) * (1 + cos)), 1.0)
     a = weights * ratio                                                           # (B, N)
     return torch.bmm(rows, a[:, :, None]).squeeze(-1) - (a * cos).sum(-1, keepdim=True) * mean
 
