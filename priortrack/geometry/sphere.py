@@ -366,8 +366,9 @@ def _mean_step(mean: torch.Tensor, rows: torch.Tensor, weights: torch.Tensor) ->
 
     two batched products and one scalar function of c per point, instead of :func:`_log`'s
     row-wise vector algebra. θ/sin θ is a smooth function of c on (0, 1] (1 + (1 − c)/3 + …
-    near c = 1), so the sum is accurate to rounding in absolute terms. For c ≤ 0 (θ ≥ 90°) that absolute accuracy is lost as θ → π, so the
-    caller falls back to :func:`_log`'s short-chord form.
+    near c = 1), so the sum is accurate to rounding in absolute terms. For c ≤ 0 (θ ≥ 90°)
+    that absolute accuracy is lost as θ → π, so the caller falls back to :func:`_log`'s
+    short-chord form.
 
     Args:
         mean: μ (B, 3), unit rows.

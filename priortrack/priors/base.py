@@ -177,4 +177,3 @@ def generator_for(seed: int | torch.Generator, device: str | torch.device = "cpu
     if isinstance(seed, torch.Generator):
         return seed
     return torch.Generator(device=device).manual_seed(int(seed))
-

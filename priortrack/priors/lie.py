@@ -496,11 +496,12 @@ class GeodesicMixture:
     def sample_next(self, x: torch.Tensor, generator: torch.Generator, scale: float) -> torch.Tensor:
         """One draw x_next = exp_x(v / s), v ~ p(v | x), per row of flat poses x (P, 3B).
 
-        The rows go in ⌈P / :data:`SAMPLE_CHUNK`⌉ blocks of equal size (:meth:`_sample_block`); for each block, in
-        order, one uniform per row and z ~ N(0, I) (B, 2, n) are drawn from ``generator`` in the
-        calling thread. On the CPU with torch set to T > 1 threads, min(T, blocks) workers of
-        :func:`priortrack.threads.block_pool` sample the blocks meanwhile, each single-threaded, so the result does
-        not depend on T. Works in x's dtype and on its device.
+        The rows go in ⌈P / :data:`SAMPLE_CHUNK`⌉ blocks of equal size (:meth:`_sample_block`);
+        for each block, in order, one uniform per row and z ~ N(0, I) (B, 2, n) are drawn from
+        ``generator`` in the calling thread. On the CPU with torch set to T > 1 threads, min(T,
+        blocks) workers of :func:`priortrack.threads.block_pool` sample the blocks meanwhile,
+        each single-threaded, so the result does not depend on T. Works in x's dtype and on its
+        device.
         """
         hot = self._hot(x.dtype, x.device, scale)
         out = torch.empty_like(x)
