@@ -176,6 +176,34 @@ def test_sample_is_seeded_and_matches_the_dynamics(model):
     assert model.mean(x.float()).dtype == torch.float32 and model.joints(x.float()).shape == (2, 15, 3)
 
 
+def test_variances_against_a_dense_solve_and_float32_means(model):
+    """σ²(x) and σ_X²(x) (eq. 20 and the dynamics' analogue) against k(x, x) − k K⁻¹ kᵀ by a dense
+    solve. The mean-only paths (pose_mean, mean) run in the rows' dtype: float32 rows give float32
+    means within float32 rounding of the float64 ones; with the variance, everything is float64."""
+    from priortrack.priors.gpdm import k_X, k_Y
+    x = model.X[::4] + 0.05
+    K_Y = k_Y(model.X, model.X, model.log_beta) + torch.eye(len(model.X), dtype=torch.float64) / model.beta[2]
+    k = k_Y(x, model.X, model.log_beta)
+    expected = model.beta[0] + 1 / model.beta[2] - (k * torch.linalg.solve(K_Y, k.T).T).sum(-1)
+    # σ² is a difference of terms ~10⁴ times larger than itself
+    torch.testing.assert_close(model.reconstruct(x)[1], expected, rtol=1e-7, atol=0)
+    X_in = model.X_in
+    K_X = k_X(X_in, X_in, model.log_alpha) + torch.eye(len(X_in), dtype=torch.float64) / model.alpha[3]
+    k = k_X(x, X_in, model.log_alpha)
+    expected = model.alpha[0] + model.alpha[2] * x.pow(2).sum(-1) + 1 / model.alpha[3] \
+        - (k * torch.linalg.solve(K_X, k.T).T).sum(-1)
+    torch.testing.assert_close(model.dynamics(x)[1], expected, rtol=1e-7, atol=0)
+    x32 = x.float()
+    mu_y, mu_x = model.pose_mean(x32), model.mean(x32)
+    assert mu_y.dtype == mu_x.dtype == torch.float32
+    # μ = k K⁻¹ Y sums terms far larger than itself (|K⁻¹ Y| reaches 10–100), so float32 rounds it
+    # by about 1e-4: under 1e-3 rad of a pose angle and 5% of the transition's standard deviation.
+    mu_y64, (mu_x64, var_x64) = model.pose_mean(x32.double()), model.dynamics(x32.double())
+    assert float((mu_y.double() - mu_y64).abs().max()) < 1e-3
+    assert float(((mu_x.double() - mu_x64).abs() / var_x64.sqrt()[:, None]).max()) < 0.05
+    torch.testing.assert_close(model.reconstruct(x32)[0].double(), mu_y64, rtol=1e-6, atol=1e-6)
+
+
 def test_log_prob_is_the_gaussian_density_and_energies_agree(model):
     x, x_next = model.X[:5], model.X[1:6] + 0.01
     mu, var = model.dynamics(x)

@@ -377,23 +377,28 @@ class GPDM(TransitionModel):
             return float(gpdm_objective(self.X, self.log_alpha, self.log_beta, self.Y, self.lengths, self.balanced))
 
     # ---- prediction ------------------------------------------------------------------------
-    def _on(self, device) -> dict[str, torch.Tensor]:
-        """The float64 arrays that prediction needs, on ``device`` (cached)."""
-        key = str(device)
+    def _on(self, device, dtype=torch.float64) -> dict[str, torch.Tensor]:
+        """The arrays that prediction needs, on ``device`` in ``dtype`` (cached)."""
+        key = (str(device), dtype)
         if key not in self._device_cache:
             names = ("X", "X_in", "L_Y", "A_Y", "L_X", "A_X", "mean_pose", "W", "alpha", "beta",
                      "log_alpha", "log_beta")
-            self._device_cache[key] = {n: getattr(self, n).to(device) for n in names}
+            self._device_cache[key] = {n: getattr(self, n).to(device=device, dtype=dtype) for n in names}
         return self._device_cache[key]
 
     def _latent(self, x, name: str = "x") -> torch.Tensor:
-        """Check (P, d) latent rows and return them as float64 on their device."""
-        return self.check_state(x, name).to(torch.float64)
+        """Check (P, d) latent rows; returned in float32 if they are float32, else in float64, on
+        their device."""
+        x = self.check_state(x, name)
+        return x if x.dtype == torch.float32 else x.to(torch.float64)
 
-    def _reconstruct64(self, x: torch.Tensor, variance: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """μ_Y(x) (eq. 19) and σ²(x) (eq. 20), or None for σ² when ``variance`` is False (it
-        costs a triangular solve against the (N, N) factor, as much as the rest together)."""
-        t = self._on(x.device)
+    def _reconstruct(self, x: torch.Tensor, variance: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """μ_Y(x) (eq. 19) and σ²(x) (eq. 20) in float64, or μ_Y(x) alone in x's dtype (float32 or
+        float64, from :meth:`_latent`) when ``variance`` is False. σ² is a difference of numbers
+        far larger than itself (float32 kernel rows would cost it ~20%), and costs a triangular
+        solve against the (N, N) factor, as much as the rest together."""
+        x = x.to(torch.float64) if variance else x
+        t = self._on(x.device, x.dtype)
         k = k_Y(x, t["X"], t["log_beta"])                                       # (P, N)
         mu = t["mean_pose"] + k @ t["A_Y"]
         if not variance:
@@ -403,35 +408,38 @@ class GPDM(TransitionModel):
         var = t["beta"][0] + noise - v.pow(2).sum(0)
         return mu, torch.clamp(var, min=noise)
 
-    def _dynamics64(self, x: torch.Tensor, variance: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """μ_X(x) and σ_X²(x), or None for σ_X² when ``variance`` is False (as :meth:`_reconstruct64`)."""
-        t = self._on(x.device)
+    def _dynamics(self, x: torch.Tensor, variance: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """μ_X(x) and σ_X²(x) in float64, or μ_X(x) alone in x's dtype when ``variance`` is False
+        (as :meth:`_reconstruct`)."""
+        x = x.to(torch.float64) if variance else x
+        t = self._on(x.device, x.dtype)
         k = k_X(x, t["X_in"], t["log_alpha"])                                   # (P, N−S)
+        mu = k @ t["A_X"]
         if not variance:
-            return k @ t["A_X"], None
+            return mu, None
         v = torch.linalg.solve_triangular(t["L_X"], k.T, upper=False)
         noise = 1.0 / t["alpha"][3]
         var = t["alpha"][0] + t["alpha"][2] * x.pow(2).sum(-1) + noise - v.pow(2).sum(0)
-        return k @ t["A_X"], torch.clamp(var, min=noise)
+        return mu, torch.clamp(var, min=noise)
 
     def reconstruct(self, x) -> tuple[torch.Tensor, torch.Tensor]:
         """Latent rows x (P, d) → (μ_Y(x) (P, D) radians including the mean pose, σ²(x) (P,) in
         W-scaled units: channel k's variance is σ²(x)/w_k²), eqs. 19–20; in x's dtype."""
         x = torch.as_tensor(x)
-        mu, var = self._reconstruct64(self._latent(x))
+        mu, var = self._reconstruct(self._latent(x))
         return mu.to(x.dtype), var.to(x.dtype)
 
     def pose_mean(self, x) -> torch.Tensor:
         """Latent rows x (P, d) → μ_Y(x) (P, D) radians including the mean pose (eq. 19), without
         the variance; in x's dtype."""
         x = torch.as_tensor(x)
-        return self._reconstruct64(self._latent(x), variance=False)[0].to(x.dtype)
+        return self._reconstruct(self._latent(x), variance=False)[0].to(x.dtype)
 
     def dynamics(self, x) -> tuple[torch.Tensor, torch.Tensor]:
         """Latent rows x (P, d) → (μ_X(x) (P, d), σ_X²(x) (P,)): the next state's mean and the
         variance of each of its coordinates; in x's dtype."""
         x = torch.as_tensor(x)
-        mu, var = self._dynamics64(self._latent(x))
+        mu, var = self._dynamics(self._latent(x))
         return mu.to(x.dtype), var.to(x.dtype)
 
     def annealed(self, annealing: float) -> GPDM:
@@ -450,9 +458,9 @@ class GPDM(TransitionModel):
         model.annealing = float(annealing)
         return model
 
-    def _transition64(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """μ_X(x) and the transition's variance σ_X²(x)/λ (P,)."""
-        mu, var = self._dynamics64(x)
+    def _transition(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """μ_X(x) and the transition's variance σ_X²(x)/λ (P,), float64."""
+        mu, var = self._dynamics(x)
         return mu, var / self.annealing
 
     # ---- the transition-model contract -----------------------------------------------------
@@ -460,28 +468,28 @@ class GPDM(TransitionModel):
         """(P, d) → (P, d): x_t ~ N(μ_X(x), σ_X²(x)/λ I_d) per row (λ = 1 unless :meth:`annealed`),
         noise drawn from ``generator``."""
         x = torch.as_tensor(x)
-        mu, var = self._transition64(self._latent(x))
+        mu, var = self._transition(self._latent(x))
         noise = standard_normal(mu.shape, generator, x)
         return (mu + var.sqrt()[:, None] * noise.to(torch.float64)).to(x.dtype)
 
     def log_prob(self, x_next, x) -> torch.Tensor:
         """(P, d), (P, d) → (P,) ln N(x_next; μ_X(x), σ_X²(x)/λ I_d)."""
         x = torch.as_tensor(x)
-        x_next = self._latent(x_next, "x_next")
-        mu, var = self._transition64(self._latent(x))
+        x_next = self._latent(x_next, "x_next").to(torch.float64)
+        mu, var = self._transition(self._latent(x))
         lp = -0.5 * (x_next - mu).pow(2).sum(-1) / var - 0.5 * self.d * torch.log(2 * math.pi * var)
         return lp.to(x.dtype)
 
     def mean(self, x) -> torch.Tensor:
         """(P, d) → (P, d) μ_X(x)."""
         x = torch.as_tensor(x)
-        return self._dynamics64(self._latent(x), variance=False)[0].to(x.dtype)
+        return self._dynamics(self._latent(x), variance=False)[0].to(x.dtype)
 
     def transition_covariance(self, x) -> torch.Tensor:
         """(P, d) → (P, d, d) σ_X²(x)/λ I_d, the covariance of x_t given x_{t−1} = x (the latent
         space is Euclidean: its tangent coordinates are the latent coordinates)."""
         x = torch.as_tensor(x)
-        var = self._transition64(self._latent(x))[1].to(x.dtype)
+        var = self._transition(self._latent(x))[1].to(x.dtype)
         return var[:, None, None] * torch.eye(self.d, dtype=var.dtype, device=var.device)
 
     def rollout(self, x0, steps: int, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -500,11 +508,11 @@ class GPDM(TransitionModel):
         dropped), x (P, d), y (P, D) radians (with the mean pose); NaN entries of y are missing
         channels and drop out (D_o counts the observed channels of a row). Returns (P,) float64,
         differentiable in x."""
-        x = self._latent(x)
+        x = self._latent(x).to(torch.float64)
         y = torch.as_tensor(y, dtype=torch.float64, device=x.device)
         if y.shape != (x.shape[0], self.D):
             raise PriortrackError(f"y has shape {tuple(y.shape)}; expected ({x.shape[0]}, {self.D})")
-        mu, var = self._reconstruct64(x)
+        mu, var = self._reconstruct(x)
         observed = torch.isfinite(y)
         r = torch.where(observed, (y - mu) * self._on(x.device)["W"], torch.zeros_like(mu))
         return r.pow(2).sum(-1) / (2 * var) + 0.5 * observed.sum(-1) * torch.log(var) + 0.5 * x.pow(2).sum(-1)
@@ -516,9 +524,9 @@ class GPDM(TransitionModel):
         window = torch.as_tensor(window)
         if window.dim() != 3 or window.shape[-1] != self.d or window.shape[0] < 2:
             raise PriortrackError(f"window has shape {tuple(window.shape)}; expected (τ+1 ≥ 2, P, {self.d})")
-        prev = self._latent(window[:-1].reshape(-1, self.d), "window")
+        prev = self._latent(window[:-1].reshape(-1, self.d), "window").to(torch.float64)
         nxt = window[1:].reshape(-1, self.d).to(torch.float64)
-        mu, var = self._dynamics64(prev)
+        mu, var = self._dynamics(prev)
         nll = 0.5 * (nxt - mu).pow(2).sum(-1) / var + 0.5 * self.d * torch.log(2 * math.pi * var)
         return annealing * nll.reshape(window.shape[0] - 1, -1).sum(0)
 
@@ -528,7 +536,7 @@ class GPDM(TransitionModel):
         (frames independent when ``dynamics`` is 0) with L-BFGS-B (the fit's tolerances, at most
         ``maxiter`` iterations)."""
         y = torch.as_tensor(y, dtype=torch.float64)
-        x0 = self._latent(x0, "x0")
+        x0 = self._latent(x0, "x0").to(torch.float64)
         T = x0.shape[0]
         if y.shape != (T, self.D):
             raise PriortrackError(f"y has shape {tuple(y.shape)}; expected ({T}, {self.D})")
@@ -569,7 +577,7 @@ class GPDM(TransitionModel):
         points = self.X.mean(0).expand(n * n, -1).clone()
         yy, xx = torch.meshgrid(gy, gx, indexing="ij")
         points[:, 0], points[:, 1] = xx.reshape(-1), yy.reshape(-1)
-        return gx, gy, torch.log(self._reconstruct64(points)[1]).reshape(n, n)
+        return gx, gy, torch.log(self._reconstruct(points)[1]).reshape(n, n)
 
     # ---- files -----------------------------------------------------------------------------
     def _arrays(self):
