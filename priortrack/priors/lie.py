@@ -75,7 +75,7 @@ import torch
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.geometry.sphere import karcher_mean, log_map
+from priortrack.geometry.sphere import clamped_cosine, karcher_mean, log_map, theta_over_sin
 from priortrack.geometry.tangent_basis import tangent_basis, to_coordinates
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
 from priortrack.priors.spaces import DirectionSpace
@@ -147,23 +147,6 @@ def _frame_matrix(mu: torch.Tensor) -> torch.Tensor:
     return _block_diagonal(frame.transpose(-1, -2))
 
 
-def _clamped(c: torch.Tensor) -> torch.Tensor:
-    """c clamped to [−c_max, c_max], c_max the largest float below 1 in c's dtype."""
-    c_max = 1.0 - torch.finfo(c.dtype).eps / 2
-    return c.clamp(-c_max, c_max)
-
-
-def _theta_over_sin(c: torch.Tensor) -> torch.Tensor:
-    """θ / sin θ for θ = arccos(c), c = μ·x the cosine of the geodesic angle, elementwise.
-
-    c must be clamped by :func:`_clamped`, so that sin²θ, evaluated as (1 − c)(1 + c) (no
-    cancellation: 1 − c is exact near c = 1), is positive and the ratio tends smoothly to 1
-    at θ = 0. θ and sin θ come from the same rounded c, so the ratio is accurate to a few
-    ulps even where c itself carries rounding.
-    """
-    return torch.acos(c) / torch.sqrt((1 - c) * (1 + c))
-
-
 def _coordinates(x: torch.Tensor, v: torch.Tensor | None, frame: torch.Tensor, bones: int):
     """Tangent coordinates at one component of flat poses x and velocities v (N, 3B).
 
@@ -179,8 +162,8 @@ def _coordinates(x: torch.Tensor, v: torch.Tensor | None, frame: torch.Tensor, b
     """
     n = x.shape[0]
     y = (x @ frame).view(n, bones, 3)
-    c, ex = _clamped(y[..., 0]), y[..., 1:]
-    a = _theta_over_sin(c).unsqueeze(-1) * ex
+    c, ex = clamped_cosine(y[..., 0]), y[..., 1:]
+    a = theta_over_sin(c).unsqueeze(-1) * ex
     if v is None:
         return a, None
     yv = (v @ frame).view(n, bones, 3)
@@ -391,8 +374,8 @@ class GeodesicMixture:
         """ln α_k N(a_k; 0, Sxx_k) (K, n) for planar poses X (B, 3, n), :data:`LOGIT_SLICE` columns at a time.
 
         |L_xx⁻¹ a|² = (θ / sin θ)² |G x|², since a = (θ / sin θ) E x (E ⊥ μ) and G = L_xx⁻¹ E,
-        with (θ / sin θ)² = arccos(c)² / (1 − c²), c clamped as in :func:`_clamped`. 1 − c² loses
-        relative precision as θ → 0, but there |G x|² ~ λ θ² and the error in the product stays
+        with (θ / sin θ)² = arccos(c)² / (1 − c²), c clamped as in
+        :func:`~priortrack.geometry.sphere.clamped_cosine`. 1 − c² loses relative precision as θ → 0, but there |G x|² ~ λ θ² and the error in the product stays
         below λ ε (λ the largest eigenvalue of Sxx⁻¹, ε the dtype's epsilon). G x is formed as such
         (not as the quadratic form xᵀ GᵀG x, whose rounding error is λ ε at every θ).
         """
@@ -409,7 +392,7 @@ class GeodesicMixture:
             c, g1, g2 = y.view(self.bones, 3, k, -1).unbind(1)
             q = g1 * g1
             q.addcmul_(g2, g2)
-            c.clamp_(-c_max, c_max)                                                     # as _clamped, in place
+            c.clamp_(-c_max, c_max)                                                     # as clamped_cosine, in place
             q.div_(torch.addcmul(one, c, c, value=-1.0))
             q.mul_(c.acos_().square_())
             torch.sum(q, dim=0, out=quad[:, cols])
@@ -439,8 +422,8 @@ class GeodesicMixture:
             V = vel + (θ / sin θ) Eᵀ R E x / s = Eᵀ (m + R a + L_c z) / s   (a = (θ / sin θ) E x),
             Γ_{μ→x}(V) = V − (x·V) / (1 + c) (x + μ)   (V ⊥ μ).
         """
-        c = _clamped(lin[:, 3])
-        vel.addcmul_(lin[:, :3], _theta_over_sin(c).unsqueeze(1))
+        c = clamped_cosine(lin[:, 3])
+        vel.addcmul_(lin[:, :3], theta_over_sin(c).unsqueeze(1))
         x0, x1, x2 = xp.unbind(1)
         v0, v1, v2 = vel.unbind(1)
         along = x0 * v0
