@@ -8,19 +8,16 @@ from priortrack.experiments.bench_pf import PHASES, bench_pf
 from priortrack.priors import Diffusion
 from priortrack.priors.gpdm import GPDM
 from priortrack.priors.lie import LiePrior
+from priortrack.threads import torch_threads
 
 
 @pytest.fixture(scope="module")
 def priors():
     walks = list(load_walkjog().walks("train"))
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)                        # small fits: one thread is the fastest
-    try:
+    with torch_threads(1):                          # small fits: one thread is the fastest
         return {"diffusion": Diffusion.fit(walks[:2], local=True),
                 "gpdm": GPDM.fit([m[:15] for m in walks[:2]], seed=0),
                 "lie": LiePrior.fit(walks[:3], seed=0, max_components=2)}
-    finally:
-        torch.set_num_threads(threads)
 
 
 def test_reports_every_prior_from_real_steps(priors):

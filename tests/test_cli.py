@@ -59,10 +59,14 @@ def test_replay_points_are_the_projected_truth(tmp_path):
 
 
 def test_bench_fk_json(capsys):
-    assert main(["bench", "fk", "--batch", "300", "--repeats", "2", "--json"]) == 0
+    import torch
+
+    threads = torch.get_num_threads()
+    assert main(["bench", "fk", "--batch", "300", "--repeats", "2", "--threads", str(threads + 1), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert set(result) >= {"batch", "priortrack_ms", "pytorch_kinematics_ms", "max_abs_err_m"}
-    assert result["batch"] == 300 and result["max_abs_err_m"] < 1e-9
+    assert result["batch"] == 300 and result["max_abs_err_m"] < 1e-9 and result["threads"] == threads + 1
+    assert torch.get_num_threads() == threads                   # the bench's thread count was scoped
 
 
 @pytest.mark.parametrize("argv,message", [

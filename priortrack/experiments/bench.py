@@ -6,6 +6,7 @@ machine noise hits both alike; compare the ratio, not the absolute figures.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 
@@ -16,6 +17,13 @@ from priortrack.body.chain import KinematicChain
 from priortrack.body.fk import ForwardKinematics
 from priortrack.data.bundled import load_bundled
 from priortrack.errors import PriortrackError
+from priortrack.threads import torch_threads
+
+
+def load_average() -> tuple[float, float, float] | None:
+    """The machine's 1, 5 and 15 minute load averages (``os.getloadavg``), None where the system
+    has none: whether a timing had the cores to itself."""
+    return os.getloadavg() if hasattr(os, "getloadavg") else None
 
 
 def interleaved_median_ms(functions: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
@@ -43,24 +51,24 @@ def bench_fk(batch: int = 10_000, repeats: int = 9, threads: int = 2, seed: int 
     """
     if batch < 1 or repeats < 1 or threads < 1:
         raise PriortrackError(f"bench fk: batch, repeats and threads must be positive (got {batch}, {repeats}, {threads})")
-    torch.set_num_threads(threads)
     m = load_bundled(motion)
     rng = np.random.default_rng(seed)
     frames = m.channels[rng.integers(0, len(m), size=batch)]
     channels = frames + rng.normal(0.0, 0.1, size=frames.shape) * (np.arange(m.skeleton.num_channels) >= 3)
 
     results = {}
-    for dtype in (torch.float64, torch.float32):
-        ours = ForwardKinematics(m.skeleton, dtype=dtype)
-        reference = KinematicChain(m.skeleton, dtype=dtype)
-        x = torch.as_tensor(channels, dtype=dtype)
-        th = reference.joint_values(x)
-        if dtype == torch.float64:
-            results["max_abs_err_m"] = float((ours(x) - reference.positions_from_values(th)).abs().max())
-            continue
-        with torch.inference_mode():
-            ms = interleaved_median_ms({"pytorch_kinematics": lambda: reference.positions_from_values(th),
-                                        "priortrack": lambda: ours(x)}, repeats)
+    with torch_threads(threads):
+        for dtype in (torch.float64, torch.float32):
+            ours = ForwardKinematics(m.skeleton, dtype=dtype)
+            reference = KinematicChain(m.skeleton, dtype=dtype)
+            x = torch.as_tensor(channels, dtype=dtype)
+            th = reference.joint_values(x)
+            if dtype == torch.float64:
+                results["max_abs_err_m"] = float((ours(x) - reference.positions_from_values(th)).abs().max())
+                continue
+            with torch.inference_mode():
+                ms = interleaved_median_ms({"pytorch_kinematics": lambda: reference.positions_from_values(th),
+                                            "priortrack": lambda: ours(x)}, repeats)
     return {
         "batch": batch,
         "priortrack_ms": ms["priortrack"],

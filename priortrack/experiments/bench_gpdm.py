@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import time
 
-import torch
 
 from priortrack.data.bundled import load_walkjog
 from priortrack.errors import PriortrackError
 from priortrack.priors.gpdm import GPDM
+from priortrack.threads import torch_threads
 
 
 def bench_walks(frames: int = 300) -> list:
@@ -39,11 +39,11 @@ def bench_gpdm_fit(frames: int = 300, seed: int = 0, threads: int = 2) -> dict:
     """
     if frames < 10 or threads < 1:
         raise PriortrackError(f"bench gpdm: frames must be ≥ 10 and threads ≥ 1 (got {frames}, {threads})")
-    torch.set_num_threads(threads)
     walks = bench_walks(frames)
-    start = time.perf_counter()
-    model = GPDM.fit(walks, balanced=True, d=3, seed=seed)
-    seconds = time.perf_counter() - start
+    with torch_threads(threads):
+        start = time.perf_counter()
+        model = GPDM.fit(walks, balanced=True, d=3, seed=seed)
+        seconds = time.perf_counter() - start
     summary = model.fit_summary
     return {"frames": len(model.Y), "dims": model.D, "sequences": len(walks), "seconds": seconds,
             "iterations": summary["iterations"], "evaluations": summary["evaluations"],

@@ -11,14 +11,13 @@ medians over interleaved repeats (:func:`priortrack.experiments.bench.interleave
 from __future__ import annotations
 
 import logging
-import os
 
 import numpy as np
 import torch
 
 from priortrack.data.bundled import load_bundled, load_walkjog
 from priortrack.errors import PriortrackError
-from priortrack.experiments.bench import interleaved_median_ms
+from priortrack.experiments.bench import interleaved_median_ms, load_average
 from priortrack.priors.lie import LiePrior
 from priortrack.threads import torch_threads
 
@@ -61,7 +60,8 @@ def bench_lie_sample(n: int = 200_000, threads: int = 2, seed: int = 0, repeats:
         "single_thread_samples_per_s", "load_average"}``, dims the dimension of the joint (pose,
         velocity) tangent space (56); single_thread_samples_per_s, the Lie sampler again with one
         thread, and load_average, the machine's 1, 5 and 15 minute load averages when the timing
-        ended (``os.getloadavg``; None where the system has none), show whether the threads had the cores to themselves.
+        ended (:func:`~priortrack.experiments.bench.load_average`), show whether the threads had
+        the cores to themselves.
     """
     try:
         from sklearn.mixture import GaussianMixture
@@ -89,10 +89,11 @@ def bench_lie_sample(n: int = 200_000, threads: int = 2, seed: int = 0, repeats:
                                        repeats)
         with torch_threads(1):
             one = interleaved_median_ms({"lie": lambda: prior.sample(x, g)}, repeats)["lie"]
+    load = load_average()
     result = {"samples_per_s": n / (ms["lie"] / 1000), "clusters": prior.clusters, "dims": means.shape[1],
               "sklearn_gmm_samples_per_s": n / (ms["sklearn"] / 1000), "n": n, "threads": threads,
               "single_thread_samples_per_s": n / (one / 1000),
-              "load_average": [round(load, 2) for load in os.getloadavg()] if hasattr(os, "getloadavg") else None}
+              "load_average": None if load is None else [round(value, 2) for value in load]}
     logger.info("bench lie: %.0f samples/s with %d threads (%.0f/s with one), sklearn GaussianMixture.sample "
                 "%.0f/s; %d clusters", result["samples_per_s"], threads, result["single_thread_samples_per_s"],
                 result["sklearn_gmm_samples_per_s"], prior.clusters)

@@ -19,7 +19,6 @@ fitting and the warm-up steps are not timed.
 from __future__ import annotations
 
 import logging
-import os
 import time
 
 import numpy as np
@@ -27,6 +26,7 @@ import torch
 
 from priortrack.data.bundled import load_walkjog
 from priortrack.errors import PriortrackError
+from priortrack.experiments.bench import load_average
 from priortrack.experiments.bench_gpdm import bench_walks
 from priortrack.filters.particle import DTYPES, ParticleFilter
 from priortrack.filters.tracking_model import TrackingModel
@@ -78,7 +78,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         {prior: median ms}, "ms_per_step_range": {prior: [min, max] ms}, "cpu_ms_per_step":
         {prior: median process CPU ms, all threads}, "phases_ms": {prior: {phase: median ms}},
         "resamples": {prior: count over the timed steps}, "steps", "threads", "load_average":
-        [1-minute load before, after], "dtype"}``; the phases are those of
+        [1-minute load before, after] (None where the system has none), "dtype"}``; the phases are those of
         ``Snapshot.timings`` (predict, weight = joints + projection + likelihood +
         normalisation, estimate, resample).
         On a machine busy with other work the wall time exceeds the CPU time (waiting for a
@@ -114,7 +114,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
     cpu = {name: [] for name in filters}
     phases = {name: {phase: [] for phase in PHASES} for name in filters}
     resamples = dict.fromkeys(filters, 0)
-    load = os.getloadavg()[0]
+    before = load_average()
     with torch_threads(threads):
         for t in range(2, 2 + warmup + steps):
             for name, pf in filters.items():
@@ -140,7 +140,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         "resamples": resamples,
         "steps": steps,
         "threads": threads,
-        "load_average": [load, os.getloadavg()[0]],
+        "load_average": None if before is None else [before[0], load_average()[0]],
         "dtype": str(next(iter(filters.values())).states.dtype).removeprefix("torch."),
     }
     for name in filters:

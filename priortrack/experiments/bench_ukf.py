@@ -26,6 +26,7 @@ from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors.diffusion import Diffusion
 from priortrack.priors.global_motion import GlobalMotion
+from priortrack.threads import torch_threads
 
 logger = logging.getLogger(__name__)
 
@@ -49,23 +50,23 @@ def bench_ukf(repeats: int = 5, seed: int = 0, threads: int = 1) -> dict:
     if not 1 <= repeats <= len(motion) - 3 or threads < 1:
         raise PriortrackError(f"bench ukf: repeats must be in [1, {len(motion) - 3}] and threads positive "
                               f"(got {repeats}, {threads})")
-    torch.set_num_threads(threads)
-    train = list(walks.walks("train"))
-    prior = Diffusion.fit(train, local=True)
-    global_motion = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
-    X = motion.positions("eval15")
-    observations = synthesize(X, motion.fps, default_camera(X), "clean", seed=seed)
-    model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera))
+    with torch_threads(threads):
+        train = list(walks.walks("train"))
+        prior = Diffusion.fit(train, local=True)
+        global_motion = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
+        X = motion.positions("eval15")
+        observations = synthesize(X, motion.fps, default_camera(X), "clean", seed=seed)
+        model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera))
 
-    filters = {"batched": UnscentedFilter(model, batched=True), "filterpy": UnscentedFilter(model, batched=False)}
-    for f in filters.values():
-        f.initialise(motion)
+        filters = {"batched": UnscentedFilter(model, batched=True), "filterpy": UnscentedFilter(model, batched=False)}
+        for f in filters.values():
+            f.initialise(motion)
 
-    def stepper(f: UnscentedFilter):
-        return lambda: f.step(observations.uv[f.frame + 1])
+        def stepper(f: UnscentedFilter):
+            return lambda: f.step(observations.uv[f.frame + 1])
 
-    with torch.inference_mode():
-        ms = interleaved_median_ms({name: stepper(f) for name, f in filters.items()}, repeats)
+        with torch.inference_mode():
+            ms = interleaved_median_ms({name: stepper(f) for name, f in filters.items()}, repeats)
     diff = float(np.abs(filters["batched"].kf.x - filters["filterpy"].kf.x).max())
     unscented = filters["batched"].unscented
     result = {
