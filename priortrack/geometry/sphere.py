@@ -359,10 +359,11 @@ def transport(x: torch.Tensor, y: torch.Tensor, v: torch.Tensor) -> torch.Tensor
     return torch.where(antipodal, flipped, along_geodesic)
 
 
-def clamped_cosine(c: torch.Tensor) -> torch.Tensor:
-    """c clamped to [−c_max, c_max], c_max the largest float below 1 in c's dtype."""
+def clamped_cosine(c: torch.Tensor, inplace: bool = False) -> torch.Tensor:
+    """c clamped to [−c_max, c_max], c_max the largest float below 1 in c's dtype (in place if
+    ``inplace``)."""
     c_max = 1.0 - torch.finfo(c.dtype).eps / 2
-    return c.clamp(-c_max, c_max)
+    return c.clamp_(-c_max, c_max) if inplace else c.clamp(-c_max, c_max)
 
 
 def theta_over_sin(c: torch.Tensor) -> torch.Tensor:

@@ -57,15 +57,18 @@ class JointLikelihood:
         d_sq = torch.addcmul(d[..., 0] * d[..., 0], d[..., 1], d[..., 1])
         d_sq = torch.where(in_front, d_sq, self._miss_sq)
         if self.robust_nu is None:      # the Gaussian's sum over joints, taken before its affine map
-            var = self.sigma_px ** 2
-            return -0.5 / var * d_sq.sum(dim=-1) - len(seen) * math.log(2 * math.pi * var)
+            return self._gaussian(d_sq.sum(dim=-1), len(seen))
         return self.per_joint(d_sq).sum(dim=-1)
+
+    def _gaussian(self, d_sq: torch.Tensor, joints: int) -> torch.Tensor:
+        """Σ_j [−|d_j|² / (2σ²) − log(2π σ²)] over ``joints`` joints from their summed |d_j|²."""
+        var = self.sigma_px ** 2
+        return -0.5 / var * d_sq - joints * math.log(2 * math.pi * var)
 
     def per_joint(self, d_sq: torch.Tensor) -> torch.Tensor:
         """Log density of each observed joint from its squared pixel miss |d_j|² (any shape)."""
-        var = self.sigma_px ** 2
         if self.robust_nu is None:
-            return -0.5 * d_sq / var - math.log(2 * math.pi * var)
-        nu = self.robust_nu
+            return self._gaussian(d_sq, 1)
+        var, nu = self.sigma_px ** 2, self.robust_nu
         const = math.lgamma((nu + 2) / 2) - math.lgamma(nu / 2) - math.log(nu * math.pi * var)
         return const - 0.5 * (nu + 2) * torch.log1p(d_sq / (nu * var))

@@ -382,7 +382,6 @@ class GeodesicMixture:
         k, n = self.components, xp.shape[-1]
         quad = torch.empty(k, n, dtype=xp.dtype, device=xp.device)
         one = torch.ones((), dtype=xp.dtype, device=xp.device)
-        c_max = 1.0 - torch.finfo(xp.dtype).eps / 2
         pi_w0, pi_w1, pi_w2 = hot.pi_w
         for start in range(0, n, LOGIT_SLICE):
             cols = slice(start, start + LOGIT_SLICE)
@@ -392,7 +391,7 @@ class GeodesicMixture:
             c, g1, g2 = y.view(self.bones, 3, k, -1).unbind(1)
             q = g1 * g1
             q.addcmul_(g2, g2)
-            c.clamp_(-c_max, c_max)                                                     # as clamped_cosine, in place
+            clamped_cosine(c, inplace=True)
             q.div_(torch.addcmul(one, c, c, value=-1.0))
             q.mul_(c.acos_().square_())
             torch.sum(q, dim=0, out=quad[:, cols])
