@@ -97,6 +97,25 @@ def test_wrong_shapes_are_clear_errors():
         fk(np.zeros((5, 61)))
     with pytest.raises(PriortrackError, match="expected"):
         fk(np.zeros((2, 5, 62)))
+    with pytest.raises(PriortrackError, match=r"joints \[3, 38\] outside the skeleton's 38 joints"):
+        fk(np.zeros((2, 62)), joints=[3, 38])
+    with pytest.raises(PriortrackError, match="outside the skeleton's 38 joints"):
+        fk.local_rotations(np.zeros((2, 62)), joints=[-1])
+
+
+def test_chosen_joints_equal_the_full_result():
+    """``joints=`` returns exactly the chosen rows of the full positions, global rotations and
+    local rotations (the local ones from the first levels of the tree only)."""
+    motion = load_motion("cmu:07_01")
+    fk = ForwardKinematics(motion.skeleton)
+    channels = torch.as_tensor(_poses(motion, n=8))
+    chosen = [0, 5, 17, 30]
+    positions, G = fk(channels, rotations=True)
+    sub_positions, sub_G = fk(channels, rotations=True, joints=chosen)
+    assert torch.equal(sub_positions, positions[:, chosen]) and torch.equal(sub_G, G[:, chosen])
+    L = fk.local_rotations(channels)
+    torch.testing.assert_close(fk.local_rotations(channels, joints=chosen), L[:, chosen], atol=1e-15, rtol=0)
+    torch.testing.assert_close(L[:, 0], G[:, 0], atol=1e-15, rtol=0)                    # the root's L is G
 
 
 def test_pruned_skeleton_places_the_kept_joints_exactly():
