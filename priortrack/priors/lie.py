@@ -43,10 +43,13 @@ x_next = exp_x(Γ_{μ_k→x}(E_kᵀ b) / s). The rows go in blocks of :data:`SAM
 evaluated for all K components from c = μ·x and G x = L_xx⁻¹ E x (:meth:`GeodesicMixture._planar_logits`);
 the rows are then sorted by component so that each component's affine terms take a few
 operations over its own columns, and the rest (θ / sin θ, the transport, the exponential map)
-is done once per block. With torch set to T > 1 threads on the CPU, the blocks are sampled by
-T worker threads, each running its operations single-threaded; the uniforms and normals are
-drawn in the calling thread, block by block, from the caller's generator, so the draws do not
-depend on T. It runs in the input's dtype (float32 is fine there) and on its device.
+is done once per block. In float32 on the CPU a block is instead one call of a fused numba
+kernel (:mod:`priortrack.priors.lie_kernel`: the same draw from the same variates, to float32
+rounding, about twice as fast as the torch operations); the torch path serves every other dtype
+and device. With torch set to T > 1 threads on the CPU, the blocks are sampled by T worker
+threads, each single-threaded; the uniforms and normals are drawn in the calling thread, block
+by block, from the caller's generator, so the draws do not depend on T. It runs in the input's
+dtype (float32 is fine there) and on its device.
 :meth:`LiePrior.mean` is exp_x(E[v | x] / s) with the mixture's mean velocity.
 
 **Learning** (Figueiredo & Jain, PAMI 2002): component-wise EM with the minimum-message-length
@@ -100,6 +103,8 @@ LOGIT_SLICE = 2048
 #: it is below the resolution of a uniform of either dtype (2⁻²⁴, 2⁻⁵³).
 LOG_WEIGHT_FLOOR = -80.0
 _LOG_2PI = math.log(2 * math.pi)
+#: The float32 cosine clamp of :func:`~priortrack.geometry.sphere.clamped_cosine`, for the fused kernel.
+_C_MAX_32 = np.float32(1.0 - np.finfo(np.float32).eps / 2)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -176,6 +181,12 @@ def _columns(matrices: torch.Tensor) -> tuple[torch.Tensor, ...]:
     return matrices.unsqueeze(-1).unbind(-2)
 
 
+def _fused(dtype: torch.dtype, device: torch.device) -> bool:
+    """Whether draws in this dtype and on this device go through the fused kernel of
+    :mod:`priortrack.priors.lie_kernel` (float32 on the CPU) rather than torch operations."""
+    return dtype == torch.float32 and torch.device(device).type == "cpu"
+
+
 def _inverse_cdf(logits: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     """Draws k (n,) ~ softmax(logits[:, i]) for logits (K, n) (overwritten), by the inverse CDF of u (n,) ∈ [0, 1).
 
@@ -214,6 +225,9 @@ class _Hot:
     pi_w: tuple[torch.Tensor, ...]
     pi_c: torch.Tensor
     affine: list[tuple[torch.Tensor, ...]]
+    #: For float32 on the CPU, the constants of :func:`priortrack.priors.lie_kernel.sample_block`
+    #: (float32 arrays: μ, G, pi_c, Eᵀ R E / s, Eᵀ L_c / s, Eᵀ m / s); else None.
+    kernel: tuple[np.ndarray, ...] | None
 
 
 class GeodesicMixture:
@@ -353,8 +367,9 @@ class GeodesicMixture:
         g = _whitening(self._chol_xx) @ basis                                           # (K, B, 2, 3)
         pi_w = torch.cat([mu, g[:, :, 0], g[:, :, 1]]).transpose(0, 1)                  # (B, 3K, 3)
         basis_t = basis.transpose(-1, -2)                                               # Eᵀ (K, B, 3, 2)
+        regress = basis_t @ self.regression @ basis / scale                             # Eᵀ R E / s (K, B, 3, 3)
         eye = torch.eye(3, dtype=mu.dtype).expand(k, b, 3, 3)
-        cond_w = torch.cat([basis_t @ self.regression @ basis / scale, mu.unsqueeze(-2), eye], dim=-2)
+        cond_w = torch.cat([regress, mu.unsqueeze(-2), eye], dim=-2)
         cond_b = torch.cat([torch.zeros(k, b, 4, dtype=mu.dtype), mu], dim=-1).unsqueeze(-1)
         noise_w = basis_t @ self._chol_c / scale
         noise_b = basis_t @ self.velocity_means.unsqueeze(-1) / scale
@@ -364,7 +379,11 @@ class GeodesicMixture:
 
         affine = [(cast(cond_b[i]), *map(cast, _columns(cond_w[i])),
                    cast(noise_b[i]), *map(cast, _columns(noise_w[i]))) for i in range(k)]
-        return _Hot(tuple(map(cast, _columns(pi_w))), cast(self._log_norm_x.unsqueeze(-1)), affine)
+        kernel = None
+        if _fused(dtype, device):
+            kernel = tuple(np.ascontiguousarray(t.numpy(), dtype=np.float32)
+                           for t in (mu, g, self._log_norm_x, regress, noise_w, noise_b[..., 0]))
+        return _Hot(tuple(map(cast, _columns(pi_w))), cast(self._log_norm_x.unsqueeze(-1)), affine, kernel)
 
     def _planar(self, x: torch.Tensor) -> torch.Tensor:
         """Flat poses (n, 3B) → planar (B, 3, n)."""
@@ -475,6 +494,18 @@ class GeodesicMixture:
         nxt = self._planar_exp(xp, self._planar_step(xp, lin, vel)).view(3 * b, n)
         out.index_copy_(0, order, nxt.t().contiguous())
 
+    def _fused_block(self, x: torch.Tensor, u: torch.Tensor, z: torch.Tensor, hot: _Hot,
+                     out: torch.Tensor) -> None:
+        """:meth:`_sample_block` by :func:`priortrack.priors.lie_kernel.sample_block` (float32 on the
+        CPU): the same draw from the same u and z, to float32 rounding."""
+        from priortrack.priors.lie_kernel import sample_block
+
+        n = x.shape[0]
+        planar = np.empty((3 * self.bones, n), dtype=np.float32)
+        logits = np.empty((self.components, n), dtype=np.float32)
+        sample_block(x.detach().numpy(), u.numpy(), z.numpy(), *hot.kernel, _C_MAX_32, np.float32(LOG_WEIGHT_FLOOR),
+                     out.numpy(), planar, logits)
+
     def sample_next(self, x: torch.Tensor, generator: torch.Generator, scale: float) -> torch.Tensor:
         """One draw x_next = exp_x(v / s), v ~ p(v | x), per row of flat poses x (P, 3B).
 
@@ -486,6 +517,7 @@ class GeodesicMixture:
         device.
         """
         hot = self._hot(x.dtype, x.device, scale)
+        block = self._sample_block if hot.kernel is None else self._fused_block
         out = torch.empty_like(x)
         count = -(-len(x) // SAMPLE_CHUNK)                       # blocks of equal size, for balanced workers
         bounds = [len(x) * i // count for i in range(count + 1)]
@@ -499,7 +531,7 @@ class GeodesicMixture:
         if workers <= 1:
             with torch.inference_mode():
                 for start, stop in blocks:
-                    self._sample_block(x[start:stop], *variates(start, stop), hot, out[start:stop])
+                    block(x[start:stop], *variates(start, stop), hot, out[start:stop])
             return out
         jobs: queue.SimpleQueue = queue.SimpleQueue()
 
@@ -507,7 +539,7 @@ class GeodesicMixture:
             with torch.inference_mode():
                 while (job := jobs.get()) is not None:
                     start, stop, u, z = job
-                    self._sample_block(x[start:stop], u, z, hot, out[start:stop])
+                    block(x[start:stop], u, z, hot, out[start:stop])
 
         pool = block_pool(workers)
         running = [pool.submit(work) for _ in range(workers)]
