@@ -509,47 +509,43 @@ class GeodesicMixture:
     def sample_next(self, x: torch.Tensor, generator: torch.Generator, scale: float) -> torch.Tensor:
         """One draw x_next = exp_x(v / s), v ~ p(v | x), per row of flat poses x (P, 3B).
 
-        The rows go in ⌈P / :data:`SAMPLE_CHUNK`⌉ blocks of equal size (:meth:`_sample_block`);
-        for each block, in order, one uniform per row and z ~ N(0, I) (B, 2, n) are drawn from
-        ``generator`` in the calling thread. On the CPU with torch set to T > 1 threads, min(T,
-        blocks) workers of :func:`priortrack.threads.block_pool` sample the blocks meanwhile,
-        each single-threaded, so the result does not depend on T. Works in x's dtype and on its
-        device.
+        The rows go in ⌈P / :data:`SAMPLE_CHUNK`⌉ blocks of equal size (:meth:`_sample_block`, or
+        :meth:`_fused_block` in float32 on the CPU). Each block draws its uniforms (one per row)
+        and normals z ~ N(0, I) (B, 2, n) from a generator of its own, seeded by one 63-bit integer
+        per block drawn from ``generator`` in the calling thread. On the CPU with torch set to
+        T > 1 threads, min(T, blocks) single-threaded workers of
+        :func:`priortrack.threads.block_pool` sample the blocks, variates included, side by side
+        (the calling thread only waits, so the workers never queue for the GIL behind it); the
+        result does not depend on T. Works in x's dtype and on its device.
         """
         hot = self._hot(x.dtype, x.device, scale)
         block = self._sample_block if hot.kernel is None else self._fused_block
         out = torch.empty_like(x)
         count = -(-len(x) // SAMPLE_CHUNK)                       # blocks of equal size, for balanced workers
         bounds = [len(x) * i // count for i in range(count + 1)]
-        blocks = list(zip(bounds[:-1], bounds[1:]))
-
-        def variates(start: int, stop: int) -> tuple[torch.Tensor, torch.Tensor]:
-            return (torch.rand(stop - start, generator=generator, dtype=x.dtype, device=x.device),
-                    standard_normal((self.bones, 2, stop - start), generator, x))
-
-        workers = min(torch.get_num_threads(), len(blocks)) if x.device.type == "cpu" else 1
-        if workers <= 1:
-            with torch.inference_mode():
-                for start, stop in blocks:
-                    block(x[start:stop], *variates(start, stop), hot, out[start:stop])
-            return out
+        seeds = torch.randint(2 ** 63 - 1, (count,), generator=generator, device=generator.device).tolist()
         jobs: queue.SimpleQueue = queue.SimpleQueue()
+        for start, stop, seed in zip(bounds[:-1], bounds[1:], seeds):
+            jobs.put((start, stop, seed))
 
         def work() -> None:
             with torch.inference_mode():
-                while (job := jobs.get()) is not None:
-                    start, stop, u, z = job
+                while not jobs.empty():
+                    try:
+                        start, stop, seed = jobs.get_nowait()
+                    except queue.Empty:
+                        return
+                    own = torch.Generator(device=x.device).manual_seed(seed)
+                    u = torch.rand(stop - start, generator=own, dtype=x.dtype, device=x.device)
+                    z = standard_normal((self.bones, 2, stop - start), own, x)
                     block(x[start:stop], u, z, hot, out[start:stop])
 
+        workers = min(torch.get_num_threads(), count) if x.device.type == "cpu" else 1
+        if workers <= 1:
+            work()
+            return out
         pool = block_pool(workers)
-        running = [pool.submit(work) for _ in range(workers)]
-        try:
-            for start, stop in blocks:
-                jobs.put((start, stop, *variates(start, stop)))
-        finally:                                                                        # the workers end in any case
-            for _ in running:
-                jobs.put(None)
-        for future in running:
+        for future in [pool.submit(work) for _ in range(workers)]:
             future.result()
         return out
 

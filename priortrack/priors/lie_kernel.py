@@ -63,7 +63,7 @@ def _cos_sinc(t):
     return cos_t, sinc_t
 
 
-@numba.njit(nogil=True, cache=True, fastmath=False, error_model="numpy")
+@numba.njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
 def sample_block(x, u, z, mu, g, log_norm, cond, noise_w, noise_b, c_max, log_floor, out, planar, logits):
     """x_next into ``out`` (n, 3B) for poses x (n, 3B), uniforms u (n,) and normals z (B, 2, n).
 
