@@ -176,6 +176,24 @@ def test_sample_is_seeded_and_matches_the_dynamics(model):
     assert model.mean(x.float()).dtype == torch.float32 and model.joints(x.float()).shape == (2, 15, 3)
 
 
+def test_copies_of_a_row_share_its_transition_moments(model):
+    """sample() evaluates μ_X and σ_X² once per run of equal consecutive rows (a resampled
+    particle's copies): the draws equal μ_X(x) + σ_X(x) z computed row by row with the same
+    normals, for rows with runs of copies, a copy after a different row, and none at all."""
+    from priortrack.priors.gpdm import _runs
+    from priortrack.randomness import standard_normal
+
+    rows = model.X[[4, 4, 4, 9, 4, 4, 30, 31, 31]]
+    first, run = _runs(rows)
+    assert first.tolist() == [0, 3, 4, 6, 7] and run.tolist() == [0, 0, 0, 1, 2, 2, 3, 4, 4]
+    assert torch.equal(rows[first][run], rows)
+    for x in (rows, model.X[:7]):
+        drawn = model.sample(x, torch.Generator().manual_seed(5))
+        mu, var = model._transition(x)
+        noise = standard_normal(mu.shape, torch.Generator().manual_seed(5), x)
+        torch.testing.assert_close(drawn, mu + var.sqrt()[:, None] * noise, rtol=1e-12, atol=1e-12)
+
+
 def test_variances_against_a_dense_solve_and_float32_means(model):
     """σ²(x) and σ_X²(x) (eq. 20 and the dynamics' analogue) against k(x, x) − k K⁻¹ kᵀ by a dense
     solve. The mean-only paths (pose_mean, mean) run in the rows' dtype: float32 rows give float32

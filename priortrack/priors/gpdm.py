@@ -152,6 +152,14 @@ def k_X(A: torch.Tensor, B: torch.Tensor, log_alpha: torch.Tensor) -> torch.Tens
     return torch.addmm(rbf(A, B, log_alpha[0], log_alpha[1].exp()), log_alpha[2].exp() * A, B.T)
 
 
+def _runs(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Runs of equal consecutive rows of x (P, d): the index of each run's first row (R,) and
+    each row's run (P,), so that x[first][run] equals x."""
+    new = torch.ones(len(x), dtype=torch.bool, device=x.device)
+    new[1:] = (x[1:] != x[:-1]).any(dim=1)
+    return new.nonzero().squeeze(1), torch.cumsum(new, 0) - 1
+
+
 def transition_rows(lengths: Sequence[int], device=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Row indices of the concatenated sequences: (first (S,), X_in (N−S,), X_out (N−S,))."""
     ends = np.cumsum(lengths)
@@ -466,9 +474,17 @@ class GPDM(TransitionModel):
     # ---- the transition-model contract -----------------------------------------------------
     def sample(self, x, generator: torch.Generator) -> torch.Tensor:
         """(P, d) → (P, d): x_t ~ N(μ_X(x), σ_X²(x)/λ I_d) per row (λ = 1 unless :meth:`annealed`),
-        noise drawn from ``generator``."""
+        noise drawn from ``generator``.
+
+        A row equal to the row before it shares that row's μ_X and σ_X² (:func:`_runs`): the
+        copies of a resampled particle sit side by side, and after a resampling step half or
+        more of the rows are such copies, so the (P × N) kernel rows and the triangular solve
+        are taken over the distinct rows only."""
         x = torch.as_tensor(x)
-        mu, var = self._transition(self._latent(x))
+        latent = self._latent(x)
+        first, run = _runs(latent)
+        mu, var = self._transition(latent[first])
+        mu, var = mu[run], var[run]
         noise = standard_normal(mu.shape, generator, x)
         return (mu + var.sqrt()[:, None] * noise.to(torch.float64)).to(x.dtype)
 
