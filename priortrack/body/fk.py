@@ -147,6 +147,12 @@ class ForwardKinematics:
         self._frame_node = as_t(frame_row[last])                                   # (J,) rows of kept H
         self._depth = depth[last]                                                  # (J,) level of each joint's H
         self._rotating = np.array([any(slots[v] for v in range(first[j], last[j] + 1)) for j in range(J)])
+        # float32 positions on the CPU: the fused kernel of priortrack.body.fk_kernel, on these arrays
+        self._kernel = None
+        if self.dtype == torch.float32 and self.device.type == "cpu":
+            self._kernel = (skeleton.parents.astype(np.int64), skeleton.offsets.astype(np.float32),
+                            skeleton.rot_axes.astype(np.float32), skeleton.rot_channels.astype(np.int64),
+                            skeleton.trans_channels.astype(np.int64))
 
     def _as_batch(self, channels) -> torch.Tensor:
         channels = torch.as_tensor(channels, dtype=self.dtype, device=self.device)
@@ -228,6 +234,8 @@ class ForwardKinematics:
         single = torch.as_tensor(channels).dim() == 1
         channels = self._as_batch(channels[None] if single else channels)
         chosen = self._chosen(joints)
+        if self._kernel is not None and not rotations and not channels.requires_grad:
+            return self._fused(channels, chosen)[0] if single else self._fused(channels, chosen)
         p, frames = self._world(channels)
         positions = p.index_select(0, self._position_node[torch.as_tensor(chosen)]).permute(2, 0, 1).contiguous()
         if single:
@@ -236,6 +244,16 @@ class ForwardKinematics:
             return positions
         G = self._rotations(frames, chosen)
         return positions, (G[0] if single else G)
+
+
+    def _fused(self, channels: torch.Tensor, chosen: np.ndarray) -> torch.Tensor:
+        """Positions (B, K, 3) of the ``chosen`` joints by :func:`priortrack.body.fk_kernel.positions`
+        (float32, CPU): the same FK in one pass, equal to the torch path to float32 rounding."""
+        from priortrack.body.fk_kernel import positions
+
+        out = torch.empty(channels.shape[0], len(chosen), 3, dtype=torch.float32)
+        positions(channels.contiguous().numpy(), *self._kernel, chosen.astype(np.int64), out.numpy())
+        return out
 
 
 def forward_kinematics(skeleton: Skeleton, channels, device=None, dtype=torch.float64):
