@@ -23,6 +23,10 @@ their number of angles, so that one batched product places all children, one app
 frame changes and four multiply-adds apply the k-th rotation of every segment that has one.
 Tensors are batch-last, a matrix as its columns (3, 3, B), so that every elementwise
 operation runs over the contiguous batch.
+
+float32 positions on the CPU (no rotations asked, no gradient needed) are computed instead by
+the fused kernel of :mod:`priortrack.body.fk_kernel`, joint by joint in one pass over the rows
+(about 5× this path's speed there); this path is its reference in the tests.
 """
 
 from __future__ import annotations
