@@ -26,6 +26,23 @@ def test_so3_exp_matches_scipy_and_log_inverts_it():
     torch.testing.assert_close(so3.log(R), w, rtol=0, atol=1e-9)
 
 
+def test_quaternion_product_composes_rotations_as_matrices_do():
+    """q(ω₁) q(ω₂) is the rotation exp(ω₁) exp(ω₂) (matrix product, scipy's quaternions agree),
+    batched and broadcast against a single quaternion; conjugation inverts."""
+    w1, w2 = _rotvecs(300, 3), _rotvecs(300, 4)
+    q1, q2 = so3.quaternion(w1), so3.quaternion(w2)
+    product = so3.quaternion_product(q1, q2)
+    torch.testing.assert_close(so3.exp(so3.quaternion_log(product)), so3.exp(w1) @ so3.exp(w2), rtol=0, atol=1e-12)
+    expected = (Rotation.from_rotvec(w1.numpy()) * Rotation.from_rotvec(w2.numpy())).as_matrix()
+    np.testing.assert_allclose(so3.exp(so3.quaternion_log(product)).numpy(), expected, atol=1e-12)
+    single = so3.quaternion_product(q1[0], q2.reshape(30, 10, 4))
+    assert single.shape == (30, 10, 4)
+    torch.testing.assert_close(single.reshape(300, 4), so3.quaternion_product(q1[:1].expand(300, 4), q2))
+    identity = so3.quaternion_product(q1, so3.quaternion_conjugate(q1))
+    torch.testing.assert_close(identity, torch.tensor([1.0, 0, 0, 0], dtype=torch.float64).expand(300, 4),
+                               rtol=0, atol=1e-15)
+
+
 def test_so3_log_near_pi_gives_the_same_rotation():
     axis = torch.tensor([[0.6, 0.0, 0.8]], dtype=torch.float64)
     for angle in (math.pi, math.pi - 1e-9, math.pi - 1e-4):

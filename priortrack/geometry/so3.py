@@ -95,12 +95,28 @@ def quaternion_log(q: torch.Tensor) -> torch.Tensor:
     return torch.stack([f * x, f * y, f * z], -1)
 
 
+#: The Hamilton product as a bilinear form: (q r)_k = Σ_ij q_i r_j _HAMILTON[i, j, k].
+_HAMILTON = torch.zeros(4, 4, 4, dtype=torch.float64)
+for _i, _j, _k, _sign in [(0, 0, 0, 1), (1, 1, 0, -1), (2, 2, 0, -1), (3, 3, 0, -1),
+                          (0, 1, 1, 1), (1, 0, 1, 1), (2, 3, 1, 1), (3, 2, 1, -1),
+                          (0, 2, 2, 1), (1, 3, 2, -1), (2, 0, 2, 1), (3, 1, 2, 1),
+                          (0, 3, 3, 1), (1, 2, 3, 1), (2, 1, 3, -1), (3, 0, 3, 1)]:
+    _HAMILTON[_i, _j, _k] = _sign
+
+
 def quaternion_product(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
-    """The Hamilton product q r (..., 4), the rotation of q after that of r."""
-    a, b, c, d = q.unbind(-1)
-    e, f, g, h = r.unbind(-1)
-    return torch.stack([a * e - b * f - c * g - d * h, a * f + b * e + c * h - d * g,
-                        a * g - b * h + c * e + d * f, a * h + b * g - c * f + d * e], -1)
+    """The Hamilton product q r (..., 4), the rotation of q after that of r:
+
+        q r = (a e − b f − c g − d h,  a f + b e + c h − d g,  a g − b h + c e + d f,  a h + b g − c f + d e)
+
+    for q = (a, b, c, d), r = (e, f, g, h), as (q M)·r with M = _HAMILTON (4, 16): two batched
+    products instead of some thirty elementwise operations."""
+    _check(q, (4,), "quaternion")
+    _check(r, (4,), "quaternion")
+    q, r = torch.broadcast_tensors(q, r)
+    M = _HAMILTON.to(dtype=q.dtype, device=q.device).reshape(4, 16)
+    left = (q.reshape(-1, 4) @ M).view(-1, 4, 4)                                  # Σ_i q_i M[i, j, k]
+    return torch.bmm(r.reshape(-1, 1, 4), left).view(q.shape)
 
 
 def quaternion_conjugate(q: torch.Tensor) -> torch.Tensor:
