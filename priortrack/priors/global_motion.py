@@ -29,7 +29,17 @@ SIGMA_FLOOR = 1e-4
 
 
 def to_world(body_joints: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
-    """X = exp(ω) · B + t: body joints (P, J, 3) placed by g (P, 6) → world joints (P, J, 3)."""
+    """X = exp(ω) · B + t: body joints (P, J, 3) placed by g (P, 6) → world joints (P, J, 3).
+
+    float32 on the CPU without gradients goes through the fused kernel of
+    :mod:`priortrack.priors.placement_kernel` (the same formula, a few times faster at 10⁴ rows)."""
+    if (body_joints.dtype == g.dtype == torch.float32 and body_joints.device.type == g.device.type == "cpu"
+            and not (body_joints.requires_grad or g.requires_grad) and body_joints.dim() == 3):
+        from priortrack.priors.placement_kernel import place
+
+        out = torch.empty(body_joints.shape, dtype=torch.float32)
+        place(body_joints.detach().contiguous().numpy(), g.detach().contiguous().numpy(), out.numpy())
+        return out
     R = so3.exp(g[:, 3:])
     return torch.baddbmm(g[:, None, :3], body_joints, R.transpose(-1, -2))
 
