@@ -46,10 +46,10 @@ operations over its own columns, and the rest (θ / sin θ, the transport, the e
 is done once per block. In float32 on the CPU a block is instead one call of a fused numba
 kernel (:mod:`priortrack.priors.lie_kernel`: the same draw from the same variates, to float32
 rounding, about twice as fast as the torch operations); the torch path serves every other dtype
-and device. With torch set to T > 1 threads on the CPU, the blocks are sampled by T worker
-threads, each single-threaded; the uniforms and normals are drawn in the calling thread, block
-by block, from the caller's generator, so the draws do not depend on T. It runs in the input's
-dtype (float32 is fine there) and on its device.
+and device. Each block draws its uniforms and normals from a generator of its own, seeded from
+the caller's generator in the calling thread; with torch set to T > 1 threads on the CPU, the
+blocks are sampled by T single-threaded worker threads, so the draws do not depend on T. It runs
+in the input's dtype (float32 is fine there) and on its device.
 :meth:`LiePrior.mean` is exp_x(E[v | x] / s) with the mixture's mean velocity.
 
 **Learning** (Figueiredo & Jain, PAMI 2002): component-wise EM with the minimum-message-length
