@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 TABLE_MOTIONS = ("walkjog:35_29", "cmu:07_10", "cmu:07_11")
 TABLE_SCENARIOS = ("clean:sigma_px=5", "occlusion:sigma_px=5", "blackout:sigma_px=5")
 TABLE_PRESETS = ("pf-diffusion-global", "pf-diffusion-local", "pf-gpdm", "pf-lie", "apf-diffusion-local",
-                 "ukf-diffusion-local", "ukf-gpdm", "map-gpdm")
+                 "ukf-diffusion-local", "ukf-gpdm", "map-gpdm", "map-gpdm-validated")
 TABLE_SEEDS = 5
 #: The preset every other is compared with.
 BASELINE = "pf-diffusion-local"
