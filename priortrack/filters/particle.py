@@ -41,7 +41,7 @@ class ParticleFilter(SequentialFilter):
         ess_threshold: resample when ESS < ess_threshold · P (default 1/2).
         dtype: "float64" (default) or "float32", the dtype of the particles and of everything
             computed from them (transition, joints, projection, likelihood); the log weights are
-            kept in float64. float32 makes a step 1.3–1.6× faster (``bench pf``); priors that need float64
+            kept in float64. float32 makes a step about 2× faster (``bench pf``); priors that need float64
             internally (the GPDM's kernel solves) still compute in it and return float32.
         seed: seeds the filter's own torch.Generator.
     """
