@@ -60,6 +60,16 @@ def test_float32_placement_by_the_fused_kernel_matches_float64():
     assert error < 5e-6 and error < 2 * error32 + 1e-7, (error, error32)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_placement_of_mismatched_shapes_is_a_clear_error(dtype):
+    """Both paths (the float32 kernel would otherwise read past a short g) name the two shapes."""
+    body = torch.zeros(4, 15, 3, dtype=dtype)
+    for b, g in [(body, torch.zeros(4, 5, dtype=dtype)), (body, torch.zeros(3, 6, dtype=dtype)),
+                 (body[0], torch.zeros(4, 6, dtype=dtype)), (body[..., :2], torch.zeros(4, 6, dtype=dtype))]:
+        with pytest.raises(PriortrackError, match=r"expected \(P, J, 3\) and \(P, 6\)"):
+            to_world(b, g)
+
+
 def test_so3_log_near_pi_gives_the_same_rotation():
     axis = torch.tensor([[0.6, 0.0, 0.8]], dtype=torch.float64)
     for angle in (math.pi, math.pi - 1e-9, math.pi - 1e-4):

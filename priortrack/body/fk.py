@@ -239,7 +239,8 @@ class ForwardKinematics:
         channels = self._as_batch(channels[None] if single else channels)
         chosen = self._chosen(joints)
         if self._kernel is not None and not rotations and not channels.requires_grad:
-            return self._fused(channels, chosen)[0] if single else self._fused(channels, chosen)
+            positions = self._fused(channels, chosen)
+            return positions[0] if single else positions
         p, frames = self._world(channels)
         positions = p.index_select(0, self._position_node[torch.as_tensor(chosen)]).permute(2, 0, 1).contiguous()
         if single:
@@ -248,7 +249,6 @@ class ForwardKinematics:
             return positions
         G = self._rotations(frames, chosen)
         return positions, (G[0] if single else G)
-
 
     def _fused(self, channels: torch.Tensor, chosen: np.ndarray) -> torch.Tensor:
         """Positions (B, K, 3) of the ``chosen`` joints by :func:`priortrack.body.fk_kernel.positions`

@@ -33,8 +33,11 @@ def to_world(body_joints: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
 
     float32 on the CPU without gradients goes through the fused kernel of
     :mod:`priortrack.priors.placement_kernel` (the same formula, a few times faster at 10⁴ rows)."""
+    if body_joints.dim() != 3 or body_joints.shape[-1] != 3 or g.shape != (body_joints.shape[0], 6):
+        raise PriortrackError(f"body joints {tuple(body_joints.shape)} and placements {tuple(g.shape)}: "
+                              f"expected (P, J, 3) and (P, 6)")
     if (body_joints.dtype == g.dtype == torch.float32 and body_joints.device.type == g.device.type == "cpu"
-            and not (body_joints.requires_grad or g.requires_grad) and body_joints.dim() == 3):
+            and not (body_joints.requires_grad or g.requires_grad)):
         from priortrack.priors.placement_kernel import place
 
         out = torch.empty(body_joints.shape, dtype=torch.float32)

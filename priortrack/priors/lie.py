@@ -530,7 +530,7 @@ class GeodesicMixture:
 
         def work() -> None:
             with torch.inference_mode():
-                while not jobs.empty():
+                while True:
                     try:
                         start, stop, seed = jobs.get_nowait()
                     except queue.Empty:
