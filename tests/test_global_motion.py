@@ -41,6 +41,8 @@ def test_quaternion_product_composes_rotations_as_matrices_do():
     identity = so3.quaternion_product(q1, so3.quaternion_conjugate(q1))
     torch.testing.assert_close(identity, torch.tensor([1.0, 0, 0, 0], dtype=torch.float64).expand(300, 4),
                                rtol=0, atol=1e-15)
+    with pytest.raises(PriortrackError, match=r"quaternion has shape \(300, 3\); expected \(\.\.\., 4\)"):
+        so3.quaternion_product(q1, w2)
 
 
 def test_float32_placement_by_the_fused_kernel_matches_float64():
