@@ -25,7 +25,7 @@ def test_reports_every_prior_from_real_steps(priors):
     result = bench_pf(particles=64, steps=3, warmup=1, threads=1, dtype="float32", priors=priors)
     assert torch.get_num_threads() == threads                                   # restored
     assert result["particles"] == 64 and result["steps"] == 3 and result["threads"] == 1
-    assert result["dtype"] == "float32"
+    assert result["dtype"] == "float32" and result["translation"] == "marginalised"
     for name in priors:
         ms = result["ms_per_step"][name]
         low, high = result["ms_per_step_range"][name]
@@ -43,6 +43,8 @@ def test_bad_arguments(priors):
         bench_pf(particles=0, priors=priors)
     with pytest.raises(PriortrackError, match="dtype"):
         bench_pf(particles=8, dtype="float16", priors=priors)
+    with pytest.raises(PriortrackError, match="translation must be one of"):
+        bench_pf(particles=8, translation="integrated", priors=priors)
     with pytest.raises(PriortrackError, match="exceeds"):
         bench_pf(particles=8, steps=200, priors=priors)
     with pytest.raises(PriortrackError, match="expected some of"):

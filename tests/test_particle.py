@@ -84,8 +84,8 @@ def test_bad_observation_shape_and_uninitialised(linear):
         ParticleFilter(linear, 10, dtype="float16")
 
 
-@pytest.mark.parametrize("dtype", ["float64", "float32"])
-def test_tracks_a_walk_better_than_holding_the_first_pose(dtype):
+@pytest.mark.parametrize("dtype, translation", [("float64", "sampled"), ("float32", "marginalised")])
+def test_tracks_a_walk_better_than_holding_the_first_pose(dtype, translation):
     walkjog = load_walkjog()
     train = list(walkjog.walks("train"))
     prior = Diffusion.fit(train, local=True)
@@ -94,7 +94,7 @@ def test_tracks_a_walk_better_than_holding_the_first_pose(dtype):
     obs = synthesize(X, motion.fps, default_camera(X), "clean", seed=0)
     model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
                           JointLikelihood(obs.camera))
-    pf = ParticleFilter(model, 300, dtype=dtype, seed=0)
+    pf = ParticleFilter(model, 300, dtype=dtype, translation=translation, seed=0)
     track = pf.run(obs.uv, motion)
     assert pf.states.dtype == getattr(torch, dtype) and pf.log_weights.dtype == torch.float64
     filtered = mpjpe(track.estimates[2:], X[2:]).mean()

@@ -231,7 +231,7 @@ def _bench_pf(args: argparse.Namespace) -> None:
     from priortrack.experiments.bench_pf import bench_pf
 
     _print_json(bench_pf(particles=args.particles, steps=args.steps, seed=args.seed, threads=args.threads,
-                         dtype=args.dtype))
+                         dtype=args.dtype, translation=args.translation))
 
 
 def _bench_fk(args: argparse.Namespace) -> None:
@@ -331,6 +331,8 @@ def build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--threads", type=int, default=2)
     pf.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                     help="the particles' dtype (the particle-filter presets run float32)")
+    pf.add_argument("--translation", choices=("marginalised", "sampled"), default="marginalised",
+                    help="the body's translation integrated out per particle (as the presets run) or sampled")
     pf.add_argument("--seed", type=int, default=0)
     pf.add_argument("--json", action="store_true", help="(the output is always JSON)")
     pf.set_defaults(run=_bench_pf)

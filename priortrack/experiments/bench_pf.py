@@ -58,7 +58,7 @@ def bench_priors(seed: int = 0, gpdm_frames: int = 100) -> dict[str, TransitionM
 
 
 def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: int = 2, warmup: int = 2,
-             gpdm_frames: int = 100, dtype: str = "float32",
+             gpdm_frames: int = 100, dtype: str = "float32", translation: str = "marginalised",
              priors: dict[str, TransitionModel] | None = None) -> dict:
     """Time ``steps`` particle-filter steps with ``particles`` particles for every prior.
 
@@ -71,6 +71,8 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         gpdm_frames: training frames of the GPDM (its step cost grows with them).
         dtype: the particles' dtype (``ParticleFilter(dtype=...)``): "float32", as the
             particle-filter presets run, or "float64".
+        translation: ``ParticleFilter(translation=...)``: "marginalised", as the particle-filter
+            presets run (a Kalman filter per particle), or "sampled".
         priors: name → fitted prior, instead of :func:`bench_priors` (tests pass small ones).
 
     Returns:
@@ -78,7 +80,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         {prior: median ms}, "ms_per_step_range": {prior: [min, max] ms}, "cpu_ms_per_step":
         {prior: median process CPU ms, all threads}, "phases_ms": {prior: {phase: median ms}},
         "resamples": {prior: count over the timed steps}, "steps", "threads", "load_average":
-        [1-minute load before, after] (None where the system has none), "dtype"}``; the phases are those of
+        [1-minute load before, after] (None where the system has none), "dtype", "translation"}``; the phases are those of
         ``Snapshot.timings`` (predict, weight = joints + projection + likelihood +
         normalisation, estimate, resample).
         On a machine busy with other work the wall time exceeds the CPU time (waiting for a
@@ -107,7 +109,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
     for name, prior in priors.items():
         global_motion = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
         model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera))
-        filters[name] = ParticleFilter(model, particles, dtype=dtype, seed=seed)
+        filters[name] = ParticleFilter(model, particles, dtype=dtype, translation=translation, seed=seed)
         filters[name].initialise(walk)
 
     times = {name: [] for name in filters}
@@ -142,6 +144,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         "threads": threads,
         "load_average": None if before is None else [before[0], load_average()[0]],
         "dtype": str(next(iter(filters.values())).states.dtype).removeprefix("torch."),
+        "translation": translation,
     }
     for name in filters:
         logger.info("bench pf %s: %.0f particle-steps/s (%.1f ms per step of %d particles; %s)", name,

@@ -22,6 +22,7 @@ import torch
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.filters.driver import SequentialFilter
+from priortrack.filters.marginal_translation import kalman_update, predict_covariance
 from priortrack.filters.resampling import resampler
 from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.tracking_model import TrackingModel
@@ -29,6 +30,9 @@ from priortrack.filters.tracking_model import TrackingModel
 
 #: The particles' dtypes, by name.
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
+
+#: How the body's translation is handled (see ``ParticleFilter``'s ``translation``).
+TRANSLATIONS = ("sampled", "marginalised")
 
 
 class ParticleFilter(SequentialFilter):
@@ -43,17 +47,29 @@ class ParticleFilter(SequentialFilter):
             computed from them (transition, joints, projection, likelihood); the log weights are
             kept in float64. float32 makes a step about 2× faster (``bench pf``); priors that need float64
             internally (the GPDM's kernel solves) still compute in it and return float32.
+        translation: "sampled" (default: the translation drawn with the rest of the state, the
+            bootstrap filter) or "marginalised" (integrated out by a Kalman filter per particle:
+            :mod:`~priortrack.filters.marginal_translation`; a :class:`TrackingModel` with the
+            Gaussian likelihood only). The particles' translations are then the Kalman means, and
+            ``covariance`` (P, 6, 6) holds each particle's covariance of (t_t, t_{t-1}).
         seed: seeds the filter's own torch.Generator.
     """
 
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
-                 ess_threshold: float = 0.5, dtype: str = "float64", seed: int = 0):
+                 ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", seed: int = 0):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
         if not 0.0 <= ess_threshold <= 1.0:
             raise PriortrackError(f"ess_threshold must be in [0, 1], got {ess_threshold}")
         if dtype not in DTYPES:
             raise PriortrackError(f"dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
+        if translation not in TRANSLATIONS:
+            raise PriortrackError(f"translation must be one of {', '.join(TRANSLATIONS)}, got {translation!r}")
+        if translation == "marginalised" and not (isinstance(model, TrackingModel) and model.likelihood.robust_nu is None):
+            raise PriortrackError("translation = 'marginalised' integrates a body's translation out under the Gaussian "
+                                  "2D likelihood: it needs a TrackingModel without robust_nu")
+        self.marginal = translation == "marginalised"
+        self.covariance: torch.Tensor | None = None
         self.model, self.P, self.ess_threshold = model, int(particles), float(ess_threshold)
         self.dtype = DTYPES[dtype]
         self.resample = resampler(resampling)
@@ -71,6 +87,8 @@ class ParticleFilter(SequentialFilter):
         if states.shape != (self.P, self.model.dim):
             raise PriortrackError(f"initial particles have shape {tuple(states.shape)}; expected ({self.P}, {self.model.dim})")
         self.states = states.to(self.dtype)
+        if self.marginal:
+            self.covariance = torch.zeros((self.P, 6, 6), dtype=self.dtype, device=states.device)
         self.log_weights = torch.full((self.P,), -math.log(self.P), dtype=torch.float64, device=states.device)
         self.frame = frame
 
@@ -83,13 +101,18 @@ class ParticleFilter(SequentialFilter):
             raise PriortrackError(f"observation has shape {tuple(z.shape)}; expected {self.model.observation_shape}")
         timings, flags = {}, []
         t0 = time.perf_counter()
-        self.states = self.model.predict(self.states, self.generator)
+        if self.marginal:       # t_t = t̂_t, its covariance predicted in update (or below)
+            self.states = self.model.predict(self.states, self.generator, translation=False)
+        else:
+            self.states = self.model.predict(self.states, self.generator)
         t1 = time.perf_counter()
         if torch.isfinite(z).any():
             joints = self.update(z, flags)
         else:
             flags.append("no-observation")
             joints = self.model.observe(self.states)
+            if self.marginal:
+                self.covariance = predict_covariance(self.covariance, self.model.global_motion.sigma[:3])
         weights = torch.exp(self.log_weights)
         ess = float(1.0 / (weights ** 2).sum())
         t2 = time.perf_counter()
@@ -100,6 +123,8 @@ class ParticleFilter(SequentialFilter):
         if ess < self.ess_threshold * self.P:
             ancestors = self.resample(weights, self.generator)
             self.states = self.states[ancestors]
+            if self.marginal:
+                self.covariance = self.covariance[ancestors]
             self.log_weights = torch.full_like(self.log_weights, -math.log(self.P))
         t4 = time.perf_counter()
         timings.update(predict=t1 - t0, weight=t2 - t1, estimate=t3 - t2, resample=t4 - t3)
@@ -114,7 +139,14 @@ class ParticleFilter(SequentialFilter):
         ``flags`` (and resets the weights to uniform) if every likelihood is −inf.
         """
         joints = self.model.observe(self.states)
-        self.log_weights = self.normalised(self.log_weights + self.model.log_likelihood(joints, z), flags)
+        log_likelihood = self.model.log_likelihood(joints, z)
+        if self.marginal:       # p(z | t̂) → the predictive likelihood; t̂ → the Kalman mean
+            shift, self.covariance, correction = kalman_update(joints, self.covariance, self.model.global_motion.sigma[:3],
+                                                               z, self.model.likelihood)
+            log_likelihood = log_likelihood + correction
+            self.states = self.model.shift_translation(self.states, shift)
+            joints = joints + shift[:, None, :3]
+        self.log_weights = self.normalised(self.log_weights + log_likelihood, flags)
         return joints
 
     def normalised(self, log_weights: torch.Tensor, flags: list[str]) -> torch.Tensor:

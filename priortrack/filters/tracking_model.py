@@ -52,10 +52,20 @@ class TrackingModel:
         S = self.pose_dim
         return s[:, :S], s[:, S:S + GLOBAL_DIM], s[:, S + GLOBAL_DIM:]
 
-    def predict(self, s: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-        """One draw of s_t per row of s_{t-1}."""
+    def predict(self, s: torch.Tensor, generator: torch.Generator, translation: bool = True) -> torch.Tensor:
+        """One draw of s_t per row of s_{t-1}; with ``translation=False`` the translation is not
+        drawn but predicted, t_t = 2 t_{t-1} − t_{t-2} (for a filter that integrates it out)."""
         x, g, g_prev = self.split(s)
-        return torch.cat([self.prior.sample(x, generator), self.global_motion.sample(g, g_prev, generator), g], -1)
+        g_t = self.global_motion.sample(g, g_prev, generator, translation=translation)
+        return torch.cat([self.prior.sample(x, generator), g_t, g], -1)
+
+    def shift_translation(self, s: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+        """s (P, S + 12) with t_t moved by shift[:, :3] and t_{t-1} by shift[:, 3:] (P, 6)."""
+        S = self.pose_dim
+        out = s.clone()
+        out[:, S:S + 3] += shift[:, :3].to(s)
+        out[:, S + GLOBAL_DIM:S + GLOBAL_DIM + 3] += shift[:, 3:].to(s)
+        return out
 
     def mean_step(self, s: torch.Tensor) -> torch.Tensor:
         """The deterministic mean step (the unscented filter's fx)."""

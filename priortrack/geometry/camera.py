@@ -266,7 +266,8 @@ class PinholeCamera:
         return float(self.K[1, 2])
 
     # ------------------------------------------------------------------ projection
-    def _projection_for(self, device: torch.device, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    def projection(self, device: torch.device, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+        """P = K R (3, 3) and p = K t (3,) (homogeneous pixels = P X + p) on ``device`` in ``dtype``."""
         key = (device, dtype)
         hit = self._cache.get(key)
         if hit is None:
@@ -319,7 +320,7 @@ class PinholeCamera:
         self._check_points_shape(tuple(points.shape))
         if not points.is_floating_point():
             points = points.to(torch.float64)
-        P, p = self._projection_for(points.device, points.dtype)
+        P, p = self.projection(points.device, points.dtype)
         h = torch.addmm(p, points.reshape(-1, 3), P.transpose(0, 1)).view(points.shape)
         z = h[..., 2]
         in_front = z > MIN_DEPTH
@@ -327,6 +328,26 @@ class PinholeCamera:
         uv = h[..., :2] / z_safe.unsqueeze(-1)
         uv = torch.where(in_front.unsqueeze(-1), uv, float("nan"))
         return uv, in_front
+
+    def project_jacobian(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Pixels and their Jacobian with respect to the world point.
+
+        For h = P X + p (P = K R, p = K t) and u = h_{0,1} / h_2:
+
+            ∂u/∂X = (P_{0,1} − u P_2) / h_2   (2 × 3 per point).
+
+        Args:
+            points: (..., J, 3) world points, a floating torch tensor.
+
+        Returns:
+            uv (..., J, 2), jacobian (..., J, 2, 3) and in_front (..., J), as :meth:`project`
+            (NaN where a point is not in front of the camera), in the points' dtype and device.
+        """
+        uv, in_front = self._project_torch(points)
+        P, p = self.projection(points.device, points.dtype)
+        depth = torch.where(in_front, points @ P[2] + p[2], 1.0)
+        jacobian = (P[:2] - uv[..., :, None] * P[2]) / depth[..., None, None]
+        return uv, jacobian, in_front
 
     @staticmethod
     def _check_points_shape(shape: tuple[int, ...]) -> None:

@@ -91,10 +91,14 @@ class GlobalMotion:
         eta = so3.quaternion_log(so3.quaternion_product(so3.quaternion(g[:, 3:]), so3.quaternion_conjugate(q_hat)))
         return torch.cat([g[:, :3] - t_hat, eta], dim=-1)
 
-    def sample(self, g1: torch.Tensor, g2: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-        """One draw of g_t (P, 6) per row of g_{t-1}, g_{t-2}."""
+    def sample(self, g1: torch.Tensor, g2: torch.Tensor, generator: torch.Generator,
+               translation: bool = True) -> torch.Tensor:
+        """One draw of g_t (P, 6) per row of g_{t-1}, g_{t-2}; with ``translation=False`` only the
+        rotation is drawn and t_t = t̂_t (for a proposal that draws t_t itself)."""
         t_hat, q_hat = self._predicted(g1, g2)
-        return self._perturbed(t_hat, q_hat, self.sigma.to(g1), generator)
+        sigma = self.sigma.to(g1)
+        return self._perturbed(t_hat, q_hat, sigma if translation else torch.cat([torch.zeros_like(sigma[:3]), sigma[3:]]),
+                               generator)
 
     @classmethod
     def perturb(cls, g: torch.Tensor, std: torch.Tensor, generator: torch.Generator) -> torch.Tensor:

@@ -1,0 +1,97 @@
+"""The body's translation integrated out of the particle filter by a Kalman filter per particle
+(a Rao–Blackwellised, or marginalised, particle filter: Schön, Gustafsson & Nordlund, IEEE TSP
+53(7), 2005), with the projection linearised as in the extended Kalman filter.
+
+Why: one camera sees the depth only through the size of the skeleton's image, a few pixels per
+decimetre at 5 m. A sampled translation t_t = 2 t_{t−1} − t_{t−2} + ε (σ_t ≈ 2.5 mm per frame)
+differs so little between particles that resampling cannot select the right depth; the cloud's
+depth velocity drifts as a random walk, by tens of centimetres a second. Integrating t out lets
+every frame's weak depth evidence accumulate in each particle's Gaussian instead.
+
+Per particle, τ = (t_t, t_{t−1}) ∈ R⁶ has mean μ (the translations held in the particle's
+state) and covariance C (6 × 6). The second-order model is linear:
+
+    predict   μ⁻ = F μ,  C⁻ = F C Fᵀ + Q,   F = [[2I, −I], [I, 0]],  Q = diag(σ_t², 0).
+
+Given the particle's pose and rotation (drawn from the prior), the world joints X_j(t) = R B_j + t
+are linear in t. Linearised at the predicted t̂ = μ⁻[:3], û_j(t) ≈ û_j + J_j (t − t̂), with
+J_j = ∂û/∂X (2 × 3) at X_j(t̂) and r_j = z_j − û_j over the observed joints, and with P = C⁻[:3, :3],
+
+    A = Σ_j J_jᵀ J_j / σ_e²,   b = Σ_j J_jᵀ r_j / σ_e²,   y = (I + A P)⁻¹ b,
+    update    μ⁺ = μ⁻ + C⁻[:, :3] y,   C⁺ = C⁻ − C⁻[:, :3] (I + A P)⁻¹ A C⁻[:3, :],
+
+the Kalman update written with 3 × 3 matrices (Jᵀ (J P Jᵀ + σ_e² I)⁻¹ = (I + A P)⁻¹ Jᵀ / σ_e²).
+The particle's weight is the predictive likelihood of z with t integrated out,
+
+    log N(r; 0, J P Jᵀ + σ_e² I) = log p(z | t̂) + ½ bᵀ P y − ½ log det(I + A P),
+
+log p(z | t̂) the Gaussian likelihood at the predicted translation (matrix determinant lemma
+and Woodbury). The rotation and the pose are still sampled: only t is integrated.
+
+On the CPU the update is one fused numba kernel (:mod:`priortrack.filters.kalman_kernel`, the
+same equations); the torch code below serves other devices and gradients.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from priortrack.geometry.camera import MIN_DEPTH
+from priortrack.observation.likelihood import JointLikelihood
+
+
+def predict_covariance(C: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """C⁻ = F C Fᵀ + Q (P, 6, 6) from C (P, 6, 6) and σ_t (3,) (module docstring)."""
+    t, t_prev = C[:, :3], C[:, 3:]                                     # rows of τ = (t_t, t_{t-1})
+    rows = torch.cat([2 * t - t_prev, t], dim=1)                      # F C
+    t, t_prev = rows[..., :3], rows[..., 3:]
+    out = torch.cat([2 * t - t_prev, t], dim=2)                       # (F C) Fᵀ
+    out[:, range(3), range(3)] += (sigma ** 2).to(C)
+    return out
+
+
+def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z: torch.Tensor,
+                  likelihood: JointLikelihood) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The prediction and update of τ for one observed frame, and the weight's correction.
+
+    Args:
+        joints: (P, J, 3) world joints placed at the predicted translation t̂ = μ⁻[:3].
+        C: (P, 6, 6) the previous frame's covariance of τ (predicted here: C⁻ = F C Fᵀ + Q).
+        sigma: (3,) σ_t.
+        z: (J, 2) pixels, NaN where a joint was not seen.
+        likelihood: a Gaussian :class:`JointLikelihood` (its camera and σ_e).
+
+    Returns:
+        the shift μ⁺ − μ⁻ (P, 6), the updated covariance C⁺ (P, 6, 6), and
+        ½ bᵀ P y − ½ log det N (P,), which added to log p(z | t̂) gives the predictive likelihood.
+        Joints not seen, or behind the camera, do not inform the update.
+    """
+    seen = torch.isfinite(z).all(dim=-1).nonzero()[:, 0]
+    joints, z = joints.index_select(1, seen), z[seen]
+    inv_var = 1.0 / likelihood.sigma_px ** 2
+    if joints.device.type == "cpu" and not (joints.requires_grad or C.requires_grad):
+        from priortrack.filters.kalman_kernel import update
+
+        P, p = likelihood.camera.projection(joints.device, joints.dtype)
+        shift, C_post = torch.empty(C.shape[:2], dtype=C.dtype), torch.empty_like(C)
+        correction = torch.empty(C.shape[:1], dtype=C.dtype)
+        update(joints.detach().contiguous().numpy(), z.contiguous().numpy(), P.numpy(), p.numpy(), inv_var,
+               MIN_DEPTH, C.detach().contiguous().numpy(), (sigma ** 2).to(C).numpy(), shift.numpy(),
+               C_post.numpy(), correction.numpy())
+        return shift, C_post, correction
+    C = predict_covariance(C, sigma)
+    uv, J, in_front = likelihood.camera.project_jacobian(joints)                    # (P, n, 2), (P, n, 2, 3)
+    r = torch.where(in_front[..., None], z - uv, 0.0).reshape(len(joints), -1, 1)   # (P, 2n, 1)
+    J = torch.where(in_front[..., None, None], J, 0.0).reshape(len(joints), -1, 3)  # (P, 2n, 3)
+    A = J.transpose(1, 2) @ J * inv_var
+    b = (J.transpose(1, 2) @ r)[..., 0] * inv_var
+    P = C[:, :3, :3]
+    lu, pivots = torch.linalg.lu_factor(torch.eye(3, dtype=C.dtype, device=C.device) + A @ P)
+    solved = torch.linalg.lu_solve(lu, pivots, torch.cat([b[..., None], A], dim=-1))   # N⁻¹ [b, A]
+    y, M = solved[..., 0], solved[..., 1:]
+    gain = C[:, :, :3]                                                                 # C⁻[:, :3]
+    shift = (gain @ y[..., None])[..., 0]
+    C_post = C - gain @ M @ C[:, :3, :]
+    log_det = torch.log(torch.diagonal(lu, dim1=-2, dim2=-1).abs()).sum(dim=-1)       # det N > 0
+    correction = 0.5 * (b[:, None, :] @ P @ y[..., None])[:, 0, 0] - 0.5 * log_det
+    return shift, C_post, correction
