@@ -1,12 +1,12 @@
 """Threads for torch work: scoped thread counts, and a pool of single-threaded workers that
-run blocks of a batch side by side (the Lie prior's sampler)."""
+run blocks of a batch side by side (the Lie prior's sampler, the row-wise kernels)."""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import torch
@@ -56,3 +56,17 @@ def block_pool(workers: int) -> ThreadPoolExecutor:
             torch.set_num_threads(threads)
             _pool = (os.getpid(), workers, pool)
         return _pool[2]
+
+
+def split_rows(n: int, run: Callable[[slice], None], min_rows: int = 2048) -> None:
+    """Call ``run(rows)`` on contiguous slices covering range(n): side by side on
+    min(torch's thread count, n // min_rows) workers of :func:`block_pool` (for kernels that
+    release the GIL and treat rows independently), or once, in this thread."""
+    workers = min(torch.get_num_threads(), n // min_rows)
+    if workers <= 1:
+        run(slice(0, n))
+        return
+    bounds = [n * k // workers for k in range(workers + 1)]
+    pool = block_pool(workers)
+    for future in [pool.submit(run, slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:])]:
+        future.result()

@@ -36,6 +36,7 @@ import torch
 
 from priortrack.body.skeleton import SLOTS, Skeleton, check_channels
 from priortrack.errors import PriortrackError
+from priortrack.threads import split_rows
 
 #: An axis within this (max-norm) of a signed frame column rotates about that column.
 _ALIGNED = 1e-12
@@ -252,11 +253,13 @@ class ForwardKinematics:
 
     def _fused(self, channels: torch.Tensor, chosen: np.ndarray) -> torch.Tensor:
         """Positions (B, K, 3) of the ``chosen`` joints by :func:`priortrack.body.fk_kernel.positions`
-        (float32, CPU): the same FK in one pass, equal to the torch path to float32 rounding."""
+        (float32, CPU): the same FK in one pass, equal to the torch path to float32 rounding; with
+        torch on T > 1 threads, the rows are split among T workers (:func:`priortrack.threads.split_rows`)."""
         from priortrack.body.fk_kernel import positions
 
         out = torch.empty(channels.shape[0], len(chosen), 3, dtype=torch.float32)
-        positions(channels.contiguous().numpy(), *self._kernel, chosen.astype(np.int64), out.numpy())
+        rows, wanted, result = channels.contiguous().numpy(), chosen.astype(np.int64), out.numpy()
+        split_rows(len(rows), lambda r: positions(rows[r], *self._kernel, wanted, result[r]))
         return out
 
 

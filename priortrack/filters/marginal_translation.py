@@ -29,7 +29,8 @@ log p(z | t̂) the Gaussian likelihood at the predicted translation (matrix dete
 and Woodbury). The rotation and the pose are still sampled: only t is integrated.
 
 On the CPU the update is one fused numba kernel (:mod:`priortrack.filters.kalman_kernel`, the
-same equations); the torch code below serves other devices and gradients.
+same equations; its rows split among torch's threads by :func:`priortrack.threads.split_rows`);
+the torch code below serves other devices and gradients.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import torch
 
 from priortrack.geometry.camera import MIN_DEPTH
 from priortrack.observation.likelihood import JointLikelihood
+from priortrack.threads import split_rows
 
 
 def predict_covariance(C: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
@@ -75,9 +77,11 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z:
         P, p = likelihood.camera.projection(joints.device, joints.dtype)
         shift, C_post = torch.empty(C.shape[:2], dtype=C.dtype), torch.empty_like(C)
         correction = torch.empty(C.shape[:1], dtype=C.dtype)
-        update(joints.detach().contiguous().numpy(), z.contiguous().numpy(), P.numpy(), p.numpy(), inv_var,
-               MIN_DEPTH, C.detach().contiguous().numpy(), (sigma ** 2).to(C).numpy(), shift.numpy(),
-               C_post.numpy(), correction.numpy())
+        X, Z, C_prev, Pn, pn = (joints.detach().contiguous().numpy(), z.contiguous().numpy(),
+                                C.detach().contiguous().numpy(), P.numpy(), p.numpy())
+        sigma_sq, out = (sigma ** 2).to(C).numpy(), (shift.numpy(), C_post.numpy(), correction.numpy())
+        split_rows(len(X), lambda r: update(X[r], Z, Pn, pn, inv_var, MIN_DEPTH, C_prev[r], sigma_sq,
+                                            *(a[r] for a in out)))
         return shift, C_post, correction
     C = predict_covariance(C, sigma)
     uv, J, in_front = likelihood.camera.project_jacobian(joints)                    # (P, n, 2), (P, n, 2, 3)

@@ -10,6 +10,11 @@ Per frame, for P particles s^i held as one tensor:
 
 A frame with no observed joint leaves the weights as they are (the prediction stands). If
 every particle's likelihood is −inf, the weights are reset to uniform (flagged), never NaN.
+
+With ``translation="marginalised"`` the body's translation is not sampled: each particle carries
+a Gaussian over (t_t, t_{t-1}) (its mean in the state, its covariance in ``covariance``), predicted
+and updated by a Kalman filter, and weighted by the predictive likelihood p(z_t | x_t, R_t, z_{1:t-1})
+with t integrated out (:mod:`priortrack.filters.marginal_translation`).
 """
 
 from __future__ import annotations

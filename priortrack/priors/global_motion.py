@@ -23,6 +23,7 @@ import torch
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
 from priortrack.randomness import standard_normal
+from priortrack.threads import split_rows
 
 #: Smallest σ a fit may return (metres or radians per frame).
 SIGMA_FLOOR = 1e-4
@@ -32,7 +33,8 @@ def to_world(body_joints: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     """X = exp(ω) · B + t: body joints (P, J, 3) placed by g (P, 6) → world joints (P, J, 3).
 
     float32 on the CPU without gradients goes through the fused kernel of
-    :mod:`priortrack.priors.placement_kernel` (the same formula, a few times faster at 10⁴ rows)."""
+    :mod:`priortrack.priors.placement_kernel` (the same formula, a few times faster at 10⁴ rows;
+    its rows split among torch's threads by :func:`priortrack.threads.split_rows`)."""
     if body_joints.dim() != 3 or body_joints.shape[-1] != 3 or g.shape != (body_joints.shape[0], 6):
         raise PriortrackError(f"body joints {tuple(body_joints.shape)} and placements {tuple(g.shape)}: "
                               f"expected (P, J, 3) and (P, 6)")
@@ -41,7 +43,8 @@ def to_world(body_joints: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
         from priortrack.priors.placement_kernel import place
 
         out = torch.empty(body_joints.shape, dtype=torch.float32)
-        place(body_joints.detach().contiguous().numpy(), g.detach().contiguous().numpy(), out.numpy())
+        B, G, X = body_joints.detach().contiguous().numpy(), g.detach().contiguous().numpy(), out.numpy()
+        split_rows(len(B), lambda r: place(B[r], G[r], X[r]))
         return out
     R = so3.exp(g[:, 3:])
     return torch.baddbmm(g[:, None, :3], body_joints, R.transpose(-1, -2))
