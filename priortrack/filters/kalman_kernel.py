@@ -3,8 +3,9 @@ CPU kernel (numba), for CPU tensors of either float dtype.
 
 In torch the prediction and update are a dozen batched products and an LU factorisation of
 10⁴ tiny matrices (about 10 ms a step at 10⁴ particles); here each particle is one short loop,
-in the same order as the module's equations: C⁻ = F C Fᵀ + Q, the projection h = P X + p of each observed joint, its Jacobian
-J_j = (P_{0,1} − u_j P_2) / h_2 and residual r_j = z_j − u_j, the sums A and b, then
+in the same order as the module's equations: C⁻ = F C Fᵀ + Q, the projection h = P X + p of each
+observed joint, its Jacobian J_j = (P_{0,1} − u_j P_2) / h_2 and residual r_j = z_j − u_j (and
+Σ_j |r_j|², for the likelihood at t̂), the sums A and b, then
 
     N = I + A P,  y = N⁻¹ b,  M = N⁻¹ A  (N⁻¹ by the adjugate),
     shift = C[:, :3] y,   C⁺ = C − C[:, :3] M C[:3, :],   correction = ½ bᵀ P y − ½ log det N.
@@ -22,7 +23,7 @@ import numpy as np
 
 
 @numba.njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
-def update(joints, z, Pm, p, inv_var, min_depth, C_prev, sigma_sq, shift, C_out, correction):
+def update(joints, z, Pm, p, inv_var, min_depth, miss_sq, C_prev, sigma_sq, shift, C_out, correction, d_sq):
     """Kalman prediction and update of every particle.
 
     joints (P, n, 3) observed joints at t̂; z (n, 2) their pixels; Pm (3, 3), p (3,) the camera's
@@ -50,15 +51,18 @@ def update(joints, z, Pm, p, inv_var, min_depth, C_prev, sigma_sq, shift, C_out,
             C[r, r] += sigma_sq[r]
         a00 = a01 = a02 = a11 = a12 = a22 = zero
         b0 = b1 = b2 = zero
+        miss = zero
         for j in range(n):
             X0, X1, X2 = joints[i, j, 0], joints[i, j, 1], joints[i, j, 2]
             h2 = Pm[2, 0] * X0 + Pm[2, 1] * X1 + Pm[2, 2] * X2 + p[2]
             if not h2 > min_depth:
+                miss += miss_sq
                 continue
             inv_h = one / h2
             u = (Pm[0, 0] * X0 + Pm[0, 1] * X1 + Pm[0, 2] * X2 + p[0]) * inv_h
             v = (Pm[1, 0] * X0 + Pm[1, 1] * X1 + Pm[1, 2] * X2 + p[1]) * inv_h
             ru, rv = z[j, 0] - u, z[j, 1] - v
+            miss += ru * ru + rv * rv
             j0, j1, j2 = (Pm[0, 0] - u * Pm[2, 0]) * inv_h, (Pm[0, 1] - u * Pm[2, 1]) * inv_h, (Pm[0, 2] - u * Pm[2, 2]) * inv_h
             k0, k1, k2 = (Pm[1, 0] - v * Pm[2, 0]) * inv_h, (Pm[1, 1] - v * Pm[2, 1]) * inv_h, (Pm[1, 2] - v * Pm[2, 2]) * inv_h
             a00 += j0 * j0 + k0 * k0
@@ -94,6 +98,7 @@ def update(joints, z, Pm, p, inv_var, min_depth, C_prev, sigma_sq, shift, C_out,
         quadratic = (b0 * (p00 * y0 + p01 * y1 + p02 * y2) + b1 * (p01 * y0 + p11 * y1 + p12 * y2)
                      + b2 * (p02 * y0 + p12 * y1 + p22 * y2))
         correction[i] = half * quadratic - half * math.log(det)
+        d_sq[i] = miss
         for r in range(6):
             g0, g1, g2 = C[r, 0], C[r, 1], C[r, 2]
             shift[i, r] = g0 * y0 + g1 * y1 + g2 * y2

@@ -38,6 +38,7 @@ from __future__ import annotations
 import torch
 
 from priortrack.geometry.camera import MIN_DEPTH
+from priortrack.kernels import cpu_kernel_applies
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.threads import split_rows
 
@@ -54,38 +55,42 @@ def predict_covariance(C: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
 
 def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z: torch.Tensor,
                   likelihood: JointLikelihood) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The prediction and update of τ for one observed frame, and the weight's correction.
+    """The prediction and update of τ for one observed frame, and the particles' log predictive likelihood.
 
     Args:
         joints: (P, J, 3) world joints placed at the predicted translation t̂ = μ⁻[:3].
         C: (P, 6, 6) the previous frame's covariance of τ (predicted here: C⁻ = F C Fᵀ + Q).
         sigma: (3,) σ_t.
-        z: (J, 2) pixels, NaN where a joint was not seen.
+        z: (J, 2) pixels, NaN where a joint was not seen (at least one seen).
         likelihood: a Gaussian :class:`JointLikelihood` (its camera and σ_e).
 
     Returns:
         the shift μ⁺ − μ⁻ (P, 6), the updated covariance C⁺ (P, 6, 6), and
-        ½ bᵀ P y − ½ log det N (P,), which added to log p(z | t̂) gives the predictive likelihood.
-        Joints not seen, or behind the camera, do not inform the update.
+        log p(z | t̂) + ½ bᵀ P y − ½ log det N (P,), the log predictive likelihood with t
+        integrated out (p(z | t̂) as ``likelihood`` scores it: a joint behind the camera counts as
+        a miss of the image diagonal there, and does not inform the update).
     """
     seen = torch.isfinite(z).all(dim=-1).nonzero()[:, 0]
     joints, z = joints.index_select(1, seen), z[seen]
     inv_var = 1.0 / likelihood.sigma_px ** 2
-    if joints.device.type == "cpu" and not (joints.requires_grad or C.requires_grad):
+    if cpu_kernel_applies(joints, C):
         from priortrack.filters.kalman_kernel import update
 
         P, p = likelihood.camera.projection(joints.device, joints.dtype)
         shift, C_post = torch.empty(C.shape[:2], dtype=C.dtype), torch.empty_like(C)
-        correction = torch.empty(C.shape[:1], dtype=C.dtype)
+        correction, d_sq = torch.empty(C.shape[:1], dtype=C.dtype), torch.empty(C.shape[:1], dtype=C.dtype)
         X, Z, C_prev, Pn, pn = (joints.detach().contiguous().numpy(), z.contiguous().numpy(),
                                 C.detach().contiguous().numpy(), P.numpy(), p.numpy())
-        sigma_sq, out = (sigma ** 2).to(C).numpy(), (shift.numpy(), C_post.numpy(), correction.numpy())
-        split_rows(len(X), lambda r: update(X[r], Z, Pn, pn, inv_var, MIN_DEPTH, C_prev[r], sigma_sq,
-                                            *(a[r] for a in out)))
-        return shift, C_post, correction
+        sigma_sq = (sigma ** 2).to(C).numpy()
+        out = (shift.numpy(), C_post.numpy(), correction.numpy(), d_sq.numpy())
+        split_rows(len(X), lambda r: update(X[r], Z, Pn, pn, inv_var, MIN_DEPTH, likelihood.miss_sq, C_prev[r],
+                                            sigma_sq, *(a[r] for a in out)))
+        return shift, C_post, likelihood.gaussian(d_sq, len(seen)) + correction
     C = predict_covariance(C, sigma)
     uv, J, in_front = likelihood.camera.project_jacobian(joints)                    # (P, n, 2), (P, n, 2, 3)
-    r = torch.where(in_front[..., None], z - uv, 0.0).reshape(len(joints), -1, 1)   # (P, 2n, 1)
+    d = torch.where(in_front[..., None], z - uv, 0.0)
+    d_sq = torch.where(in_front, (d * d).sum(dim=-1), likelihood.miss_sq).sum(dim=-1)
+    r = d.reshape(len(joints), -1, 1)                                                # (P, 2n, 1)
     J = torch.where(in_front[..., None, None], J, 0.0).reshape(len(joints), -1, 3)  # (P, 2n, 3)
     A = J.transpose(1, 2) @ J * inv_var
     b = (J.transpose(1, 2) @ r)[..., 0] * inv_var
@@ -98,4 +103,4 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z:
     C_post = C - gain @ M @ C[:, :3, :]
     log_det = torch.log(torch.diagonal(lu, dim1=-2, dim2=-1).abs()).sum(dim=-1)       # det N > 0
     correction = 0.5 * (b[:, None, :] @ P @ y[..., None])[:, 0, 0] - 0.5 * log_det
-    return shift, C_post, correction
+    return shift, C_post, likelihood.gaussian(d_sq, len(seen)) + correction

@@ -144,13 +144,13 @@ class ParticleFilter(SequentialFilter):
         ``flags`` (and resets the weights to uniform) if every likelihood is −inf.
         """
         joints = self.model.observe(self.states)
-        log_likelihood = self.model.log_likelihood(joints, z)
-        if self.marginal:       # p(z | t̂) → the predictive likelihood; t̂ → the Kalman mean
-            shift, self.covariance, correction = kalman_update(joints, self.covariance, self.model.global_motion.sigma[:3],
-                                                               z, self.model.likelihood)
-            log_likelihood = log_likelihood + correction
+        if self.marginal:       # the predictive likelihood, t integrated out; t̂ → the Kalman mean
+            shift, self.covariance, log_likelihood = kalman_update(
+                joints, self.covariance, self.model.global_motion.sigma[:3], z, self.model.likelihood)
             self.states = self.model.shift_translation(self.states, shift)
             joints = joints + shift[:, None, :3]
+        else:
+            log_likelihood = self.model.log_likelihood(joints, z)
         self.log_weights = self.normalised(self.log_weights + log_likelihood, flags)
         return joints
 

@@ -41,7 +41,8 @@ class JointLikelihood:
         if robust_nu is not None and not robust_nu > 0:
             raise PriortrackError(f"robust_nu must be positive (or None for a Gaussian), got {robust_nu}")
         self.camera, self.sigma_px, self.robust_nu = camera, float(sigma_px), robust_nu
-        self._miss_sq = float(camera.width ** 2 + camera.height ** 2)
+        #: |d_j|² of a predicted joint behind the camera: the squared image diagonal.
+        self.miss_sq = float(camera.width ** 2 + camera.height ** 2)
 
     def log_likelihood(self, joints: torch.Tensor, z) -> torch.Tensor:
         """(P, 15, 3) predicted joints (metres, world), z (15, 2) pixels with NaN → (P,)."""
@@ -55,12 +56,12 @@ class JointLikelihood:
         uv, in_front = self.camera.project(joints.index_select(1, seen))
         d = uv - z[seen]
         d_sq = torch.addcmul(d[..., 0] * d[..., 0], d[..., 1], d[..., 1])
-        d_sq = torch.where(in_front, d_sq, self._miss_sq)
+        d_sq = torch.where(in_front, d_sq, self.miss_sq)
         if self.robust_nu is None:      # the Gaussian's sum over joints, taken before its affine map
-            return self._gaussian(d_sq.sum(dim=-1), len(seen))
+            return self.gaussian(d_sq.sum(dim=-1), len(seen))
         return self.per_joint(d_sq).sum(dim=-1)
 
-    def _gaussian(self, d_sq: torch.Tensor, joints: int) -> torch.Tensor:
+    def gaussian(self, d_sq: torch.Tensor, joints: int) -> torch.Tensor:
         """Σ_j [−|d_j|² / (2σ²) − log(2π σ²)] over ``joints`` joints from their summed |d_j|²."""
         var = self.sigma_px ** 2
         return -0.5 / var * d_sq - joints * math.log(2 * math.pi * var)
@@ -68,7 +69,7 @@ class JointLikelihood:
     def per_joint(self, d_sq: torch.Tensor) -> torch.Tensor:
         """Log density of each observed joint from its squared pixel miss |d_j|² (any shape)."""
         if self.robust_nu is None:
-            return self._gaussian(d_sq, 1)
+            return self.gaussian(d_sq, 1)
         var, nu = self.sigma_px ** 2, self.robust_nu
         const = math.lgamma((nu + 2) / 2) - math.lgamma(nu / 2) - math.log(nu * math.pi * var)
         return const - 0.5 * (nu + 2) * torch.log1p(d_sq / (nu * var))

@@ -22,6 +22,7 @@ import torch
 
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
+from priortrack.kernels import cpu_kernel_applies
 from priortrack.randomness import standard_normal
 from priortrack.threads import split_rows
 
@@ -38,8 +39,7 @@ def to_world(body_joints: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     if body_joints.dim() != 3 or body_joints.shape[-1] != 3 or g.shape != (body_joints.shape[0], 6):
         raise PriortrackError(f"body joints {tuple(body_joints.shape)} and placements {tuple(g.shape)}: "
                               f"expected (P, J, 3) and (P, 6)")
-    if (body_joints.dtype == g.dtype == torch.float32 and body_joints.device.type == g.device.type == "cpu"
-            and not (body_joints.requires_grad or g.requires_grad)):
+    if cpu_kernel_applies(body_joints, g, dtype=torch.float32):
         from priortrack.priors.placement_kernel import place
 
         out = torch.empty(body_joints.shape, dtype=torch.float32)
@@ -97,11 +97,22 @@ class GlobalMotion:
     def sample(self, g1: torch.Tensor, g2: torch.Tensor, generator: torch.Generator,
                translation: bool = True) -> torch.Tensor:
         """One draw of g_t (P, 6) per row of g_{t-1}, g_{t-2}; with ``translation=False`` only the
-        rotation is drawn and t_t = t̂_t (for a proposal that draws t_t itself)."""
-        t_hat, q_hat = self._predicted(g1, g2)
+        rotation is drawn and t_t = t̂_t (for a filter that integrates the translation out).
+        float32 on the CPU without gradients goes through the fused kernel of
+        :mod:`priortrack.priors.global_motion_kernel` (the same draw from the same variates)."""
         sigma = self.sigma.to(g1)
-        return self._perturbed(t_hat, q_hat, sigma if translation else torch.cat([torch.zeros_like(sigma[:3]), sigma[3:]]),
-                               generator)
+        sigma = sigma if translation else torch.cat([torch.zeros_like(sigma[:3]), sigma[3:]])
+        if cpu_kernel_applies(g1, g2, dtype=torch.float32):
+            from priortrack.priors.global_motion_kernel import sample
+
+            noise = standard_normal((len(g1), 6), generator, g1)              # the variates _perturbed draws
+            out = torch.empty(g1.shape, dtype=torch.float32)
+            G1, G2, N, S, X = (g1.contiguous().numpy(), g2.contiguous().numpy(), noise.numpy(), sigma.numpy(),
+                               out.numpy())
+            split_rows(len(G1), lambda r: sample(G1[r], G2[r], N[r], S, X[r]))
+            return out
+        t_hat, q_hat = self._predicted(g1, g2)
+        return self._perturbed(t_hat, q_hat, sigma, generator)
 
     @classmethod
     def perturb(cls, g: torch.Tensor, std: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
