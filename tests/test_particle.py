@@ -122,3 +122,28 @@ def test_mean_state_averages_placements_on_so3():
     torch.testing.assert_close(mean[S + 3:S + 6], torch.zeros(3, dtype=torch.float64), atol=1e-12, rtol=0)
     torch.testing.assert_close(mean[S + 9:S + 12], torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64),
                                atol=1e-12, rtol=0)
+
+
+def test_mean_rotation_is_the_chordal_mean_by_svd():
+    """The quaternion eigenvector (TrackingModel.mean) against the other closed form of the same
+    chordal mean: Σ w_i R_i projected onto SO(3) by SVD (Moakher 2002), for spread rotation sets."""
+    from priortrack.geometry import so3
+
+    walkjog = load_walkjog()
+    prior = Diffusion.fit(list(walkjog.walks("train"))[:2], local=True)
+    model = TrackingModel(prior, GlobalMotion(torch.full((6,), 0.01)), JointLikelihood(default_camera(
+        walkjog.test[1][:3].positions("eval15"))))
+    S = prior.state_dim
+    g = torch.Generator().manual_seed(4)
+    for spread in (0.05, 0.5, 1.2):
+        s = torch.zeros(500, S + 12, dtype=torch.float64)
+        centre = torch.randn(1, 3, generator=g, dtype=torch.float64)
+        for k in (S + 3, S + 9):
+            s[:, k:k + 3] = so3.log(so3.exp(spread * torch.randn(500, 3, generator=g, dtype=torch.float64))
+                                    @ so3.exp(centre))
+        w = torch.rand(500, generator=g, dtype=torch.float64)
+        mean = model.mean(s, w)
+        for k in (S + 3, S + 9):
+            U, _, Vh = torch.linalg.svd(torch.einsum("p,pij->ij", w / w.sum(), so3.exp(s[:, k:k + 3])))
+            D = torch.diag(torch.tensor([1.0, 1.0, float(torch.sign(torch.linalg.det(U @ Vh)))], dtype=torch.float64))
+            torch.testing.assert_close(so3.exp(mean[None, k:k + 3])[0], U @ D @ Vh, rtol=0, atol=1e-10)

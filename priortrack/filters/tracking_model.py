@@ -100,15 +100,15 @@ class TrackingModel:
 
     def mean(self, s: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
         """Weighted mean state (S + 12,): the pose on the prior's manifold, translations
-        averaged, rotations by their chordal mean (the weighted sum of matrices projected
-        onto SO(3) by SVD)."""
+        averaged, rotations by their chordal mean argmin_R Σ_i w_i ‖R − R_i‖²_F. Since
+        tr(A(q)ᵀ A(q_i)) = 4 (q·q_i)² − 1 for rotation matrices A of unit quaternions, that is the
+        quaternion q maximising qᵀ (Σ_i w_i q_i q_iᵀ) q: the principal eigenvector of a 4 × 4 matrix
+        (Markley, Cheng, Crassidis & Oshman, J. Guidance 30(4), 2007), computed in float64."""
         x, g, g_prev = self.split(s)
         w = (weights / weights.sum()).to(s)
         placements = torch.stack([g, g_prev])                                     # (2, P, 6)
         t = w @ placements[..., :3]                                               # (2, 3)
-        M = torch.einsum("p,kpij->kij", w, so3.exp(placements[..., 3:]))          # (2, 3, 3)
-        U, _, Vh = torch.linalg.svd(M)
-        D = torch.ones(2, 3, dtype=M.dtype, device=M.device)
-        D[:, 2] = torch.sign(torch.linalg.det(U @ Vh))
-        omega = so3.log((U * D[:, None, :]) @ Vh)                                 # (2, 3)
+        q = so3.quaternion(placements[..., 3:]).to(torch.float64)                 # (2, P, 4)
+        M = (q * w.to(q)[:, None]).transpose(-1, -2) @ q                          # (2, 4, 4)
+        omega = so3.quaternion_log(torch.linalg.eigh(M)[1][..., -1]).to(s)        # (2, 3)
         return torch.cat([self.prior.space.mean(x, w), t[0], omega[0], t[1], omega[1]])
