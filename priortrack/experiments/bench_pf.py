@@ -2,8 +2,9 @@
 
 A particle-step is one particle carried through everything a real filter step does
 (:meth:`priortrack.filters.particle.ParticleFilter.step`): the transition (pose prior and
-global motion), forward kinematics / decoding to joints, projection, the 2D likelihood, the
-weight normalisation and estimate, and resampling when the ESS falls below P/2. For P
+global motion), forward kinematics / decoding to joints, projection, the 2D likelihood (with
+the translation integrated out by each particle's Kalman update, as the presets run; or sampled),
+the weight normalisation and estimate, and resampling when the ESS falls below P/2. For P
 particles and a median step time t, the throughput is P / t.
 
 Setup, per prior: the prior is fitted on the subject-35 training walks of the bundled walk/jog
