@@ -92,6 +92,16 @@ def test_placement_of_mismatched_shapes_is_a_clear_error(dtype):
             to_world(b, g)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_draw_from_mismatched_placements_is_a_clear_error(dtype):
+    """Both paths (the float32 kernel would otherwise read past a short g_(t-2)) name the shapes."""
+    model = GlobalMotion(torch.full((6,), 0.01))
+    g = torch.zeros(4, 6, dtype=dtype)
+    for a, b in [(g, g[:3]), (g[:, :5], g[:, :5]), (g[0], g[0])]:
+        with pytest.raises(PriortrackError, match=r"expected both \(P, 6\)"):
+            model.sample(a, b, torch.Generator())
+
+
 def test_so3_log_near_pi_gives_the_same_rotation():
     axis = torch.tensor([[0.6, 0.0, 0.8]], dtype=torch.float64)
     for angle in (math.pi, math.pi - 1e-9, math.pi - 1e-4):

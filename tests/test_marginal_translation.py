@@ -177,6 +177,17 @@ def test_unobserved_frames_predict_the_covariance_and_resampling_carries_it(monk
     torch.testing.assert_close(pf.covariance, updated["C"][torch.as_tensor(snap.ancestors)])
 
 
+@pytest.mark.parametrize("grad", [False, True])
+def test_mismatched_shapes_are_named_before_either_path(scene, grad):
+    camera, joints, z, C = scene
+    likelihood = JointLikelihood(camera)
+    joints = joints.clone().requires_grad_(grad)
+    for args in [(joints, C[:10], SIGMA, z), (joints[:, :14], C, SIGMA, z), (joints[..., :2], C, SIGMA, z),
+                 (joints, C, SIGMA, z[:, :1])]:
+        with pytest.raises(PriortrackError, match=r"expected \(P, J, 3\), \(P, 6, 6\) and \(J, 2\)"):
+            kalman_update(*args, likelihood)
+
+
 def test_bad_options_are_named():
     pf, obs, motion, _ = _walk_filter("marginalised", 0, frames=4)
     with pytest.raises(PriortrackError, match="translation must be one of sampled, marginalised"):

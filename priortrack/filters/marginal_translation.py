@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import torch
 
+from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import MIN_DEPTH
 from priortrack.kernels import cpu_kernel_applies
 from priortrack.observation.likelihood import JointLikelihood
@@ -70,6 +71,9 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z:
         integrated out (p(z | t̂) as ``likelihood`` scores it: a joint behind the camera counts as
         a miss of the image diagonal there, and does not inform the update).
     """
+    if joints.dim() != 3 or joints.shape[2] != 3 or C.shape != (len(joints), 6, 6) or z.shape != (joints.shape[1], 2):
+        raise PriortrackError(f"joints {tuple(joints.shape)}, covariances {tuple(C.shape)} and observation "
+                              f"{tuple(z.shape)}: expected (P, J, 3), (P, 6, 6) and (J, 2)")
     seen = torch.isfinite(z).all(dim=-1).nonzero()[:, 0]
     joints, z = joints.index_select(1, seen), z[seen]
     inv_var = 1.0 / likelihood.sigma_px ** 2

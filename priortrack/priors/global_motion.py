@@ -100,6 +100,9 @@ class GlobalMotion:
         rotation is drawn and t_t = t̂_t (for a filter that integrates the translation out).
         float32 on the CPU without gradients goes through the fused kernel of
         :mod:`priortrack.priors.global_motion_kernel` (the same draw from the same variates)."""
+        if g1.dim() != 2 or g1.shape[1] != 6 or g2.shape != g1.shape:
+            raise PriortrackError(f"placements g_(t-1) {tuple(g1.shape)} and g_(t-2) {tuple(g2.shape)}: "
+                                  f"expected both (P, 6)")
         sigma = self.sigma.to(g1)
         sigma = sigma if translation else torch.cat([torch.zeros_like(sigma[:3]), sigma[3:]])
         if cpu_kernel_applies(g1, g2, dtype=torch.float32):
