@@ -46,9 +46,10 @@ def walk():
     return model, motion, X, obs
 
 
-def test_layers_keep_half_the_particles_and_beta_grows(walk):
+@pytest.mark.parametrize("translation", ["sampled", "marginalised"])
+def test_layers_keep_half_the_particles_and_beta_grows(walk, translation):
     model, motion, X, obs = walk
-    apf = AnnealedParticleFilter(model, 400, layers=4, survival=0.5, seed=0)
+    apf = AnnealedParticleFilter(model, 400, layers=4, survival=0.5, translation=translation, seed=0)
     apf.initialise(motion)
     snap = apf.step(obs.uv[2])
     assert len(apf.betas) == 4 and all(b2 >= b1 for b1, b2 in zip(apf.betas, apf.betas[1:]))
@@ -58,9 +59,10 @@ def test_layers_keep_half_the_particles_and_beta_grows(walk):
     assert snap.ancestors is not None                                 # tempered weights: always resampled
 
 
-def test_tracks_a_walk_better_than_holding_still(walk):
+@pytest.mark.parametrize("translation", ["sampled", "marginalised"])
+def test_tracks_a_walk_better_than_holding_still(walk, translation):
     model, motion, X, obs = walk
-    track = AnnealedParticleFilter(model, 300, layers=4, seed=1).run(obs.uv, motion)
+    track = AnnealedParticleFilter(model, 300, layers=4, translation=translation, seed=1).run(obs.uv, motion)
     still = mpjpe(np.repeat(X[1:2], len(X) - 2, 0), X[2:]).mean()
     assert mpjpe(track.estimates[2:], X[2:]).mean() < 0.5 * still
     assert np.isfinite(track.estimates).all() and np.all(track.ess[2:] >= 1)
@@ -80,3 +82,38 @@ def test_bad_parameters(walk):
         AnnealedParticleFilter(model, 10, layers=0)
     with pytest.raises(PriortrackError, match="survival"):
         AnnealedParticleFilter(model, 10, survival=1.0)
+
+
+def test_marginalised_layers_score_the_predictive_likelihood_and_keep_the_last_update(walk, monkeypatch):
+    """Every layer calls the Kalman update on the previous frame's covariances (resampled with their
+    particles); the translation is not diffused; the frame ends on the last layer's update."""
+    import priortrack.filters.annealed as annealed
+
+    model, motion, X, obs = walk
+    apf = AnnealedParticleFilter(model, 200, layers=3, translation="marginalised", seed=0)
+    apf.initialise(motion)
+    apf.step(obs.uv[2])
+    calls, diffused = [], []
+    real = annealed.kalman_update
+
+    def spy(joints, C, *rest):
+        out = real(joints, C, *rest)
+        calls.append((C.clone(), out[1]))
+        return out
+
+    real_diffuse = apf.diffuse
+
+    def diffuse_spy(s, std_x, std_g, shrink):
+        diffused.append(std_g.clone())
+        return real_diffuse(s, std_x, std_g, shrink)
+
+    monkeypatch.setattr(annealed, "kalman_update", spy)
+    monkeypatch.setattr(apf, "diffuse", diffuse_spy)
+    before = apf.covariance.clone()
+    snap = apf.step(obs.uv[3])
+    assert len(calls) == 3 and len(diffused) == 2
+    torch.testing.assert_close(calls[0][0], before)                   # layer 1: the previous covariances
+    for C_prev, _ in calls[1:]:                                       # later layers: resampled rows of them
+        assert all(any(torch.equal(row, b) for b in before) for row in C_prev[:20])
+    assert all(not std[:3].any() and std[3:].all() for std in diffused)   # the rotation diffused, not t
+    torch.testing.assert_close(apf.covariance, calls[-1][1][torch.as_tensor(snap.ancestors)])

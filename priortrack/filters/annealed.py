@@ -14,6 +14,9 @@ After the last layer the weights w^i ∝ p(z | s^i)^{β_L} define the estimate (
 prior's manifold) and the set is resampled. The tempered weights make it a stochastic search,
 not a Bayesian posterior: it is the standard baseline, not a replacement for the particle filter.
 Only the current placement g_t is diffused; g_{t−1} is the history the global model needs.
+With ``translation="marginalised"`` the translation is not diffused at all: every layer scores
+the predictive likelihood of each particle's Kalman filter (:mod:`priortrack.filters.marginal_translation`)
+and the last layer's update is kept.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import math
 import torch
 
 from priortrack.errors import PriortrackError
+from priortrack.filters.marginal_translation import kalman_update, predict_covariance
 from priortrack.filters.particle import ParticleFilter
 from priortrack.filters.tracking_model import TrackingModel
 from priortrack.priors.global_motion import GlobalMotion
@@ -67,18 +71,23 @@ class AnnealedParticleFilter(ParticleFilter):
         survival: the target survival rate α in (0, 1) of every layer.
         resampling: the resampling scheme between layers and at the end of a frame.
         dtype: the particles' dtype (as :class:`ParticleFilter`).
+        translation: "sampled" or "marginalised" (as :class:`ParticleFilter`). Marginalised, every
+            layer weighs by the predictive likelihood with t integrated out (each particle's Kalman
+            filter, not committed), diffuses only the pose and the rotation, and the last layer's
+            Kalman update is kept.
         seed: seeds the filter's torch.Generator.
     """
 
     def __init__(self, model: TrackingModel, particles: int = 1000, layers: int = 5, survival: float = 0.5,
-                 resampling: str = "systematic", dtype: str = "float64", seed: int = 0):
+                 resampling: str = "systematic", dtype: str = "float64", translation: str = "sampled", seed: int = 0):
         if not isinstance(model, TrackingModel):
             raise PriortrackError("the annealed particle filter diffuses states in a prior's space: it needs a TrackingModel")
         if layers < 1:
             raise PriortrackError(f"layers must be at least 1, got {layers}")
         if not 0.0 < survival < 1.0:
             raise PriortrackError(f"survival must be in (0, 1), got {survival}")
-        super().__init__(model, particles, resampling, ess_threshold=1.0, dtype=dtype, seed=seed)
+        super().__init__(model, particles, resampling, ess_threshold=1.0, dtype=dtype, translation=translation,
+                         seed=seed)
         self.layers, self.survival = int(layers), float(survival)
         self.betas: list[float] = []
 
@@ -87,12 +96,20 @@ class AnnealedParticleFilter(ParticleFilter):
         self.betas = []
         beta = 0.0
         std_x, std_g = self.transition_std(self.states)
+        sigma_t = self.model.global_motion.sigma[:3]
+        if self.marginal:
+            std_g = torch.cat([torch.zeros_like(std_g[:3]), std_g[3:]])           # t is integrated, not diffused
         for layer in range(1, self.layers + 1):
             joints = self.model.observe(self.states)
-            log_lik = self.model.log_likelihood(joints, z)
+            if self.marginal:
+                shift, C_post, log_lik = kalman_update(joints, self.covariance, sigma_t, z, self.model.likelihood)
+            else:
+                log_lik = self.model.log_likelihood(joints, z)
             finite = torch.isfinite(log_lik)
             if not finite.any():
                 self.log_weights = self.normalised(torch.full_like(log_lik, -math.inf), flags)
+                if self.marginal:
+                    self.covariance = predict_covariance(self.covariance, sigma_t)
                 return joints
             floor = log_lik[finite].min()
             log_lik = torch.where(finite, log_lik, floor - 1e6)      # impossible particles die first
@@ -102,7 +119,13 @@ class AnnealedParticleFilter(ParticleFilter):
             if layer < self.layers:
                 ancestors = self.resample(torch.exp(self.log_weights), self.generator)
                 self.states = self.diffuse(self.states[ancestors], std_x, std_g, self.survival ** layer)
+                if self.marginal:
+                    self.covariance = self.covariance[ancestors]
                 self.log_weights = torch.full_like(self.log_weights, -math.log(self.P))
+        if self.marginal:       # the last layer's Kalman update: t̂ → the Kalman mean
+            self.covariance = C_post
+            self.states = self.model.shift_translation(self.states, shift)
+            joints = joints + shift[:, None, :3]
         return joints
 
     def transition_std(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
