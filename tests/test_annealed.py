@@ -87,14 +87,14 @@ def test_bad_parameters(walk):
 def test_marginalised_layers_score_the_predictive_likelihood_and_keep_the_last_update(walk, monkeypatch):
     """Every layer calls the Kalman update on the previous frame's covariances (resampled with their
     particles); the translation is not diffused; the frame ends on the last layer's update."""
-    import priortrack.filters.annealed as annealed
+    import priortrack.filters.particle as particle                   # where the filters call the update
 
     model, motion, X, obs = walk
     apf = AnnealedParticleFilter(model, 200, layers=3, translation="marginalised", seed=0)
     apf.initialise(motion)
     apf.step(obs.uv[2])
     calls, diffused = [], []
-    real = annealed.kalman_update
+    real = particle.kalman_update
 
     def spy(joints, C, *rest):
         out = real(joints, C, *rest)
@@ -107,7 +107,7 @@ def test_marginalised_layers_score_the_predictive_likelihood_and_keep_the_last_u
         diffused.append(std_g.clone())
         return real_diffuse(s, std_x, std_g, shrink)
 
-    monkeypatch.setattr(annealed, "kalman_update", spy)
+    monkeypatch.setattr(particle, "kalman_update", spy)
     monkeypatch.setattr(apf, "diffuse", diffuse_spy)
     before = apf.covariance.clone()
     snap = apf.step(obs.uv[3])

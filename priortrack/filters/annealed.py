@@ -26,7 +26,6 @@ import math
 import torch
 
 from priortrack.errors import PriortrackError
-from priortrack.filters.marginal_translation import kalman_update, predict_covariance
 from priortrack.filters.particle import ParticleFilter
 from priortrack.filters.tracking_model import TrackingModel
 from priortrack.priors.global_motion import GlobalMotion
@@ -96,20 +95,15 @@ class AnnealedParticleFilter(ParticleFilter):
         self.betas = []
         beta = 0.0
         std_x, std_g = self.transition_std(self.states)
-        sigma_t = self.model.global_motion.sigma[:3]
         if self.marginal:
             std_g = torch.cat([torch.zeros_like(std_g[:3]), std_g[3:]])           # t is integrated, not diffused
         for layer in range(1, self.layers + 1):
             joints = self.model.observe(self.states)
-            if self.marginal:
-                shift, C_post, log_lik = kalman_update(joints, self.covariance, sigma_t, z, self.model.likelihood)
-            else:
-                log_lik = self.model.log_likelihood(joints, z)
+            log_lik, pending = self.weigh(joints, z)
             finite = torch.isfinite(log_lik)
             if not finite.any():
                 self.log_weights = self.normalised(torch.full_like(log_lik, -math.inf), flags)
-                if self.marginal:
-                    self.covariance = predict_covariance(self.covariance, sigma_t)
+                self.skip_update()
                 return joints
             floor = log_lik[finite].min()
             log_lik = torch.where(finite, log_lik, floor - 1e6)      # impossible particles die first
@@ -122,11 +116,7 @@ class AnnealedParticleFilter(ParticleFilter):
                 if self.marginal:
                     self.covariance = self.covariance[ancestors]
                 self.log_weights = torch.full_like(self.log_weights, -math.log(self.P))
-        if self.marginal:       # the last layer's Kalman update: t̂ → the Kalman mean
-            self.covariance = C_post
-            self.states = self.model.shift_translation(self.states, shift)
-            joints = joints + shift[:, None, :3]
-        return joints
+        return self.keep_update(pending, joints)           # the last layer's Kalman update, if any
 
     def transition_std(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The prior's one-step spread at states s: per coordinate σ̂ (S,) of the pose (equal within

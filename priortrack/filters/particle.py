@@ -116,8 +116,7 @@ class ParticleFilter(SequentialFilter):
         else:
             flags.append("no-observation")
             joints = self.model.observe(self.states)
-            if self.marginal:
-                self.covariance = predict_covariance(self.covariance, self.model.global_motion.sigma[:3])
+            self.skip_update()
         weights = torch.exp(self.log_weights)
         ess = float(1.0 / (weights ** 2).sum())
         t2 = time.perf_counter()
@@ -144,15 +143,36 @@ class ParticleFilter(SequentialFilter):
         ``flags`` (and resets the weights to uniform) if every likelihood is −inf.
         """
         joints = self.model.observe(self.states)
-        if self.marginal:       # the predictive likelihood, t integrated out; t̂ → the Kalman mean
-            shift, self.covariance, log_likelihood = kalman_update(
-                joints, self.covariance, self.model.global_motion.sigma[:3], z, self.model.likelihood)
-            self.states = self.model.shift_translation(self.states, shift)
-            joints = joints + shift[:, None, :3]
-        else:
-            log_likelihood = self.model.log_likelihood(joints, z)
+        log_likelihood, pending = self.weigh(joints, z)
+        joints = self.keep_update(pending, joints)
         self.log_weights = self.normalised(self.log_weights + log_likelihood, flags)
         return joints
+
+    def weigh(self, joints: torch.Tensor, z: torch.Tensor) -> tuple[torch.Tensor, tuple | None]:
+        """log p(z | s) (P,) of the particles' observed joints, and what :meth:`keep_update` needs.
+
+        Sampled translation: the likelihood, and None. Marginalised: the predictive likelihood with
+        t integrated out, and the Kalman update (shift, C⁺) it implies, not yet applied (the
+        annealed filter weighs several layers and keeps the last one's)."""
+        if not self.marginal:
+            return self.model.log_likelihood(joints, z), None
+        shift, C_post, log_likelihood = kalman_update(joints, self.covariance, self.model.global_motion.sigma[:3],
+                                                      z, self.model.likelihood)
+        return log_likelihood, (shift, C_post)
+
+    def keep_update(self, pending: tuple | None, joints: torch.Tensor) -> torch.Tensor:
+        """Apply :meth:`weigh`'s Kalman update (t̂ → the Kalman mean, C⁺ kept); returns the joints
+        moved with it (unchanged for a sampled translation)."""
+        if pending is None:
+            return joints
+        shift, self.covariance = pending
+        self.states = self.model.shift_translation(self.states, shift)
+        return joints + shift[:, None, :3]
+
+    def skip_update(self) -> None:
+        """A frame without an update: a marginalised translation's covariance is only predicted."""
+        if self.marginal:
+            self.covariance = predict_covariance(self.covariance, self.model.global_motion.sigma[:3])
 
     def normalised(self, log_weights: torch.Tensor, flags: list[str]) -> torch.Tensor:
         """log w − logsumexp(log w) in float64; uniform (and flagged) if every entry is −inf or NaN."""
