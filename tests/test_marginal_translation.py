@@ -110,6 +110,12 @@ def test_projection_jacobian_equals_autograd(scene):
     auto = torch.autograd.functional.jacobian(lambda p: camera.project(p)[0], X)     # (15, 2, 15, 3)
     assert bool(in_front.all())
     torch.testing.assert_close(J, torch.stack([auto[j, :, j] for j in range(15)]), rtol=1e-10, atol=1e-9)
+    # Integer points and numpy arrays are taken as float64; a wrong shape is named.
+    whole = torch.round(X * 10)
+    torch.testing.assert_close(camera.project_jacobian(whole.to(torch.int64))[1], camera.project_jacobian(whole)[1])
+    torch.testing.assert_close(camera.project_jacobian(X.numpy())[1], J)
+    with pytest.raises(PriortrackError, match=r"expected shape \(\.\.\., J, 3\)"):
+        camera.project_jacobian(X[:, :2])
 
 
 def test_covariance_prediction_is_F_C_Ft_plus_Q():

@@ -337,12 +337,19 @@ class PinholeCamera:
             ∂u/∂X = (P_{0,1} − u P_2) / h_2   (2 × 3 per point).
 
         Args:
-            points: (..., J, 3) world points, a floating torch tensor.
+            points: (..., J, 3) world points, an array-like or torch tensor (integers as float64).
 
         Returns:
-            uv (..., J, 2), jacobian (..., J, 2, 3) and in_front (..., J), as :meth:`project`
-            (NaN where a point is not in front of the camera), in the points' dtype and device.
+            uv (..., J, 2), jacobian (..., J, 2, 3) and in_front (..., J), torch tensors as
+            :meth:`project` gives them (NaN where a point is not in front of the camera), in the
+            points' floating dtype and on their device.
+
+        Raises:
+            PriortrackError: ``points`` does not have shape (..., J, 3).
         """
+        points = torch.as_tensor(points)
+        if not points.is_floating_point():
+            points = points.to(torch.float64)
         uv, in_front = self._project_torch(points)
         P, p = self.projection(points.device, points.dtype)
         depth = torch.where(in_front, points @ P[2] + p[2], 1.0)
