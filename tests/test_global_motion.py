@@ -1,4 +1,4 @@
-"""SO(3) maps, the second-order global motion model and world placement on real mocap."""
+"""SO(3) maps, the heading/tilt split, the global motion model and world placement on real mocap."""
 
 import math
 
@@ -65,10 +65,11 @@ def test_float32_placement_by_the_fused_kernel_matches_float64():
 @pytest.mark.parametrize("translation", [True, False])
 def test_float32_draw_by_the_fused_kernel_matches_float64(translation):
     """float32 GlobalMotion.sample on the CPU is one fused kernel (priortrack.priors.global_motion_kernel)
-    fed the same normal variates as the torch path: rotations of every size (zero, below the Taylor
+    fed the same normal variates as the torch path (a reverting tilt): rotations of every size (zero, below the Taylor
     switch, up to 2.5 rad), the kernel's draw within 2e-5 of the float64 one and no further than twice
     the torch float32 path's own error; with translation=False, t_t = 2 t_{t-1} − t_{t-2} exactly."""
-    model = GlobalMotion(torch.tensor([0.01, 0.02, 0.015, 0.05, 0.1, 0.08]))
+    model = GlobalMotion(torch.tensor([0.01, 0.02, 0.015, 0.05, 0.1, 0.08]), tilt_mean=[0.05, -0.1],
+                         tilt_decay=[0.9, 0.7])
     rotations = torch.cat([_rotvecs(400, 7, max_angle=2.5), 1e-5 * _rotvecs(100, 8), torch.zeros(100, 3)])
     g1 = torch.cat([torch.randn(600, 3, dtype=torch.float64), rotations], dim=1)
     g2 = g1 + 0.05 * torch.randn(600, 6, dtype=torch.float64)
@@ -111,29 +112,105 @@ def test_so3_log_near_pi_gives_the_same_rotation():
         torch.testing.assert_close(so3.exp(w), R, rtol=0, atol=1e-12)
 
 
-def test_constant_velocity_is_predicted_exactly():
+def test_heading_tilt_split_matches_scipy_and_joins_back():
+    """R = exp(ψ e_y) exp(τ_x e_x + τ_z e_z) (scipy composes the same), the split joins back, and
+    q, −q give the same tilt and headings 2π apart."""
+    q = so3.quaternion(_rotvecs(500, 9, max_angle=3.0))
+    psi, tau = so3.heading_tilt(q)
+    R = Rotation.from_rotvec(np.outer(psi.numpy(), [0, 1, 0])) * Rotation.from_rotvec(
+        np.stack([tau[:, 0].numpy(), np.zeros(500), tau[:, 1].numpy()], -1))
+    np.testing.assert_allclose(R.as_matrix(), so3.exp(so3.quaternion_log(q)).numpy(), atol=1e-12)
+    joined = so3.from_heading_tilt(psi, tau)
+    torch.testing.assert_close(so3.exp(so3.quaternion_log(joined)), so3.exp(so3.quaternion_log(q)), rtol=0, atol=1e-12)
+    psi_neg, tau_neg = so3.heading_tilt(-q)
+    torch.testing.assert_close(tau_neg, tau, rtol=0, atol=1e-12)
+    torch.testing.assert_close((psi_neg - psi).abs(), torch.full_like(psi, 2 * math.pi), rtol=0, atol=1e-9)
+    with pytest.raises(PriortrackError, match=r"heading \(500,\) and tilt \(500, 3\)"):
+        so3.from_heading_tilt(psi, torch.zeros(500, 3, dtype=torch.float64))
+
+
+def test_left_jacobian_is_the_derivative_of_exp():
+    """exp(ω + δ) = exp(J_l(ω) δ) exp(ω) + O(|δ|²), for rotations up to 3 rad and below the Taylor switch."""
+    w = torch.cat([_rotvecs(300, 10, max_angle=3.0), 1e-6 * _rotvecs(20, 11)])
+    for h in (1e-5, 1e-6):
+        d = h * torch.randn(len(w), 3, generator=torch.Generator().manual_seed(12), dtype=torch.float64)
+        step = (so3.left_jacobian(w) @ d[..., None])[..., 0]
+        assert (so3.exp(w + d) - so3.exp(step) @ so3.exp(w)).abs().max() < 10 * h ** 2
+
+
+def _placements(t, psi, tau):
+    return torch.cat([t, so3.quaternion_log(so3.from_heading_tilt(psi, tau))], -1)
+
+
+def test_position_and_heading_are_second_order_and_the_tilt_reverts():
+    """t and ψ continue at constant velocity (ψ across ±π too); the tilt steps to μ + a (τ_{t-1} − μ)."""
     f64 = dict(dtype=torch.float64)
-    t0, v = torch.tensor([1.0, 0.9, -2.0], **f64), torch.tensor([0.04, 0.0, 0.01], **f64)
-    w0, dw = torch.tensor([0.1, 1.2, -0.05], **f64), torch.tensor([0.0, 0.03, 0.01], **f64)
-    R0, dR = so3.exp(w0[None]), so3.exp(dw[None])
-    g = [torch.cat([(t0 + k * v)[None], so3.log(torch.linalg.matrix_power(dR, k) @ R0)], -1)
-         for k in range(3)]
-    torch.testing.assert_close(GlobalMotion.predict(g[1], g[0]), g[2], rtol=0, atol=1e-12)
+    k = torch.arange(3, **f64)[:, None]
+    t = torch.tensor([1.0, 0.9, -2.0], **f64) + k * torch.tensor([0.04, 0.0, 0.01], **f64)       # (3 frames, 3)
+    psi = torch.tensor([3.1, 3.1, -0.2], **f64) + k * torch.tensor([0.03, -0.05, 0.1], **f64)    # (3 frames, 3 rows)
+    tau = torch.tensor([[0.05, -0.02], [0.1, 0.07], [-0.3, 0.0]], **f64)
+    model = GlobalMotion(torch.full((6,), 0.01), tilt_mean=[0.02, -0.01], tilt_decay=[0.9, 0.5])
+    g = [_placements(t[i].expand(3, 3), psi[i], tau) for i in range(3)]
+    mean, decay = model.tilt_mean, model.tilt_decay
+    expected = _placements(t[2].expand(3, 3), psi[2], mean + decay * (tau - mean))
+    torch.testing.assert_close(model.predict(g[1], g[0]), expected, rtol=0, atol=1e-12)
+    torch.testing.assert_close(model.residual(expected, g[1], g[0]), torch.zeros(3, 6, **f64), rtol=0, atol=1e-12)
 
 
-def test_fit_is_the_ml_estimate_and_sampling_matches_it():
+def test_fit_recovers_a_known_process_and_its_draws_have_the_model_moments():
+    """On placements simulated from known (σ, μ, a), the fit recovers them; the rollouts' tilt has
+    the AR(1) stationary law N(μ, σ_τ²/(1 − a²))."""
+    truth = GlobalMotion(torch.tensor([0.003, 0.002, 0.004, 0.01, 0.02, 0.015]),
+                         tilt_mean=[0.05, -0.03], tilt_decay=[0.9, 0.8])
+    gen = torch.Generator().manual_seed(1)
+    g = torch.zeros(400, 16, 6, dtype=torch.float64)                               # 400 frames of 16 sequences
+    g[1] = g[0] = _placements(torch.zeros(16, 3, dtype=torch.float64), torch.zeros(16, dtype=torch.float64),
+                              truth.tilt_mean.expand(16, 2))
+    for i in range(2, 400):
+        g[i] = truth.sample(g[i - 1], g[i - 2], gen)
+    fitted = GlobalMotion.fit(list(g.transpose(0, 1)))
+    torch.testing.assert_close(fitted.sigma, truth.sigma, rtol=0.03, atol=0)
+    torch.testing.assert_close(fitted.tilt_decay, truth.tilt_decay, rtol=0, atol=0.03)
+    torch.testing.assert_close(fitted.tilt_mean, truth.tilt_mean, rtol=0, atol=0.01)
+    tau = so3.heading_tilt(so3.quaternion(g[100:, :, 3:].reshape(-1, 3)))[1]
+    stationary = truth.sigma[3::2] / (1 - truth.tilt_decay ** 2).sqrt()
+    torch.testing.assert_close(tau.mean(0), truth.tilt_mean, rtol=0, atol=0.01)
+    torch.testing.assert_close(tau.std(0), stationary, rtol=0.1, atol=0)
+
+
+def test_fit_is_the_ml_estimate_on_a_real_walk():
+    """On a real walk the fitted tilt is stationary (a < 1) and the fit beats other σ, a, μ; draws'
+    residuals have std σ."""
     walk = load_motion("cmu:07_01").resample(30)
     g = AngleSpace.fit([walk]).global_pose(walk)
     model = GlobalMotion.fit([g])
-    r = GlobalMotion.residual(g[2:], g[1:-1], g[:-2])
+    r = model.residual(g[2:], g[1:-1], g[:-2])
     torch.testing.assert_close(model.sigma, r.pow(2).mean(0).sqrt())
-    assert model.log_prob(g[2:], g[1:-1], g[:-2]).mean() > GlobalMotion(model.sigma * 3).log_prob(
-        g[2:], g[1:-1], g[:-2]).mean()
+    assert torch.all(model.tilt_decay < 1)
+    worse = [GlobalMotion(model.sigma * 3, model.tilt_mean, model.tilt_decay),
+             GlobalMotion(model.sigma, model.tilt_mean, torch.ones(2)),
+             GlobalMotion(model.sigma, model.tilt_mean + 0.05, model.tilt_decay)]
+    best = model.log_prob(g[2:], g[1:-1], g[:-2]).mean()
+    assert all(best > m.log_prob(g[2:], g[1:-1], g[:-2]).mean() for m in worse)
     n = 20000
     g1, g2 = g[10].expand(n, 6), g[9].expand(n, 6)
     draws = model.sample(g1, g2, torch.Generator().manual_seed(0))
-    std = GlobalMotion.residual(draws, g1, g2).std(dim=0)
-    torch.testing.assert_close(std, model.sigma, rtol=0.03, atol=0)
+    torch.testing.assert_close(model.residual(draws, g1, g2).std(dim=0), model.sigma, rtol=0.03, atol=0)
+
+
+def test_rotation_covariance_is_the_world_frame_spread_of_the_draws():
+    """η = log(R_t R̂_tᵀ) of draws (small σ, so first order holds) has covariance rotation_covariance(ĝ),
+    at headings all round and tilts up to 0.5 rad."""
+    model = GlobalMotion(torch.tensor([0.01, 0.01, 0.01, 0.002, 0.003, 0.001]))
+    n = 40000
+    for psi, tau in [(0.3, (0.0, 0.0)), (2.5, (0.4, -0.2)), (-1.7, (-0.1, 0.5))]:
+        g1 = _placements(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([psi], dtype=torch.float64),
+                         torch.tensor([tau], dtype=torch.float64)).expand(n, 6)
+        draws = model.sample(g1, g1, torch.Generator().manual_seed(4))
+        eta = so3.log(so3.exp(draws[:, 3:]) @ so3.exp(g1[:, 3:]).transpose(-1, -2))
+        empirical = eta.T @ eta / n
+        expected = model.rotation_covariance(g1[:1])[0]
+        assert (empirical - expected).abs().max() < 0.03 * expected.diagonal().max(), (empirical, expected)
 
 
 @pytest.mark.parametrize("space_class", [AngleSpace, DirectionSpace])
@@ -155,5 +232,11 @@ def test_bad_input():
         GlobalMotion([1.0, 2.0])
     with pytest.raises(PriortrackError, match=r"T ≥ 3, 6"):
         GlobalMotion.fit([torch.zeros(2, 6)])
+    with pytest.raises(PriortrackError, match="NaN or inf"):
+        GlobalMotion.fit([torch.full((5, 6), float("nan"))])
+    with pytest.raises(PriortrackError, match=r"tilt_decay must be 2 values in \[0, 1\], got \[1.5, 0.5\]"):
+        GlobalMotion(torch.ones(6), tilt_decay=[1.5, 0.5])
+    with pytest.raises(PriortrackError, match="tilt_mean must be 2 finite"):
+        GlobalMotion(torch.ones(6), tilt_mean=[0.0, 0.0, 0.0])
     with pytest.raises(PriortrackError, match="rotation vector"):
         so3.exp(torch.zeros(4, 2))

@@ -131,7 +131,7 @@ class AnnealedParticleFilter(ParticleFilter):
 
     def diffuse(self, s: torch.Tensor, std_x: torch.Tensor, std_g: torch.Tensor, shrink: float) -> torch.Tensor:
         """s (P, S + 12) with the pose ⊞ N(0, shrink σ̂²) and g_t perturbed by N(0, shrink σ_G²)
-        (translation added, rotation exp(η) R_t), g_{t-1} kept."""
+        (translation added, heading and tilt perturbed: GlobalMotion.perturb), g_{t-1} kept."""
         x, g, g_prev = self.model.split(s)
         space = self.model.prior.space
         scale = shrink ** 0.5

@@ -54,7 +54,7 @@ from priortrack.errors import PriortrackError
 from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.tracking_model import TrackingModel
-from priortrack.priors.global_motion import GlobalMotion, to_world
+from priortrack.priors.global_motion import to_world
 from priortrack.priors.gpdm import GPDM
 from priortrack.threads import torch_threads
 
@@ -232,7 +232,7 @@ class MapTracker(SequentialFilter):
         """Append the mean prediction of the next state (x = μ_X(x_{t−1}), y = μ_Y(x),
         G = Ĝ) and its observation; freeze the oldest free state if the window would exceed τ + 1."""
         x_new = self.prior.mean(self.x[-1:])
-        g_new = GlobalMotion.predict(self.g[-1:], self.g[-2:-1])
+        g_new = self.model.global_motion.predict(self.g[-1:], self.g[-2:-1])
         self.x, self.g = torch.cat([self.x, x_new]), torch.cat([self.g, g_new])
         self.observations.append(z)
         if self.y is not None:

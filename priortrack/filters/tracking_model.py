@@ -70,7 +70,7 @@ class TrackingModel:
     def mean_step(self, s: torch.Tensor) -> torch.Tensor:
         """The deterministic mean step (the unscented filter's fx)."""
         x, g, g_prev = self.split(s)
-        return torch.cat([self.prior.mean(x), GlobalMotion.predict(g, g_prev), g], -1)
+        return torch.cat([self.prior.mean(x), self.global_motion.predict(g, g_prev), g], -1)
 
     def observe(self, s: torch.Tensor) -> torch.Tensor:
         """(P, S + 12) → (P, 15, 3) world joints, metres, in s's dtype."""

@@ -7,9 +7,11 @@ propagated as one batch and states on manifolds handled in tangent coordinates.
                                                placement's constant-velocity step, the copy g_t → g_{t-1}),
     z_t = h(s_t) + v_t,      v_t ~ N(0, R),    h = the pixels of the projected world joints (15 · 2),
 
-    Q = blockdiag(prior.transition_covariance(x̄), diag σ_g², ε I_6),   R = σ_px² I,
+    Q = blockdiag(prior.transition_covariance(x̄), diag σ_t², Σ_ω(ḡ_t), ε I_6),   R = σ_px² I,
 
-Q taken at the current mean state x̄ (s̄ = [x̄, ḡ_t, ḡ_{t-1}]), σ_g = GlobalMotion.sigma, and ε =
+Q taken at the current mean state s̄ = [x̄, ḡ_t, ḡ_{t-1}], σ_t the translation's part of
+GlobalMotion.sigma, Σ_ω(ḡ_t) the heading and tilt noise as a world-frame rotation
+(GlobalMotion.rotation_covariance), and ε =
 ``COPY_JITTER`` on g_{t-1}, whose transition is an exact copy (zero noise): the jitter only keeps Q
 positive definite, it adds 10 µm / 10 µrad of spread. A frame's missing observations (NaN) drop
 their rows of z and of R (and their columns of R).
@@ -22,7 +24,7 @@ it); its covariance P lives in the tangent space at the mean, in n numbers:
   :func:`~priortrack.geometry.tangent_basis.tangent_basis` E(x) at the base point,
   x ⊞ c = x ⊞_space Eᵀc = exp_x(Eᵀc) and y ⊟ x = E (y ⊟_space x) = E log_x(y));
 - each placement g = (t, ω): the translation Euclidean, the rotation with world-frame (left)
-  perturbations, R ⊞ η = exp(η) R and R_a ⊟ R_b = log(R_a R_bᵀ), as GlobalMotion's noise η;
+  perturbations, R ⊞ η = exp(η) R and R_a ⊟ R_b = log(R_a R_bᵀ), as Σ_ω's η;
 
 so n = n_x + 12 ≤ A = S + 12. filterpy's sigma-point machinery needs n = A, so it runs on the
 tangent coordinates: our sigma-point object draws filterpy's scaled offsets ξ_i on 0 ∈ Rⁿ and
@@ -273,11 +275,13 @@ class UnscentedTracking:
         return uv.reshape(s.shape[0], -1)
 
     def process_covariance(self, s: torch.Tensor) -> torch.Tensor:
-        """Q (n, n) at the state s (A,): blockdiag(prior noise at x, diag σ_g², COPY_JITTER I_6)."""
-        x, _, _ = self.model.split(s[None])
-        sigma = self.model.global_motion.sigma.to(s)
+        """Q (n, n) at the state s (A,): blockdiag(prior noise at x, diag σ_t², the rotation noise at
+        g_t as a world-frame perturbation (GlobalMotion.rotation_covariance), COPY_JITTER I_6)."""
+        x, g, _ = self.model.split(s[None])
+        motion = self.model.global_motion
         jitter = torch.full((GLOBAL_DIM,), COPY_JITTER, dtype=s.dtype, device=s.device)
-        return torch.block_diag(self.model.prior.transition_covariance(x)[0], torch.diag(sigma ** 2), torch.diag(jitter))
+        return torch.block_diag(self.model.prior.transition_covariance(x)[0], torch.diag(motion.sigma[:3].to(s) ** 2),
+                                motion.rotation_covariance(g)[0], torch.diag(jitter))
 
 
 def unscented_form(model):

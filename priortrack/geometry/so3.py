@@ -9,6 +9,8 @@ Both are written entry by entry over the batch (no 3 × 3 products).
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from priortrack.errors import PriortrackError
@@ -122,3 +124,59 @@ def quaternion_product(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
 def quaternion_conjugate(q: torch.Tensor) -> torch.Tensor:
     """q* = (w, −v) (..., 4), the inverse rotation of a unit quaternion."""
     return torch.cat([q[..., :1], -q[..., 1:]], -1)
+
+
+def heading_tilt(q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unit quaternions (..., 4) → heading ψ (...,) and tilt τ = (τ_x, τ_z) (..., 2), the swing–twist
+    split of R about the world vertical y:
+
+        R = exp(ψ e_y) · exp(τ_x e_x + τ_z e_z),
+
+    the tilt (a rotation about a horizontal axis of the heading frame) applied first, then the
+    heading. With q = (w, x, y, z) and n = √(w² + y²): the twist is (w, 0, y, 0)/n, so
+    ψ = 2 atan2(y, w), and the swing q_ψ* q = (n, (w x − y z)/n, 0, (w z + x y)/n), whose
+    logarithm is τ. ψ is defined up to 2π (q and −q give ψ and ψ ± 2π, the same rotation);
+    the split is singular only where the body's y axis points straight down (n = 0).
+    """
+    _check(q, (4,), "quaternion")
+    w, x, y, z = q.unbind(-1)
+    n = torch.clamp((w * w + y * y).sqrt(), min=torch.finfo(q.dtype).tiny ** 0.5)
+    swing = torch.stack([n, (w * x - y * z) / n, torch.zeros_like(n), (w * z + x * y) / n], -1)
+    tau = quaternion_log(swing)
+    return 2 * torch.atan2(y, w), tau[..., 0::2]
+
+
+def from_heading_tilt(psi: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    """Heading ψ (...,) and tilt τ (..., 2) → the unit quaternion of exp(ψ e_y) exp(τ_x e_x + τ_z e_z)
+    (..., 4), the inverse of :func:`heading_tilt`: with (c, a) = (cos ψ/2, sin ψ/2) and the tilt's
+    quaternion (d, e, 0, f), the product is (c d, c e + a f, a d, c f − a e)."""
+    if tau.shape[-1:] != (2,) or psi.shape != tau.shape[:-1]:
+        raise PriortrackError(f"heading {tuple(psi.shape)} and tilt {tuple(tau.shape)}: expected (...,) and (..., 2)")
+    d, e, _, f = quaternion(torch.stack([tau[..., 0], torch.zeros_like(psi), tau[..., 1]], -1)).unbind(-1)
+    c, a = torch.cos(psi / 2), torch.sin(psi / 2)
+    return torch.stack([c * d, c * e + a * f, a * d, c * f - a * e], -1)
+
+
+def wrap_angle(angle: torch.Tensor) -> torch.Tensor:
+    """Angles (...) → the same angles in [−π, π)."""
+    return torch.remainder(angle + math.pi, 2 * math.pi) - math.pi
+
+
+def left_jacobian(w: torch.Tensor) -> torch.Tensor:
+    """SO(3)'s left Jacobian J_l(ω) (..., 3, 3) at rotation vectors ω (..., 3), so that
+    exp(ω + δ) = exp(J_l(ω) δ) exp(ω) to first order in δ:
+
+        J_l(ω) = I + (1 − cos θ)/θ² [ω]× + (θ − sin θ)/θ³ [ω]×²,   θ = |ω|
+
+    (the coefficients' Taylor series 1/2 − θ²/24 and 1/6 − θ²/120 below θ = 10⁻⁴)."""
+    _check(w, (3,), "rotation vector")
+    theta_sq = (w * w).sum(-1)
+    small = theta_sq < 1e-8
+    safe = torch.where(small, torch.ones_like(theta_sq), theta_sq).sqrt()
+    b = torch.where(small, 0.5 - theta_sq / 24, (1 - torch.cos(safe)) / safe ** 2)
+    c = torch.where(small, 1 / 6 - theta_sq / 120, (safe - torch.sin(safe)) / safe ** 3)
+    x, y, z = w.unbind(-1)
+    zero = torch.zeros_like(x)
+    K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(w.shape + (3,))
+    eye = torch.eye(3, dtype=w.dtype, device=w.device)
+    return eye + b[..., None, None] * K + c[..., None, None] * (K @ K)
