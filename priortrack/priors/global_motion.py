@@ -100,8 +100,7 @@ class GlobalMotion:
         decay = torch.clamp((d * d1).sum(0) / torch.clamp((d1 * d1).sum(0), min=1e-30), 0.0, 1.0)
         intercept = tau.mean(0) - decay * tau1.mean(0)
         mean = torch.where(decay < 1 - 1e-9, intercept / torch.clamp(1 - decay, min=1e-9), tau.mean(0))
-        model = cls(torch.ones(6), mean, decay)
-        sigma = model.residual(g, g1, g2).pow(2).mean(dim=0).sqrt()
+        sigma = cls(torch.ones(6), mean, decay).residual(g, g1, g2).pow(2).mean(dim=0).sqrt()   # σ not in it
         return cls(torch.clamp(sigma, min=SIGMA_FLOOR), mean, decay)
 
     def _predicted(self, g1: torch.Tensor, g2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
