@@ -9,7 +9,7 @@ older state is frozen. The tracker minimises eq. 21 over the window,
     E = Σ_j −ln p(z_j | G_j, y_j)                          image: the 2D joint likelihood of the
                                                              eval15 joints of y_j placed by G_j
       + Σ_j [ |W(y_j − μ_Y(x_j))|² / (2σ²(x_j)) + D/2 ln σ²(x_j) + ½|x_j|² ]     eq. 18, per pose
-      − Σ_j ln p(G_j | G_{j−1}, G_{j−2})                    second-order global motion
+      − Σ_j ln p(G_j | G_{j−1}, G_{j−2})                    global motion (GlobalMotion.log_prob)
       + λ Σ_j −ln N(x_j; μ_X(x_{j−1}), σ_X²(x_{j−1}) I_d)    GPDM dynamics, annealed (λ = 0.5)
 
 with j over the window's frames; the history terms reach back to the frozen states before the
@@ -21,7 +21,7 @@ has no image term, so the dynamics, the reconstruction and the global model carr
 Each new frame (Algorithm 1):
 
 1. shift the window and initialise the new state by mean prediction: x_t = μ_X(x_{t−1}),
-   y_t = μ_Y(x_t), G_t = Ĝ_t (constant velocity);
+   y_t = μ_Y(x_t), G_t = Ĝ_t (GlobalMotion.predict);
 2. ``rounds`` times: (a) minimise E over the window's latent positions with the poses fixed
    (the reconstruction and dynamics terms), (b) minimise E over the full states (G, y, x).
 

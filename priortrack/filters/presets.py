@@ -142,7 +142,8 @@ class Preset:
         return tuple(prepare_motions([load_motion(source) for source in self.train], self.fps))
 
     def global_motion(self, prior: TransitionModel) -> GlobalMotion:
-        """The second-order placement model, fitted to the training motions' placements."""
+        """The placement model (position and heading second order, tilt AR(1)), fitted to the
+        training motions' placements."""
         return GlobalMotion.fit([prior.space.global_pose(m) for m in self.training_motions])
 
     def likelihood(self, camera: PinholeCamera) -> JointLikelihood:

@@ -2,7 +2,7 @@
 
 The full filter state is s = [x, g_t, g_{t-1}] (P, S + 12): the prior's pose state x (S),
 and the current and previous placements g = (t, ω) of :mod:`priortrack.priors.global_motion`.
-Prediction draws x_t ~ prior(x_{t-1}) and g_t from the second-order global model; the
+Prediction draws x_t ~ prior(x_{t-1}) and g_t from the global motion model; the
 observation model scores the world joints exp(ω_t)·joints(x_t) + t_t against the 2D detections.
 """
 

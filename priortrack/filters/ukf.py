@@ -4,7 +4,7 @@ propagated as one batch and states on manifolds handled in tangent coordinates.
 **Model.** For the full state s = [x, g_t, g_{t-1}] of a :class:`TrackingModel`:
 
     s_t = f(s_{t-1}) ⊞ w_t,  w_t ~ N(0, Q),    f = TrackingModel.mean_step (prior mean, the
-                                               placement's constant-velocity step, the copy g_t → g_{t-1}),
+                                               placement's mean step GlobalMotion.predict, the copy g_t → g_{t-1}),
     z_t = h(s_t) + v_t,      v_t ~ N(0, R),    h = the pixels of the projected world joints (15 · 2),
 
     Q = blockdiag(prior.transition_covariance(x̄), diag σ_t², Σ_ω(ḡ_t), ε I_6),   R = σ_px² I,
