@@ -93,7 +93,9 @@ class GlobalMotion:
                 raise PriortrackError(f"placements need shape (T ≥ 3, 6), got {tuple(p.shape)}")
             if not torch.all(torch.isfinite(p)):
                 raise PriortrackError("placements contain NaN or inf")
-            g.append(p[2:]), g1.append(p[1:-1]), g2.append(p[:-2])
+            g.append(p[2:])
+            g1.append(p[1:-1])
+            g2.append(p[:-2])
         g, g1, g2 = (torch.cat(x).to(torch.float64) for x in (g, g1, g2))
         tau, tau1 = _split(g)[2], _split(g1)[2]
         d, d1 = tau - tau.mean(0), tau1 - tau1.mean(0)
