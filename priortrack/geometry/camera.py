@@ -298,7 +298,7 @@ class PinholeCamera:
             PriortrackError: ``points`` does not have shape (..., J, 3).
         """
         if isinstance(points, torch.Tensor):
-            return self._project_torch(points)
+            return self._project_torch(points)[:2]
         try:
             arr = np.asarray(points)
         except (TypeError, ValueError) as exc:
@@ -316,7 +316,8 @@ class PinholeCamera:
         uv = np.where(in_front[..., None], uv, np.nan)
         return uv.astype(out_dtype, copy=False), in_front
 
-    def _project_torch(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _project_torch(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`project` of a tensor, with the depth h_2 it divided by (1 where not in front)."""
         self._check_points_shape(tuple(points.shape))
         if not points.is_floating_point():
             points = points.to(torch.float64)
@@ -327,7 +328,7 @@ class PinholeCamera:
         z_safe = torch.where(in_front, z, 1.0)
         uv = h[..., :2] / z_safe.unsqueeze(-1)
         uv = torch.where(in_front.unsqueeze(-1), uv, float("nan"))
-        return uv, in_front
+        return uv, in_front, z_safe
 
     def project_jacobian(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Pixels and their Jacobian with respect to the world point.
@@ -347,12 +348,8 @@ class PinholeCamera:
         Raises:
             PriortrackError: ``points`` does not have shape (..., J, 3).
         """
-        points = torch.as_tensor(points)
-        if not points.is_floating_point():
-            points = points.to(torch.float64)
-        uv, in_front = self._project_torch(points)
-        P, p = self.projection(points.device, points.dtype)
-        depth = torch.where(in_front, points @ P[2] + p[2], 1.0)
+        uv, in_front, depth = self._project_torch(torch.as_tensor(points))
+        P, _ = self.projection(uv.device, uv.dtype)
         jacobian = (P[:2] - uv[..., :, None] * P[2]) / depth[..., None, None]
         return uv, jacobian, in_front
 
