@@ -111,10 +111,8 @@ class AnnealedParticleFilter(ParticleFilter):
             self.betas.append(beta)
             self.log_weights = self.normalised(beta * log_lik, flags)
             if layer < self.layers:
-                ancestors = self.resample(torch.exp(self.log_weights), self.generator)
-                self.states = self.diffuse(self.states[ancestors], std_x, std_g, self.survival ** layer)
-                if self.marginal:
-                    self.covariance = self.covariance[ancestors]
+                self.select(self.resample(torch.exp(self.log_weights), self.generator))
+                self.states = self.diffuse(self.states, std_x, std_g, self.survival ** layer)
                 self.log_weights = torch.full_like(self.log_weights, -math.log(self.P))
         return self.keep_update(pending, joints)           # the last layer's Kalman update, if any
 

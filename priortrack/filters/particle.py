@@ -108,7 +108,7 @@ class ParticleFilter(SequentialFilter):
         t0 = time.perf_counter()
         if self.marginal:       # t_t = t̂_t, its covariance predicted in update (or below)
             self.states = self.model.predict(self.states, self.generator, translation=False)
-        else:
+        else:                   # any model with predict(s, generator), not only a TrackingModel
             self.states = self.model.predict(self.states, self.generator)
         t1 = time.perf_counter()
         if torch.isfinite(z).any():
@@ -126,9 +126,7 @@ class ParticleFilter(SequentialFilter):
         snapshot_states, ancestors = self.states, None
         if ess < self.ess_threshold * self.P:
             ancestors = self.resample(weights, self.generator)
-            self.states = self.states[ancestors]
-            if self.marginal:
-                self.covariance = self.covariance[ancestors]
+            self.select(ancestors)
             self.log_weights = torch.full_like(self.log_weights, -math.log(self.P))
         t4 = time.perf_counter()
         timings.update(predict=t1 - t0, weight=t2 - t1, estimate=t3 - t2, resample=t4 - t3)
@@ -168,6 +166,12 @@ class ParticleFilter(SequentialFilter):
         shift, self.covariance = pending
         self.states = self.model.shift_translation(self.states, shift)
         return joints + shift[:, None, :3]
+
+    def select(self, ancestors: torch.Tensor) -> None:
+        """Keep the particles ``ancestors`` (P,): their states and, marginalised, their covariances."""
+        self.states = self.states[ancestors]
+        if self.marginal:
+            self.covariance = self.covariance[ancestors]
 
     def skip_update(self) -> None:
         """A frame without an update: a marginalised translation's covariance is only predicted."""
