@@ -240,3 +240,7 @@ def test_bad_input():
         GlobalMotion(torch.ones(6), tilt_mean=[0.0, 0.0, 0.0])
     with pytest.raises(PriortrackError, match="rotation vector"):
         so3.exp(torch.zeros(4, 2))
+    with pytest.raises(PriortrackError, match=r"rotation vector has shape \(4, 2\)"):
+        so3.left_jacobian(torch.zeros(4, 2))
+    with pytest.raises(PriortrackError, match=r"quaternion has shape \(4, 3\)"):
+        so3.heading_tilt(torch.zeros(4, 3))
