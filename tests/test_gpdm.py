@@ -222,6 +222,28 @@ def test_variances_against_a_dense_solve_and_float32_means(model):
     torch.testing.assert_close(model.reconstruct(x32)[0].double(), mu_y64, rtol=1e-6, atol=1e-6)
 
 
+def test_predictions_in_row_blocks_equal_one_block(model, monkeypatch):
+    """On the CPU, μ_Y, σ², μ_X and σ_X² of many rows are computed in blocks of BLOCK_ROWS rows
+    (cache-sized): the same numbers as one block, with the rows in order and gradients through
+    every block (the MAP tracker differentiates eq. 18)."""
+    from priortrack.priors import gpdm
+    x = (model.X[torch.arange(70) % len(model.X)] + 0.03 * torch.arange(70.0, dtype=torch.float64)[:, None] / 70)
+    def predictions():
+        return (*model.reconstruct(x), *model.dynamics(x), model.pose_mean(x.float()))
+
+    whole = predictions()
+    monkeypatch.setattr(gpdm, "BLOCK_ROWS", 16)
+    for a, b in zip(whole, predictions(), strict=True):
+        torch.testing.assert_close(b, a, rtol=1e-12, atol=1e-12)
+    xg = x.clone().requires_grad_(True)
+    (grad,) = torch.autograd.grad(model.reconstruction_energy(xg, model.pose_mean(x)).sum(), xg)
+    monkeypatch.setattr(gpdm, "BLOCK_ROWS", 1024)
+    xg1 = x.clone().requires_grad_(True)
+    (grad1,) = torch.autograd.grad(model.reconstruction_energy(xg1, model.pose_mean(x)).sum(), xg1)
+    torch.testing.assert_close(grad, grad1, rtol=1e-10, atol=1e-12)
+    assert bool((grad.abs().sum(1) > 0).all())  # every block's rows have a gradient
+
+
 def test_log_prob_is_the_gaussian_density_and_energies_agree(model):
     x, x_next = model.X[:5], model.X[1:6] + 0.01
     mu, var = model.dynamics(x)

@@ -91,6 +91,10 @@ HYPER_BOUND = 1e6
 NOISE_FLOOR_Y = 1e-4
 #: 1/α4 ≥ NOISE_FLOOR_X: the dynamics noise floor relative to the unit latent variance.
 NOISE_FLOOR_X = 1e-4
+#: Latent rows per block of a prediction on the CPU (:func:`_in_blocks`): a block's (rows, N)
+#: float64 kernel matrix, 0.8 MB at N = 100, fits a 1 MiB L2 cache. The dynamics of 10⁴ particles
+#: (N = 100, 2 threads) took 14 ms in blocks of 1024 against 20–27 ms in one (500: 17, 2000: 15–17).
+BLOCK_ROWS = 1024
 #: α2, β2 ≥ INV_WIDTH_MIN: RBF length scales at most 1/√INV_WIDTH_MIN latent standard deviations.
 INV_WIDTH_MIN = 1e-2
 #: β1, fixed (W carries the data scale).
@@ -150,6 +154,18 @@ def k_Y(A: torch.Tensor, B: torch.Tensor, log_beta: torch.Tensor) -> torch.Tenso
 def k_X(A: torch.Tensor, B: torch.Tensor, log_alpha: torch.Tensor) -> torch.Tensor:
     """Dynamics kernel without its noise term, α1 exp(−α2/2 |a − b|²) + α3 aᵀb: (n, m)."""
     return torch.addmm(rbf(A, B, log_alpha[0], log_alpha[1].exp()), log_alpha[2].exp() * A, B.T)
+
+
+def _in_blocks(predict: Callable, x: torch.Tensor, variance: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """``predict(x, variance)`` → (mean (P, ·), variance (P,) or None) applied to blocks of
+    ``BLOCK_ROWS`` rows of x (P, d) on the CPU, the results joined: the same numbers, but each
+    block's (rows, N) kernel matrix and solve stay in a core's cache instead of streaming through
+    memory once per operation. One block on other devices, where launches cost more than memory."""
+    if x.device.type != "cpu" or len(x) <= BLOCK_ROWS:
+        return predict(x, variance)
+    blocks = [predict(block, variance) for block in x.split(BLOCK_ROWS)]
+    mean = torch.cat([m for m, _ in blocks])
+    return mean, (torch.cat([v for _, v in blocks]) if variance else None)
 
 
 def _runs(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -404,7 +420,10 @@ class GPDM(TransitionModel):
         """μ_Y(x) (eq. 19) and σ²(x) (eq. 20) in float64, or μ_Y(x) alone in x's dtype (float32 or
         float64, from :meth:`_latent`) when ``variance`` is False. σ² is a difference of numbers
         far larger than itself (float32 kernel rows would cost it ~20%), and costs a triangular
-        solve against the (N, N) factor, as much as the rest together."""
+        solve against the (N, N) factor, as much as the rest together. Row blocks: :func:`_in_blocks`."""
+        return _in_blocks(self._reconstruct_block, x, variance)
+
+    def _reconstruct_block(self, x: torch.Tensor, variance: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
         x = x.to(torch.float64) if variance else x
         t = self._on(x.device, x.dtype)
         k = k_Y(x, t["X"], t["log_beta"])                                       # (P, N)
@@ -419,6 +438,9 @@ class GPDM(TransitionModel):
     def _dynamics(self, x: torch.Tensor, variance: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
         """μ_X(x) and σ_X²(x) in float64, or μ_X(x) alone in x's dtype when ``variance`` is False
         (as :meth:`_reconstruct`)."""
+        return _in_blocks(self._dynamics_block, x, variance)
+
+    def _dynamics_block(self, x: torch.Tensor, variance: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
         x = x.to(torch.float64) if variance else x
         t = self._on(x.device, x.dtype)
         k = k_X(x, t["X_in"], t["log_alpha"])                                   # (P, N−S)
