@@ -73,3 +73,21 @@ def test_eval_tracking_table_and_ratios():
     assert result["ratios"]["mpjpe_mm"]["pf-diffusion-local"]["clean"] == pytest.approx(1.0)
     with pytest.raises(PriortrackError, match="seeds must be at least 1"):
         eval_tracking(["pf-diffusion-local"], seeds=0)
+    with pytest.raises(PriortrackError, match="jobs must be a positive integer"):
+        eval_tracking(["pf-diffusion-local"], jobs=0)
+
+
+def test_eval_tracking_in_worker_processes_gives_the_same_table():
+    """jobs = 2: the runs in two spawned workers, each on this process's torch thread count, give
+    exactly the numbers of the runs made here (only the timings differ); a bad motion still fails
+    before any run, with its own error."""
+    from priortrack.experiments.tracking import eval_tracking
+
+    args = (["pf-diffusion-local", "ukf-diffusion-local"], ["occlusion:sigma_px=5"], ["cmu:07_10"])
+    here, workers = eval_tracking(*args, seeds=2), eval_tracking(*args, seeds=2, jobs=2)
+    for preset, row in here["table"].items():
+        for key in ("mpjpe_mm", "mpjpe_mm_std", "mpjpe_root_rel_mm", "mpjpe_root_rel_mm_std", "runs"):
+            assert workers["table"][preset]["occlusion:sigma_px=5"][key] == row["occlusion:sigma_px=5"][key]
+    assert here["table"]["pf-diffusion-local"]["occlusion:sigma_px=5"]["mpjpe_mm_std"] > 0   # two seeds, two runs
+    with pytest.raises(PriortrackError, match="nothing"):
+        eval_tracking(["pf-diffusion-local"], ["clean"], ["cmu:nothing"], seeds=1, jobs=2)

@@ -10,9 +10,14 @@ projection against the clean projection of the truth, all joints.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import logging
+import multiprocessing
+import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +41,8 @@ TABLE_PRESETS = ("pf-diffusion-global", "pf-diffusion-local", "pf-gpdm", "pf-lie
 TABLE_SEEDS = 5
 #: The preset every other is compared with.
 BASELINE = "pf-diffusion-local"
+#: Thread-count variables of the runtimes torch, numpy and numba start with (set for ``jobs`` workers).
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
 
 def _mean_std(rows: list[dict], key: str) -> dict[str, float]:
@@ -94,33 +101,100 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
     return TrackingRun(result, motion, observations, result_track)
 
 
+def _table_run(preset: str, motion: str, scenario: str, seed: int, cache, threads: int) -> dict:
+    """One run of :func:`eval_tracking`'s table on ``threads`` torch threads, its result row.
+    Motions and presets are loaded once per process (:func:`_table_motion`, :func:`_table_preset`)."""
+    torch.set_num_threads(threads)
+    return track(_table_motion(motion), _table_preset(preset), scenario, seed, cache=cache).result
+
+
+@functools.cache
+def _table_motion(name: str) -> Motion:
+    return load_motion(name)
+
+
+@functools.cache
+def _table_preset(name: str) -> Preset:
+    return load_preset(name)
+
+
+def _table_runs(presets, scenarios, motions, seeds, cache, progress, jobs) -> dict[tuple, dict]:
+    """Every run of the table: (preset, motion, scenario, seed) → result row (:func:`eval_tracking`)."""
+    for name in motions:
+        _table_motion(name)                                   # a missing motion fails before any run
+    for name in presets:
+        _table_preset(name).prior(cache)                      # fit (or load) once, before timing runs
+    runs = [(name, motion, scenario, seed) for name in presets for scenario in scenarios
+            for motion in motions for seed in range(seeds)]
+    results: dict[tuple, dict] = {}
+
+    def done(key: tuple, row: dict) -> None:
+        results[key] = row
+        if progress:
+            progress(row)
+
+    if jobs == 1:
+        for key in runs:
+            done(key, _table_run(*key, cache, torch.get_num_threads()))
+        return results
+    # Each worker gets its share of this process's threads, in torch and in the BLAS and OpenMP
+    # runtimes it starts with: oversubscribed, their spinning threads slowed a UKF run 4×.
+    threads = max(1, torch.get_num_threads() // jobs)
+    context = multiprocessing.get_context("spawn")            # a forked child can hang in the parent's OpenMP pool
+    with _environment({name: str(threads) for name in THREAD_VARIABLES}), \
+            ProcessPoolExecutor(jobs, mp_context=context) as pool:
+        futures = {pool.submit(_table_run, *key, cache, threads): key for key in runs}
+        for future in as_completed(futures):
+            done(futures[future], future.result())
+    return results
+
+
+@contextlib.contextmanager
+def _environment(values: dict[str, str]) -> Iterator[None]:
+    """Set environment variables inside the block (for the processes started there), restoring them after."""
+    previous = {name: os.environ.get(name) for name in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for name, value in previous.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
 def eval_tracking(presets: Sequence[str] = TABLE_PRESETS, scenarios: Sequence[str] = TABLE_SCENARIOS,
                   motions: Sequence[str] = TABLE_MOTIONS, seeds: int = TABLE_SEEDS, cache=None,
-                  progress: Callable[[dict], None] | None = None) -> dict:
+                  progress: Callable[[dict], None] | None = None, jobs: int = 1) -> dict:
     """The accuracy table: every preset × scenario, MPJPE mean ± std over motions × seeds.
+
+    ``jobs`` > 1 runs the table's runs in that many worker processes (spawned), each with its share
+    of this process's threads. The table is the same: the filters' arithmetic does not depend on
+    the thread count at the presets' particle counts (a run gives the same numbers on one thread as
+    on two; tests compare the tables). The MAP tracker and the unscented filter run on one thread
+    anyway, so on two cores two jobs about halve their rows' time.
 
     Returns {"table": {preset: {scenario: {"mpjpe_mm", "mpjpe_mm_std", "mpjpe_root_rel_mm",
     "mpjpe_root_rel_mm_std", "runs", "seconds_per_frame"}}}, "ratios": {"mpjpe_mm" or
     "mpjpe_root_rel_mm": {preset: {scenario: its mean / pf-diffusion-local's}}}, "motions", "seeds",
-    "seconds"}. ``progress`` sees every run's result row.
+    "seconds"}. ``progress`` sees every run's result row as it finishes.
     """
     if seeds < 1:
         raise PriortrackError(f"seeds must be at least 1, got {seeds}")
+    if not isinstance(jobs, int) or jobs < 1:
+        raise PriortrackError(f"jobs must be a positive integer, got {jobs!r}")
     start = time.perf_counter()
-    loaded = {name: load_motion(name) for name in motions}
+    try:
+        results = _table_runs(presets, scenarios, motions, seeds, cache, progress, jobs)
+    finally:                                                  # a later call re-reads edited presets
+        _table_motion.cache_clear()
+        _table_preset.cache_clear()
     table: dict[str, dict[str, dict]] = {}
     for name in presets:
-        preset = load_preset(name)
-        preset.prior(cache)                                   # fit (or load) once, before timing runs
         table[name] = {}
         for scenario in scenarios:
-            rows = []
-            for motion_name, motion in loaded.items():
-                for seed in range(seeds):
-                    row = track(motion, preset, scenario, seed, cache=cache).result
-                    rows.append(row)
-                    if progress:
-                        progress(row)
+            rows = [results[name, motion, scenario, seed] for motion in motions for seed in range(seeds)]
             table[name][scenario] = {
                 **_mean_std(rows, "mpjpe_mm"), **_mean_std(rows, "mpjpe_root_rel_mm"),
                 "seconds_per_frame": float(np.mean([r["seconds_per_frame"] for r in rows])),

@@ -80,6 +80,7 @@ from priortrack.errors import PriortrackError
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
 from priortrack.priors.spaces import AngleSpace, EuclideanSpace
 from priortrack.randomness import standard_normal
+from priortrack.threads import torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -353,12 +354,15 @@ class GPDM(TransitionModel):
 
         first, inp, out = transition_rows(self.lengths)
         self.X_in, self.X_out = self.X[inp], self.X[out]
-        self.L_Y = cholesky(k_Y(self.X, self.X, self.log_beta) + torch.eye(N, dtype=torch.float64) / self.beta[2])
-        self.A_Y = torch.cholesky_solve(self.Y, self.L_Y)                          # K_Y⁻¹ Y (N, D)
-        self.W = closed_form_W((self.Y * self.A_Y).sum(0), N) if W is None else as64(W)
-        K_X = k_X(self.X_in, self.X_in, self.log_alpha) + torch.eye(len(inp), dtype=torch.float64) / self.alpha[3]
-        self.L_X = cholesky(K_X)
-        self.A_X = torch.cholesky_solve(self.X_out, self.L_X)                      # K_X⁻¹ X_out (N−S, d)
+        # Factorised on one thread: LAPACK's threaded Cholesky rounds by its thread count, and a
+        # model loaded in another process (``eval tracking --jobs``) must predict bit for bit alike.
+        with torch_threads(1):
+            self.L_Y = cholesky(k_Y(self.X, self.X, self.log_beta) + torch.eye(N, dtype=torch.float64) / self.beta[2])
+            self.A_Y = torch.cholesky_solve(self.Y, self.L_Y)                      # K_Y⁻¹ Y (N, D)
+            self.W = closed_form_W((self.Y * self.A_Y).sum(0), N) if W is None else as64(W)
+            K_X = k_X(self.X_in, self.X_in, self.log_alpha) + torch.eye(len(inp), dtype=torch.float64) / self.alpha[3]
+            self.L_X = cholesky(K_X)
+            self.A_X = torch.cholesky_solve(self.X_out, self.L_X)                  # K_X⁻¹ X_out (N−S, d)
         self._device_cache: dict[str, dict[str, torch.Tensor]] = {}
         self.space = LatentSpace(self, angles)
 
