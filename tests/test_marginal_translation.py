@@ -197,6 +197,11 @@ def test_unobserved_frames_predict_the_covariance_and_resampling_carries_it(monk
     snap = pf.step(obs.uv[7])
     assert snap.ancestors is not None
     torch.testing.assert_close(pf.covariance, updated["C"][torch.as_tensor(snap.ancestors)])
+    # The snapshot holds the covariances of its own (pre-resampling) particles.
+    assert snap.translation_covariance is updated["C"] and snap.translation_covariance.shape == (300, 6, 6)
+    sampled, obs, motion, _ = _walk_filter("sampled", 0, frames=4)
+    sampled.initialise(motion)
+    assert sampled.step(obs.uv[2]).translation_covariance is None
 
 
 @pytest.mark.parametrize("grad", [False, True])

@@ -56,7 +56,8 @@ class ParticleFilter(SequentialFilter):
             bootstrap filter) or "marginalised" (integrated out by a Kalman filter per particle:
             :mod:`~priortrack.filters.marginal_translation`; a :class:`TrackingModel` with the
             Gaussian likelihood only). The particles' translations are then the Kalman means, and
-            ``covariance`` (P, 6, 6) holds each particle's covariance of (t_t, t_{t-1}).
+            ``covariance`` (P, 6, 6) holds each particle's covariance of (t_t, t_{t-1}) (each
+            Snapshot carries its particles' as ``translation_covariance``).
         seed: seeds the filter's own torch.Generator.
     """
 
@@ -123,7 +124,7 @@ class ParticleFilter(SequentialFilter):
         estimate = self.model.observe(self.model.mean(self.states, weights)[None])[0]
         best = joints[int(torch.argmax(weights))]
         t3 = time.perf_counter()
-        snapshot_states, ancestors = self.states, None
+        snapshot_states, snapshot_covariance, ancestors = self.states, self.covariance, None
         if ess < self.ess_threshold * self.P:
             ancestors = self.resample(weights, self.generator)
             self.select(ancestors)
@@ -132,7 +133,7 @@ class ParticleFilter(SequentialFilter):
         timings.update(predict=t1 - t0, weight=t2 - t1, estimate=t3 - t2, resample=t4 - t3)
         self.frame += 1
         return Snapshot(self.frame, snapshot_states, weights, ess, ancestors, estimate.cpu().numpy(),
-                        best.cpu().numpy(), joints, flags, timings)
+                        best.cpu().numpy(), joints, flags, timings, snapshot_covariance)
 
     def update(self, z: torch.Tensor, flags: list[str]) -> torch.Tensor:
         """Bayes' rule on the predicted particles: log w += log p(z | s), normalised.

@@ -31,6 +31,10 @@ class Snapshot:
         flags: what was unusual: "no-observation" (nothing seen, prediction stands),
             "weights-underflow" (every likelihood −inf: weights reset), "covariance-repaired".
         timings: seconds spent per phase ("predict", "weight", "resample", "estimate").
+        translation_covariance: (P, 6, 6) each particle's covariance of (t_t, t_{t-1}), metres²,
+            aligned with ``particles``, when the filter integrates the translation out
+            (``ParticleFilter(translation="marginalised")``): the particles' translations are
+            then Kalman means, and the depth spread lives here, not in the cloud. None otherwise.
     """
 
     frame: int
@@ -43,6 +47,7 @@ class Snapshot:
     joints: torch.Tensor
     flags: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
+    translation_covariance: torch.Tensor | None = None
 
 
 @dataclass
