@@ -172,7 +172,7 @@ def eval_tracking(presets: Sequence[str] = TABLE_PRESETS, scenarios: Sequence[st
     ``jobs`` > 1 runs the table's runs in that many worker processes (spawned), each with its share
     of this process's threads. The table is the same: at the presets' particle counts a run gives
     the same numbers on one thread as on two (checked for pf-diffusion-local, pf-lie, pf-gpdm,
-    ukf-diffusion-local, ukf-gpdm and map-gpdm; tests compare tables). The MAP tracker and the
+    apf-diffusion-local, ukf-diffusion-local, ukf-gpdm and map-gpdm; tests compare tables). The MAP tracker and the
     unscented filter run on one thread anyway, so on two cores two jobs about halve their rows' time.
 
     Returns {"table": {preset: {scenario: {"mpjpe_mm", "mpjpe_mm_std", "mpjpe_root_rel_mm",
