@@ -224,3 +224,47 @@ def test_bad_options_are_named():
         ParticleFilter(robust, 10, translation="marginalised")
     with pytest.raises(PriortrackError, match="TrackingModel"):
         ParticleFilter(LinearGaussian(np.eye(2), np.eye(2), np.eye(2), np.eye(2)), 10, translation="marginalised")
+
+
+def test_translation_spread_is_the_mixture_covariance_and_is_logged_as_an_ellipsoid(tmp_path):
+    """Snapshot.translation_spread: Σ_i w_i (C_i + (t_i − t̄)(t_i − t̄)ᵀ) against a loop; the
+    recording's ellipsoid has that covariance (R diag(h²) Rᵀ from the logged half-sizes and
+    quaternion) and that centre."""
+    import rerun as rr
+    from scipy.spatial.transform import Rotation
+
+    from priortrack.filters.snapshot import Snapshot
+    from priortrack.viz.recording import Recording
+
+    g = torch.Generator().manual_seed(3)
+    P = 7
+    particles = torch.randn(P, 20, generator=g, dtype=torch.float64)
+    weights = torch.rand(P, generator=g, dtype=torch.float64)
+    A = torch.randn(P, 6, 6, generator=g, dtype=torch.float64)
+    covariance = 1e-3 * A @ A.transpose(1, 2)
+    snap = Snapshot(3, particles, weights, 1.0, None, np.zeros((15, 3)), np.zeros((15, 3)), torch.zeros(P, 15, 3),
+                    translation_covariance=covariance)
+    mean, spread = snap.translation_spread()
+    w = (weights / weights.sum()).numpy()
+    t = particles[:, 8:11].numpy()                               # g_t's translation: columns −12..−9 of 20
+    expected_mean = (w[:, None] * t).sum(0)
+    expected = sum(w[i] * (covariance[i, :3, :3].numpy() + np.outer(t[i] - expected_mean, t[i] - expected_mean))
+                   for i in range(P))
+    np.testing.assert_allclose(mean, expected_mean, atol=1e-12)
+    np.testing.assert_allclose(spread, expected, atol=1e-12)
+    assert Snapshot(3, particles, weights, 1.0, None, np.zeros((15, 3)), np.zeros((15, 3)),
+                    torch.zeros(P, 15, 3)).translation_spread() is None
+
+    path = tmp_path / "ellipsoid.rrd"
+    with Recording(path) as rec:
+        rec.frame(0)
+        rec.ellipsoid("estimate/translation", mean, spread)
+    batches = [c.to_record_batch() for c in rr.chunk.RrdReader(str(path)).stream().to_chunks()
+               if c.entity_path == "/world/estimate/translation"]
+    assert len(batches) == 1
+    column = {name: batches[0].column(name)[0].as_py() for name in batches[0].schema.names
+              if name.startswith("Ellipsoids3D:")}
+    h = np.array(column["Ellipsoids3D:half_sizes"][0])
+    R = Rotation.from_quat(column["Ellipsoids3D:quaternions"][0]).as_matrix()
+    np.testing.assert_allclose(R @ np.diag(h ** 2) @ R.T, spread, atol=1e-6 * np.abs(spread).max())
+    np.testing.assert_allclose(column["Ellipsoids3D:centers"][0], mean, atol=1e-6)

@@ -45,6 +45,7 @@ def test_track_command_prints_the_result_and_logs_the_cloud(tmp_path, capsys):
     rows = _entities(out)
     assert rows["/world/truth"] == 30 and rows["/world/estimate"] == 28
     assert rows["/world/estimate/cloud"] == 28                  # one cloud per filtered frame
+    assert rows["/world/estimate/translation"] == 28            # the preset integrates the translation out
     assert rows["/world/camera/image/observations"] == 30
 
 

@@ -49,6 +49,23 @@ class Snapshot:
     timings: dict[str, float] = field(default_factory=dict)
     translation_covariance: torch.Tensor | None = None
 
+    def translation_spread(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The weighted mean t̄ (3,) and covariance (3, 3), metres, of the body's translation t_t
+        over a particle set whose translations are integrated out (``translation_covariance``
+        set; None otherwise): by the law of total covariance, Σ_i w_i (C_i + (t_i − t̄)(t_i − t̄)ᵀ)
+        with t_i the Kalman means (the state's g_t translation, columns −12..−9) and C_i their
+        covariances."""
+        if self.translation_covariance is None:
+            return None
+        w = self.weights.detach().cpu().to(torch.float64)
+        w = w / w.sum()
+        t = self.particles[:, -12:-9].detach().cpu().to(torch.float64)
+        mean = w @ t
+        centred = t - mean
+        C = self.translation_covariance[:, :3, :3].detach().cpu().to(torch.float64)
+        covariance = torch.einsum("p,pij->ij", w, C) + (centred * w[:, None]).T @ centred
+        return mean.numpy(), covariance.numpy()
+
 
 @dataclass
 class Track:

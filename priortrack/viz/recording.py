@@ -5,6 +5,8 @@ Entity layout of a priortrack recording (timeline ``frame``):
 - ``world``: Y-up, right-handed; the ``eval15`` annotation context (joint names and bones);
 - ``world/<name>``: a 3D skeleton as keypoints joined by the context's connections;
 - ``world/<name>/cloud``: the joints of every particle or sigma point, coloured by weight;
+- ``world/<name>/translation``: the 1σ ellipsoid of the body's translation over the particle set
+  (a particle filter that integrates the translation out: its depth spread is not in the cloud);
 - ``world/camera``: the camera pose; ``world/camera/image`` its pinhole;
   ``world/camera/image/<name>``: 2D points in pixels (missing joints are simply not logged).
 """
@@ -16,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import rerun as rr
+from scipy.spatial.transform import Rotation
 
 from priortrack.body.layout import EVAL15_NAMES, EVAL15_PARENTS
 from priortrack.geometry.camera import PinholeCamera
@@ -85,6 +88,16 @@ class Recording:
         colors = (low + share[:, None] * (high - low)).astype(np.uint8)
         self.stream.log(f"world/{name}/cloud", rr.Points3D(
             joints.reshape(-1, 3), colors=np.repeat(colors, joints.shape[1], axis=0), radii=0.006))
+
+    def ellipsoid(self, name: str, center, covariance, color=(255, 90, 60)) -> None:
+        """Log the 1σ ellipsoid {c + v : vᵀ Σ⁻¹ v ≤ 1} of a 3D Gaussian at ``world/<name>``: the
+        half-axes are the square roots of Σ's eigenvalues (3,) metres, along its eigenvectors
+        (the rotation taking the x, y, z axes to them, as a quaternion)."""
+        eigenvalues, axes = np.linalg.eigh(np.asarray(covariance, dtype=float))
+        axes[:, 2] *= np.sign(np.linalg.det(axes))                # a rotation, not a reflection
+        self.stream.log(f"world/{name}", rr.Ellipsoids3D(
+            centers=[np.asarray(center, dtype=float)], half_sizes=[np.sqrt(np.clip(eigenvalues, 0.0, None))],
+            quaternions=[rr.Quaternion(xyzw=Rotation.from_matrix(axes).as_quat())], colors=[color]))
 
     def camera(self, camera: PinholeCamera) -> None:
         """Log the camera pose and pinhole (static)."""

@@ -19,7 +19,8 @@ def replay(motion: Motion, observations: Observations, path: str | Path, track: 
     """Write the ground-truth eval15 skeleton over time, the camera as a pinhole entity and the 2D
     observations in its image to ``path`` (an ``.rrd`` file). With a tracking run ``track``, also
     the filter's estimate (after the known frames) and its projection, and the particle cloud or
-    sigma points coloured by weight (if ``track`` kept its snapshots). Returns the path."""
+    sigma points coloured by weight (if ``track`` kept its snapshots), with the 1σ ellipsoid of the
+    body's translation where the filter integrated it out. Returns the path."""
     positions = motion.positions("eval15")
     snapshots = {s.frame: s for s in track.snapshots or []} if track is not None else {}
     with Recording(path) as rec:
@@ -34,4 +35,7 @@ def replay(motion: Motion, observations: Observations, path: str | Path, track: 
                 rec.points_2d("estimate", uv.numpy(), color=ESTIMATE_COLOR)
             if i in snapshots:
                 rec.cloud("estimate", snapshots[i].joints.cpu().numpy(), snapshots[i].weights.cpu().numpy())
+                spread = snapshots[i].translation_spread()
+                if spread is not None:
+                    rec.ellipsoid("estimate/translation", *spread, color=ESTIMATE_COLOR)
     return Path(path)
