@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from priortrack.filters.tracking_model import GLOBAL_DIM
+
 
 #: Frames a run starts from (pose and placement known), before the first filtered one.
 KNOWN_FRAMES = 2
@@ -53,13 +55,14 @@ class Snapshot:
         """The weighted mean t̄ (3,) and covariance (3, 3), metres, of the body's translation t_t
         over a particle set whose translations are integrated out (``translation_covariance``
         set; None otherwise): by the law of total covariance, Σ_i w_i (C_i + (t_i − t̄)(t_i − t̄)ᵀ)
-        with t_i the Kalman means (the state's g_t translation, columns −12..−9) and C_i their
-        covariances."""
+        with t_i the Kalman means (g_t's translation in the tracking model's state layout
+        [x, g_t, g_{t-1}]) and C_i their covariances."""
         if self.translation_covariance is None:
             return None
         w = self.weights.detach().cpu().to(torch.float64)
         w = w / w.sum()
-        t = self.particles[:, -12:-9].detach().cpu().to(torch.float64)
+        g_t = self.particles[:, -2 * GLOBAL_DIM:-GLOBAL_DIM]
+        t = g_t[:, :3].detach().cpu().to(torch.float64)
         mean = w @ t
         centred = t - mean
         C = self.translation_covariance[:, :3, :3].detach().cpu().to(torch.float64)
