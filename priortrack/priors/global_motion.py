@@ -169,8 +169,9 @@ class GlobalMotion:
         Σ = M diag(σ_τx², σ_ψ², σ_τz²) Mᵀ with M = [Y J_l e_x, e_y, Y J_l e_z]."""
         _, psi, tau = _split(g)
         tilt = torch.stack([tau[:, 0], torch.zeros_like(psi), tau[:, 1]], -1)
-        M = so3.exp(psi[:, None] * torch.tensor([0.0, 1.0, 0.0], dtype=g.dtype, device=g.device)) @ so3.left_jacobian(tilt)
-        M[:, :, 1] = torch.tensor([0.0, 1.0, 0.0], dtype=g.dtype, device=g.device)
+        e_y = g.new_tensor([0.0, 1.0, 0.0])
+        M = so3.exp(psi[:, None] * e_y) @ so3.left_jacobian(tilt)
+        M[:, :, 1] = e_y
         return M @ torch.diag_embed(self.sigma[3:].to(g) ** 2) @ M.transpose(-1, -2)
 
 
