@@ -148,6 +148,12 @@ def test_resample_is_exact_on_source_instants_and_interpolates_between():
     np.testing.assert_allclose(up.channels[21], a + 0.5 * wrapped, atol=1e-15)
 
 
+@pytest.mark.parametrize("fps", [0.0, -30.0, float("nan"), float("inf")])
+def test_resample_refuses_a_rate_that_is_not_positive_and_finite(fps):
+    with pytest.raises(PriortrackError, match="fps must be positive and finite"):
+        load_motion("cmu:07_01").resample(fps)
+
+
 def test_resample_interpolates_the_short_way_round():
     m = load_motion("cmu:07_01")[:2]
     channels = m.channels.copy()

@@ -296,6 +296,9 @@ def test_contract_shapes_rollout_encode_and_grid(model, tmp_path):
     assert gx.shape == (20,) and gy.shape == (20,) and logvar.shape == (20, 20) and torch.isfinite(logvar).all()
     png = plot_latent(model, tmp_path / "latent.png")
     assert png.stat().st_size > 10_000
+    with pytest.raises(PriortrackError, match=r"suffix must be one of .*\.pdf.*\.png"):
+        plot_latent(model, tmp_path / "latent.txt")
+    assert not (tmp_path / "latent.txt").exists()
 
 
 # ---- balanced vs plain ----------------------------------------------------------------------

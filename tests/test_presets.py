@@ -107,6 +107,14 @@ def test_a_second_run_reads_the_cache_and_predicts_identically(tmp_path, monkeyp
     assert other.cache_key != preset.cache_key                        # other training data, other entry
 
 
+def test_a_cache_that_cannot_be_written_is_a_warning_not_an_error(tmp_path, caplog):
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    prior = parse_preset(table(), "small").prior(cache=blocked / "priors")     # mkdir fails under a file
+    assert prior.kind == "diffusion-local" and blocked.read_text() == "not a folder"
+    assert "prior not cached" in caplog.text
+
+
 def test_build_gives_the_named_filter_with_its_parameters(tmp_path):
     from priortrack.observation import default_camera
 

@@ -12,6 +12,7 @@ import logging
 import sys
 
 from priortrack.errors import PriortrackError
+from priortrack.output import output_path
 
 
 def _data_list(args: argparse.Namespace) -> None:
@@ -33,6 +34,9 @@ def _replay(args: argparse.Namespace) -> None:
     from priortrack.observation.synthetic import default_camera, parse_scenario, synthesize
     from priortrack.viz.replay import replay
 
+    output_path(args.out, "rerun recording")
+    if args.observations:
+        output_path(args.observations, "observations file")
     motion = load_motion(args.motion)
     if args.fps:
         motion = motion.resample(args.fps)
@@ -73,6 +77,7 @@ class _Progress:
 def _fit(args: argparse.Namespace) -> None:
     from priortrack.priors.fit import fit_prior
 
+    output_path(args.out, "prior file")
     motions = _motions(args.train)
     options = {"fps": args.fps}
     if args.kind.startswith("diffusion"):
@@ -137,6 +142,8 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.experiments.tracking import track
     from priortrack.viz.replay import replay
 
+    if args.rrd:
+        output_path(args.rrd, "rerun recording")
     progress = _Progress(f"track {args.filter}", "frame {0} of {1}") if sys.stderr.isatty() else None
     run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd), progress=progress,
                 frames=args.frames)
@@ -373,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         args.run(args)
-    except PriortrackError as exc:
+    except (PriortrackError, OSError) as exc:         # OSError: a file that could not be read or written
         print(f"priortrack: error: {exc}", file=sys.stderr)
         return 2
     return 0

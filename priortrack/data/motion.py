@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -37,8 +38,8 @@ class Motion:
             raise PriortrackError(f"motion {self.name!r}: channels has shape {self.channels.shape}; "
                                   f"expected (T, {self.skeleton.num_channels})")
         check_channels(self.channels, self.skeleton, f"motion {self.name!r} channels")
-        if not self.fps > 0:
-            raise PriortrackError(f"motion {self.name!r}: fps must be positive, got {self.fps}")
+        if not 0 < self.fps < math.inf:
+            raise PriortrackError(f"motion {self.name!r}: fps must be positive and finite, got {self.fps}")
 
     def __len__(self) -> int:
         return len(self.channels)
@@ -73,8 +74,8 @@ class Motion:
         differences wrapped to (−π, π]); a target instant that falls on a source frame
         takes that frame exactly, so 120 → 30 fps is every 4th frame.
         """
-        if not fps > 0:
-            raise PriortrackError(f"resample: fps must be positive, got {fps}")
+        if not 0 < fps < math.inf:
+            raise PriortrackError(f"resample: fps must be positive and finite, got {fps}")
         count = int(np.floor(self.duration * fps + 1e-9)) + 1
         source = np.arange(count) * (self.fps / fps)
         lower = np.minimum(np.floor(source).astype(int), len(self) - 1)

@@ -128,11 +128,14 @@ class Preset:
         else:
             prior = fit_prior(self.prior_kind, self.training_motions, progress=progress, fps=self.fps,
                               **self.prior_options)
-            cache.mkdir(parents=True, exist_ok=True)
-            partial = path.with_suffix(".partial.npz")
-            prior.save(partial)
-            partial.replace(path)
-            log.info("fitted %s prior cached at %s", self.prior_kind, path)
+            try:                          # a cache that cannot be written costs the next run a refit, no more
+                cache.mkdir(parents=True, exist_ok=True)
+                partial = path.with_suffix(".partial.npz")
+                prior.save(partial)
+                partial.replace(path)
+                log.info("fitted %s prior cached at %s", self.prior_kind, path)
+            except (PriortrackError, OSError) as exc:
+                log.warning("fitted %s prior not cached (%s)", self.prior_kind, exc)
         return prior if self.annealing == 1.0 else prior.annealed(self.annealing)
 
     @cached_property

@@ -40,6 +40,7 @@ import torch
 from priortrack.body.layout import EVAL15_NAMES
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
+from priortrack.output import output_path
 
 __all__ = [
     "EVAL15_NAMES",
@@ -341,7 +342,7 @@ class Observations:
             text = json.dumps(meta)
         except TypeError as exc:
             raise PriortrackError(f"params: values must be JSON-serialisable numbers/strings ({exc})") from None
-        with open(path, "wb") as fh:
+        with open(output_path(path, "observations file"), "wb") as fh:
             np.savez(fh, uv=self.uv, metadata=np.array(text))
 
     @classmethod

@@ -29,6 +29,7 @@ import torch
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
+from priortrack.output import output_path
 from priortrack.priors.spaces import StateSpace
 
 FORMAT = "priortrack-prior"
@@ -122,7 +123,7 @@ class TransitionModel(ABC):
         """Write the prior to ``path`` (npz: arrays + a JSON header, no pickle)."""
         header = {"format": FORMAT, "version": FORMAT_VERSION, "kind": self.kind, "fps": self.fps,
                   "space": type(self.space).__name__, **self._header()}
-        path = Path(path)
+        path = output_path(path, "prior file")
         with open(path, "wb") as f:
             np.savez(f, header=np.array(json.dumps(header)), **self.space.to_arrays(), **self._arrays())
         return path

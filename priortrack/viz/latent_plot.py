@@ -15,14 +15,18 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
 
+from priortrack.output import output_path  # noqa: E402
 from priortrack.priors.gpdm import GPDM  # noqa: E402
 
 
 def plot_latent(model: GPDM, path: str | Path, n: int = 80) -> Path:
     """Write a PNG (or any format matplotlib infers from ``path``) of ``model``'s latent
     trajectories (dims 0 and 1) over its log reconstruction-variance map on an n × n grid
-    (other latent dims at their training mean). Returns the path."""
+    (other latent dims at their training mean). Returns the path; a suffix matplotlib cannot
+    write is a ``PriortrackError``, raised before anything is drawn."""
+    path = output_path(path, "plot", suffixes=(f".{f}" for f in FigureCanvasBase.get_supported_filetypes()))
     gx, gy, logvar = (t.numpy() for t in model.log_variance_grid(n=n))
     X = model.X.numpy()
     fig, ax = plt.subplots(figsize=(6.4, 5.6), dpi=110)
@@ -40,7 +44,6 @@ def plot_latent(model: GPDM, path: str | Path, n: int = 80) -> Path:
     ax.set_aspect("equal", adjustable="box")
     ax.set_title(f"{model.kind}: N = {len(X)} frames, D = {model.D}, d = {model.d}, {len(model.lengths)} sequences")
     fig.tight_layout()
-    path = Path(path)
     fig.savefig(path)
     plt.close(fig)
     return path

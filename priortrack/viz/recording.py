@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from priortrack.body.layout import EVAL15_NAMES, EVAL15_PARENTS
 from priortrack.geometry.camera import PinholeCamera
+from priortrack.output import output_path
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +43,7 @@ class Recording:
     """
 
     def __init__(self, path: str | Path, application_id: str = "priortrack"):
-        self.path = Path(path)
+        self.path = output_path(path, "rerun recording")
         self.stream = rr.RecordingStream(application_id)
         self.stream.save(self.path)
         self.stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
