@@ -63,6 +63,12 @@ Checked, all on this protocol:
 - a homoscedastic variant (σ²(x) in eq. 18 replaced by the noise 1/β3; not the model's predictive
   likelihood, so not adopted): B-GPDM 4.80 (3.53 / 4.13 / 6.74) at 200 iterations, 5.83 at 50;
   GPDM 10.39 at 50. It beats KNN-15 on 35_29 only.
+- learning with the window included (the PAMI paper's missing-data learning: the window's
+  observed frames join the training set, its missing frames' latents are held by the dynamics
+  alone, i.e. their rows are marginalised out of the reconstruction GP; warm-started from the
+  fitted model and the MAP path, 200 L-BFGS-B iterations; a scratch prototype, not kept):
+  B-GPDM 35_29 5.62 (window and model refitted) and 07_11 8.32 (window latents only) against
+  5.98 / 9.40 here and KNN-15's 4.36 / 5.51. Better, but far from KNN-15.
 - dynamics: the model's are first order; a second-order GPDM (as some of the PAMI paper's
   walking models) needs another state and kernel in the model and was not tried.
 - training data: with the first 3 subject-35 walks (538 frames, ~1.5× the run time) the B-GPDM
