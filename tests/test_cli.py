@@ -109,6 +109,19 @@ def test_fit_lie_and_plot_refuses_non_gpdm(tmp_path, capsys):
     assert "draws the latent space of a gpdm" in capsys.readouterr().err
 
 
+def test_fit_a_gpdm_with_its_dynamics_noise_floor(tmp_path, capsys):
+    from priortrack.priors import load_prior
+
+    prior = tmp_path / "bgpdm.npz"
+    assert main(["fit", "bgpdm", "--train", "walkjog:35_01", "--fps", "10", "--dynamics-noise-floor", "1e-2",
+                 "--out", str(prior)]) == 0
+    model = load_prior(prior)
+    assert model.fit_summary["dynamics_noise_floor"] == 1e-2 and 1 / model.alpha[3] >= 1e-2 * (1 - 1e-12)
+    capsys.readouterr()
+    assert main(["fit", "bgpdm", "--train", "walkjog:35_01", "--dynamics-noise-floor", "2", "--out", str(prior)]) == 2
+    assert "dynamics_noise_floor must lie in" in capsys.readouterr().err
+
+
 def test_fit_errors(tmp_path, capsys):
     assert main(["fit", "lie", "--train", "walkjog:99_*", "--out", str(tmp_path / "x.npz")]) == 2
     assert "matches no bundled motion" in capsys.readouterr().err

@@ -138,6 +138,14 @@ def test_reconstruction_interpolates_with_small_noise_and_variance_grows_away(mo
     torch.testing.assert_close(model.mean(ray), mu_d, atol=0, rtol=0)
 
 
+def test_the_dynamics_noise_floor_bounds_the_fitted_noise(model):
+    assert model.fit_summary["dynamics_noise_floor"] == 1e-4 and 1 / model.alpha[3] >= 1e-4 * (1 - 1e-12)
+    loose = GPDM.fit(tiny_walks(), balanced=True, fps=15.0, dynamics_noise_floor=1e-2)
+    assert loose.fit_summary["converged"] and loose.fit_summary["dynamics_noise_floor"] == 1e-2
+    assert 1 / loose.alpha[3] >= 1e-2 * (1 - 1e-12) > 50 / model.alpha[3]
+    assert loose.dynamics(loose.X_in)[1].min() >= 1e-2 * (1 - 1e-12)     # σ_X² holds the noise
+
+
 def test_save_load_gives_identical_predictions(model, tmp_path):
     loaded = load_prior(model.save(tmp_path / "bgpdm.npz"))
     assert isinstance(loaded, GPDM) and loaded.kind == "bgpdm" and loaded.fit_summary == model.fit_summary
@@ -395,6 +403,9 @@ def test_bad_input_raises(model):
     D = len(AngleSpace.fit(walks).channels)
     with pytest.raises(PriortrackError, match="latent dimension"):
         GPDM.fit(walks, d=D, fps=15.0)
+    for floor in (0.0, 1.0, float("nan"), "1e-3"):
+        with pytest.raises(PriortrackError, match="dynamics_noise_floor"):
+            GPDM.fit(walks, fps=15.0, dynamics_noise_floor=floor)
     bad = walks[0].channels.copy()
     bad[3, 10] = np.nan
     with pytest.raises(PriortrackError, match="NaN"):

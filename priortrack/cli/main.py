@@ -84,6 +84,8 @@ def _fit(args: argparse.Namespace) -> None:
         options["space"] = args.space
     elif args.kind in ("gpdm", "bgpdm"):
         options.update(d=args.d, seed=args.seed)
+        if args.dynamics_noise_floor is not None:
+            options["dynamics_noise_floor"] = args.dynamics_noise_floor
     else:
         options.update(max_components=args.components, seed=args.seed)
     progress = _Progress(f"fit {args.kind}")
@@ -283,6 +285,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--fps", type=float, default=30.0, help="the prior's frame rate (default 30)")
     fit.add_argument("--space", choices=["angles", "directions"], default="angles", help="diffusion state space")
     fit.add_argument("--d", type=int, default=3, help="GPDM latent dimension")
+    fit.add_argument("--dynamics-noise-floor", type=float,
+                     help="GPDM: lower bound on the dynamics noise variance 1/alpha4 (default 1e-4)")
     fit.add_argument("--components", type=int, default=30, help="Lie prior: initial mixture components")
     fit.add_argument("--seed", type=int, default=0)
     fit.set_defaults(run=_fit)

@@ -34,7 +34,7 @@ solved here is bounded:
 - every log hyperparameter lies in [ln 10⁻⁶, ln 10⁶] (as Wang's reference code clamps them), and:
   1/β3 ≥ 10⁻⁴ β1 (reconstruction noise at least 10⁻⁴ of the W-scaled data variance);
   1/α4 ≥ 10⁻⁴ (dynamics noise std at least 1 % of the unit latent std, ~3 % of a 30-fps latent
-  step); α2, β2 ≥ 10⁻² (RBF length scales at most 10 latent std: beyond the latent extent an RBF
+  step; ``GPDM.fit(dynamics_noise_floor=…)`` sets another floor); α2, β2 ≥ 10⁻² (RBF length scales at most 10 latent std: beyond the latent extent an RBF
   is a polynomial and only drifts).
 
 L is continuous on that compact set, so a minimum exists. The balanced fit ends with the dynamics
@@ -65,6 +65,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
+from numbers import Real
 
 import numpy as np
 import torch
@@ -246,9 +247,11 @@ def _single_blas_thread():
 
 
 def _optimise(Y: torch.Tensor, lengths: Sequence[int], X0: torch.Tensor, balanced: bool,
-              progress: Callable[[int, float], None] | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+              progress: Callable[[int, float], None] | None,
+              noise_floor_x: float = NOISE_FLOOR_X) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
     """Minimise L over (X, ln α, ln β2, ln β3) with L-BFGS-B (module docstring: bounds, whitened
-    latents, tolerances). Returns X (N, d), ln α (4,), ln β (3,) and the fit summary."""
+    latents, tolerances; 1/α4 ≥ ``noise_floor_x``). Returns X (N, d), ln α (4,), ln β (3,) and the
+    fit summary."""
     N, d = X0.shape
     log_bound = math.log(HYPER_BOUND)
     log_beta1 = torch.tensor([math.log(BETA1)], dtype=torch.float64)
@@ -267,10 +270,12 @@ def _optimise(Y: torch.Tensor, lengths: Sequence[int], X0: torch.Tensor, balance
         (grad,) = torch.autograd.grad(L, p)
         return L.item(), grad.numpy()
 
-    p0 = np.concatenate([X0.reshape(-1).numpy(), np.log(ALPHA_INIT), np.log(BETA_INIT[1:])])
+    log_alpha0 = np.log(ALPHA_INIT)
+    log_alpha0[3] = min(log_alpha0[3], -math.log(noise_floor_x))             # the start inside the bound
+    p0 = np.concatenate([X0.reshape(-1).numpy(), log_alpha0, np.log(BETA_INIT[1:])])
     log_width = math.log(INV_WIDTH_MIN)
     bounds = ([(None, None)] * (N * d) + [(-log_bound, log_bound), (log_width, log_bound), (-log_bound, log_bound),
-                                          (-log_bound, -math.log(NOISE_FLOOR_X))]
+                                          (-log_bound, -math.log(noise_floor_x))]
               + [(log_width, log_bound), (-log_bound, -math.log(NOISE_FLOOR_Y * BETA1))])
     counter = itertools.count(1)
 
@@ -369,12 +374,16 @@ class GPDM(TransitionModel):
     # ---- learning --------------------------------------------------------------------------
     @classmethod
     def fit(cls, motions: Sequence[Motion], balanced: bool = True, d: int = 3, fps: float = DEFAULT_FPS,
-            seed: int = 0, progress: Callable[[int, float], None] | None = None) -> GPDM:
+            seed: int = 0, dynamics_noise_floor: float = NOISE_FLOOR_X,
+            progress: Callable[[int, float], None] | None = None) -> GPDM:
         """Learn a GPDM (``balanced=False``) or B-GPDM from training motions (one sequence each).
 
         Motions are resampled to ``fps``; X starts at the whitened PCA of Y (unit variance per
         latent dimension) plus N(0, 10⁻⁶) noise drawn with ``seed`` (so that repeated frames get
         distinct latents); ``progress(iteration, L)`` is called after every L-BFGS-B iteration.
+        ``dynamics_noise_floor`` is the lower bound on the dynamics noise 1/α4 (module docstring),
+        in (10⁻⁶, 1): the fits end on it, so it sets how sure the learned dynamics are of the next
+        latent position (recorded in ``fit_summary``).
         """
         start = time.perf_counter()
         motions = prepare_motions(motions, fps, min_frames=3)
@@ -386,14 +395,16 @@ class GPDM(TransitionModel):
             raise PriortrackError(f"a GPDM needs at least {MIN_FRAMES} training frames; got {N} at {fps:g} fps")
         if not isinstance(d, int | np.integer) or not 1 <= d < D:
             raise PriortrackError(f"latent dimension d must be an integer in [1, {D}) for {D} pose channels; got {d!r}")
+        if not isinstance(dynamics_noise_floor, Real) or not 1 / HYPER_BOUND < dynamics_noise_floor < 1:
+            raise PriortrackError(f"dynamics_noise_floor must lie in ({1 / HYPER_BOUND:g}, 1); got {dynamics_noise_floor!r}")
         mean_pose = Y.mean(0)
         Y = Y - mean_pose
         U, _, _ = torch.linalg.svd(Y, full_matrices=False)
         generator = torch.Generator().manual_seed(int(seed))
         X0 = math.sqrt(N) * U[:, :d] + INIT_JITTER * torch.randn(N, d, generator=generator, dtype=torch.float64)
         lengths = [len(s) for s in sequences]
-        X, log_alpha, log_beta, summary = _optimise(Y, lengths, X0, balanced, progress)
-        summary["seconds"] = time.perf_counter() - start
+        X, log_alpha, log_beta, summary = _optimise(Y, lengths, X0, balanced, progress, float(dynamics_noise_floor))
+        summary.update(dynamics_noise_floor=float(dynamics_noise_floor), seconds=time.perf_counter() - start)
         log.info("%s fit: N=%d D=%d d=%d, %d iterations, L=%.6g, converged=%s (%s), %.1f s",
                  "bgpdm" if balanced else "gpdm", N, D, d, summary["iterations"], summary["objective"],
                  summary["converged"], summary["message"], summary["seconds"])
