@@ -69,6 +69,9 @@ Checked, all on this protocol:
   fitted model and the MAP path, 200 L-BFGS-B iterations; a scratch prototype, not kept):
   B-GPDM 35_29 5.62 (window and model refitted) and 07_11 8.32 (window latents only) against
   5.98 / 9.40 here and KNN-15's 4.36 / 5.51. Better, but far from KNN-15.
+- the dynamics noise floor (``GPDM.fit(dynamics_noise_floor=…)``, 10⁻⁴ here), raised as for the
+  ``map-gpdm`` tracker: B-GPDM 7.92 at 10⁻³ (35_29 4.76, 07_11 12.12) and 8.25 at 10⁻², GPDM
+  9.96 / 9.62; no help.
 - dynamics: the model's are first order; a second-order GPDM (as some of the PAMI paper's
   walking models) needs another state and kernel in the model and was not tried.
 - training data: with the first 3 subject-35 walks (538 frames, ~1.5× the run time) the B-GPDM
