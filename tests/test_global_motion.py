@@ -67,9 +67,10 @@ def test_float32_draw_by_the_fused_kernel_matches_float64(translation):
     """float32 GlobalMotion.sample on the CPU is one fused kernel (priortrack.priors.global_motion_kernel)
     fed the same normal variates as the torch path (a reverting tilt): rotations of every size (zero, below the Taylor
     switch, up to 2.5 rad), the kernel's draw within 2e-5 of the float64 one and no further than twice
-    the torch float32 path's own error; with translation=False, t_t = 2 t_{t-1} − t_{t-2} exactly."""
+    the torch float32 path's own error; with translation=False, t_t = t_{t-1} + v (t_{t-1} − t_{t-2})
+    exactly (the height's velocity damped)."""
     model = GlobalMotion(torch.tensor([0.01, 0.02, 0.015, 0.05, 0.1, 0.08]), tilt_mean=[0.05, -0.1],
-                         tilt_decay=[0.9, 0.7])
+                         tilt_decay=[0.9, 0.7], height_decay=0.6)
     rotations = torch.cat([_rotvecs(400, 7, max_angle=2.5), 1e-5 * _rotvecs(100, 8), torch.zeros(100, 3)])
     g1 = torch.cat([torch.randn(600, 3, dtype=torch.float64), rotations], dim=1)
     g2 = g1 + 0.05 * torch.randn(600, 6, dtype=torch.float64)
@@ -80,7 +81,8 @@ def test_float32_draw_by_the_fused_kernel_matches_float64(translation):
     error, error32 = ((draw[k].detach().double() - draw["exact"]).abs().max().item() for k in ("fused", "torch32"))
     assert error < 2e-5 and error <= 2 * error32 + 1e-6, (error, error32)
     if not translation:
-        torch.testing.assert_close(draw["exact"][:, :3], 2 * g1[:, :3] - g2[:, :3], rtol=0, atol=1e-15)
+        v = torch.tensor([1.0, 0.6, 1.0], dtype=torch.float64)
+        torch.testing.assert_close(draw["exact"][:, :3], g1[:, :3] + v * (g1[:, :3] - g2[:, :3]), rtol=0, atol=1e-15)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
@@ -143,16 +145,18 @@ def _placements(t, psi, tau):
 
 
 def test_position_and_heading_are_second_order_and_the_tilt_reverts():
-    """t and ψ continue at constant velocity (ψ across ±π too); the tilt steps to μ + a (τ_{t-1} − μ)."""
+    """t on the ground plane and ψ continue at constant velocity (ψ across ±π too), the height's
+    velocity is damped by b; the tilt steps to μ + a (τ_{t-1} − μ)."""
     f64 = dict(dtype=torch.float64)
     k = torch.arange(3, **f64)[:, None]
-    t = torch.tensor([1.0, 0.9, -2.0], **f64) + k * torch.tensor([0.04, 0.0, 0.01], **f64)       # (3 frames, 3)
+    t = torch.tensor([1.0, 0.9, -2.0], **f64) + k * torch.tensor([0.04, 0.02, 0.01], **f64)      # (3 frames, 3)
     psi = torch.tensor([3.1, 3.1, -0.2], **f64) + k * torch.tensor([0.03, -0.05, 0.1], **f64)    # (3 frames, 3 rows)
     tau = torch.tensor([[0.05, -0.02], [0.1, 0.07], [-0.3, 0.0]], **f64)
-    model = GlobalMotion(torch.full((6,), 0.01), tilt_mean=[0.02, -0.01], tilt_decay=[0.9, 0.5])
+    model = GlobalMotion(torch.full((6,), 0.01), tilt_mean=[0.02, -0.01], tilt_decay=[0.9, 0.5], height_decay=0.5)
     g = [_placements(t[i].expand(3, 3), psi[i], tau) for i in range(3)]
     mean, decay = model.tilt_mean, model.tilt_decay
-    expected = _placements(t[2].expand(3, 3), psi[2], mean + decay * (tau - mean))
+    t_next = t[2] - torch.tensor([0.0, 0.01, 0.0], **f64)                 # the height rises 0.02 → 0.01 a frame
+    expected = _placements(t_next.expand(3, 3), psi[2], mean + decay * (tau - mean))
     torch.testing.assert_close(model.predict(g[1], g[0]), expected, rtol=0, atol=1e-12)
     torch.testing.assert_close(model.residual(expected, g[1], g[0]), torch.zeros(3, 6, **f64), rtol=0, atol=1e-12)
 
@@ -161,7 +165,7 @@ def test_fit_recovers_a_known_process_and_its_draws_have_the_model_moments():
     """On placements simulated from known (σ, μ, a), the fit recovers them; the rollouts' tilt has
     the AR(1) stationary law N(μ, σ_τ²/(1 − a²))."""
     truth = GlobalMotion(torch.tensor([0.003, 0.002, 0.004, 0.01, 0.02, 0.015]),
-                         tilt_mean=[0.05, -0.03], tilt_decay=[0.9, 0.8])
+                         tilt_mean=[0.05, -0.03], tilt_decay=[0.9, 0.8], height_decay=0.7)
     gen = torch.Generator().manual_seed(1)
     g = torch.zeros(400, 16, 6, dtype=torch.float64)                               # 400 frames of 16 sequences
     g[1] = g[0] = _placements(torch.zeros(16, 3, dtype=torch.float64), torch.zeros(16, dtype=torch.float64),
@@ -172,6 +176,7 @@ def test_fit_recovers_a_known_process_and_its_draws_have_the_model_moments():
     torch.testing.assert_close(fitted.sigma, truth.sigma, rtol=0.03, atol=0)
     torch.testing.assert_close(fitted.tilt_decay, truth.tilt_decay, rtol=0, atol=0.03)
     torch.testing.assert_close(fitted.tilt_mean, truth.tilt_mean, rtol=0, atol=0.01)
+    torch.testing.assert_close(fitted.velocity, truth.velocity, rtol=0, atol=0.03)
     tau = so3.heading_tilt(so3.quaternion(g[100:, :, 3:].reshape(-1, 3)))[1]
     stationary = truth.sigma[3::2] / (1 - truth.tilt_decay ** 2).sqrt()
     torch.testing.assert_close(tau.mean(0), truth.tilt_mean, rtol=0, atol=0.01)
@@ -186,10 +191,12 @@ def test_fit_is_the_ml_estimate_on_a_real_walk():
     model = GlobalMotion.fit([g])
     r = model.residual(g[2:], g[1:-1], g[:-2])
     torch.testing.assert_close(model.sigma, r.pow(2).mean(0).sqrt())
-    assert torch.all(model.tilt_decay < 1)
-    worse = [GlobalMotion(model.sigma * 3, model.tilt_mean, model.tilt_decay),
-             GlobalMotion(model.sigma, model.tilt_mean, torch.ones(2)),
-             GlobalMotion(model.sigma, model.tilt_mean + 0.05, model.tilt_decay)]
+    assert torch.all(model.tilt_decay < 1) and 0.3 < model.velocity[1] < 0.95      # the pelvis's bob: b ≈ 0.7
+    b = float(model.velocity[1])
+    worse = [GlobalMotion(model.sigma * 3, model.tilt_mean, model.tilt_decay, b),
+             GlobalMotion(model.sigma, model.tilt_mean, torch.ones(2), b),
+             GlobalMotion(model.sigma, model.tilt_mean + 0.05, model.tilt_decay, b),
+             GlobalMotion(model.sigma, model.tilt_mean, model.tilt_decay, 1.0)]
     best = model.log_prob(g[2:], g[1:-1], g[:-2]).mean()
     assert all(best > m.log_prob(g[2:], g[1:-1], g[:-2]).mean() for m in worse)
     n = 20000
@@ -236,6 +243,8 @@ def test_bad_input():
         GlobalMotion.fit([torch.full((5, 6), float("nan"))])
     with pytest.raises(PriortrackError, match=r"tilt_decay must be 2 values in \[0, 1\], got \[1.5, 0.5\]"):
         GlobalMotion(torch.ones(6), tilt_decay=[1.5, 0.5])
+    with pytest.raises(PriortrackError, match=r"height_decay must lie in \[0, 1\]"):
+        GlobalMotion(torch.ones(6), height_decay=1.2)
     with pytest.raises(PriortrackError, match="tilt_mean must be 2 finite"):
         GlobalMotion(torch.ones(6), tilt_mean=[0.0, 0.0, 0.0])
     with pytest.raises(PriortrackError, match="rotation vector"):

@@ -73,9 +73,10 @@ def test_kernel_matches_the_torch_path(scene, dtype):
     camera, joints64, z64, C64 = scene
     joints, z, C = joints64.to(dtype), z64.to(dtype), C64.to(dtype)
     likelihood = JointLikelihood(camera)
-    fused = kalman_update(joints, C, SIGMA, z, likelihood)
-    reference = [x.detach() for x in kalman_update(joints.clone().requires_grad_(True), C, SIGMA, z, likelihood)]
-    exact = kalman_update(joints64, C64, SIGMA, z64, likelihood)
+    v = torch.tensor([1.0, 0.7, 1.0])
+    fused = kalman_update(joints, C, SIGMA, z, likelihood, v)
+    reference = [x.detach() for x in kalman_update(joints.clone().requires_grad_(True), C, SIGMA, z, likelihood, v)]
+    exact = kalman_update(joints64, C64, SIGMA, z64, likelihood, v)
     for a, b, c in zip(fused, reference, exact):
         assert a.dtype == b.dtype == dtype
         if dtype == torch.float64:
@@ -126,6 +127,9 @@ def test_covariance_prediction_is_F_C_Ft_plus_Q():
     F[:3, :3], F[:3, 3:], F[3:, :3] = 2 * torch.eye(3), -torch.eye(3), torch.eye(3)
     Q = torch.diag(torch.cat([SIGMA ** 2, torch.zeros(3, dtype=torch.float64)]))
     torch.testing.assert_close(predict_covariance(C, SIGMA), F @ C @ F.T + Q)
+    v = torch.tensor([1.0, 0.7, 1.0], dtype=torch.float64)                  # the height's velocity damped
+    F[:3, :3], F[:3, 3:] = torch.eye(3) + torch.diag(v), -torch.diag(v)
+    torch.testing.assert_close(predict_covariance(C, SIGMA, v), F @ C @ F.T + Q)
 
 
 def _walk_filter(translation: str, seed: int, frames: int = 60, scenario: str = "clean"):
@@ -182,7 +186,8 @@ def test_unobserved_frames_predict_the_covariance_and_resampling_carries_it(monk
     before = pf.covariance.clone()
     snap = pf.step(np.full((15, 2), np.nan))
     assert "no-observation" in snap.flags
-    torch.testing.assert_close(pf.covariance, predict_covariance(before, pf.model.global_motion.sigma[:3]))
+    motion = pf.model.global_motion
+    torch.testing.assert_close(pf.covariance, predict_covariance(before, motion.sigma[:3], motion.velocity))
     # A step that resamples: each particle's covariance goes with it.
     updated = {}
 

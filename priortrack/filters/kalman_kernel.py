@@ -23,29 +23,30 @@ import numpy as np
 
 
 @numba.njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
-def update(joints, z, Pm, p, inv_var, min_depth, miss_sq, C_prev, sigma_sq, shift, C_out, correction, d_sq):
+def update(joints, z, Pm, p, inv_var, min_depth, miss_sq, C_prev, sigma_sq, velocity, shift, C_out, correction, d_sq):
     """Kalman prediction and update of every particle.
 
     joints (P, n, 3) observed joints at t̂; z (n, 2) their pixels; Pm (3, 3), p (3,) the camera's
-    K R and K t; C_prev (P, 6, 6) the previous frame's covariance and sigma_sq (3,) σ_t². Writes
+    K R and K t; C_prev (P, 6, 6) the previous frame's covariance, sigma_sq (3,) σ_t² and velocity (3,)
+    the velocity's decay v (F's V = diag v). Writes
     shift (P, 6), C_out (P, 6, 6) and correction (P,). Joints with depth ≤ min_depth are left
     out. Everything is computed in the arrays' dtype, in scalars (the 3 × 3 algebra written out).
     """
     n_particles, n = joints.shape[0], joints.shape[1]
-    zero, one, two, half = C_prev.dtype.type(0.0), C_prev.dtype.type(1.0), C_prev.dtype.type(2.0), C_prev.dtype.type(0.5)
+    zero, one, half = C_prev.dtype.type(0.0), C_prev.dtype.type(1.0), C_prev.dtype.type(0.5)
     w = C_prev.dtype.type(inv_var)
     K = np.empty((6, 3), dtype=C_prev.dtype)
     FC = np.empty((6, 6), dtype=C_prev.dtype)
     C = np.empty((6, 6), dtype=C_prev.dtype)
     for i in range(n_particles):
-        # C⁻ = F C Fᵀ + Q, F = [[2I, −I], [I, 0]]
+        # C⁻ = F C Fᵀ + Q, F = [[I + V, −V], [I, 0]]
         for r in range(3):
             for c in range(6):
-                FC[r, c] = two * C_prev[i, r, c] - C_prev[i, r + 3, c]
+                FC[r, c] = C_prev[i, r, c] + velocity[r] * (C_prev[i, r, c] - C_prev[i, r + 3, c])
                 FC[r + 3, c] = C_prev[i, r, c]
         for r in range(6):
             for c in range(3):
-                C[r, c] = two * FC[r, c] - FC[r, c + 3]
+                C[r, c] = FC[r, c] + velocity[c] * (FC[r, c] - FC[r, c + 3])
                 C[r, c + 3] = FC[r, c]
         for r in range(3):
             C[r, r] += sigma_sq[r]

@@ -9,9 +9,10 @@ depth velocity drifts as a random walk, by tens of centimetres a second. Integra
 every frame's weak depth evidence accumulate in each particle's Gaussian instead.
 
 Per particle, τ = (t_t, t_{t−1}) ∈ R⁶ has mean μ (the translations held in the particle's
-state) and covariance C (6 × 6). The second-order model is linear:
+state) and covariance C (6 × 6). The second-order model (t_t = t_{t−1} + V (t_{t−1} − t_{t−2}) + ε,
+V = diag v the velocity's decay, :class:`~priortrack.priors.global_motion.GlobalMotion`) is linear:
 
-    predict   μ⁻ = F μ,  C⁻ = F C Fᵀ + Q,   F = [[2I, −I], [I, 0]],  Q = diag(σ_t², 0).
+    predict   μ⁻ = F μ,  C⁻ = F C Fᵀ + Q,   F = [[I + V, −V], [I, 0]],  Q = diag(σ_t², 0).
 
 Given the particle's pose and rotation (drawn from the prior), the world joints X_j(t) = R B_j + t
 are linear in t. Linearised at the predicted t̂ = μ⁻[:3], û_j(t) ≈ û_j + J_j (t − t̂), with
@@ -44,24 +45,28 @@ from priortrack.observation.likelihood import JointLikelihood
 from priortrack.threads import split_rows
 
 
-def predict_covariance(C: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
-    """C⁻ = F C Fᵀ + Q (P, 6, 6) from C (P, 6, 6) and σ_t (3,) (module docstring)."""
+def predict_covariance(C: torch.Tensor, sigma: torch.Tensor, velocity: torch.Tensor | None = None) -> torch.Tensor:
+    """C⁻ = F C Fᵀ + Q (P, 6, 6) from C (P, 6, 6), σ_t (3,) and the velocity's decay v (3,;
+    None: ones, constant velocity) (module docstring)."""
+    v = torch.ones(3, dtype=C.dtype, device=C.device) if velocity is None else velocity.to(C)
     t, t_prev = C[:, :3], C[:, 3:]                                     # rows of τ = (t_t, t_{t-1})
-    rows = torch.cat([2 * t - t_prev, t], dim=1)                      # F C
+    rows = torch.cat([t + v[:, None] * (t - t_prev), t], dim=1)       # F C
     t, t_prev = rows[..., :3], rows[..., 3:]
-    out = torch.cat([2 * t - t_prev, t], dim=2)                       # (F C) Fᵀ
+    out = torch.cat([t + v * (t - t_prev), t], dim=2)                 # (F C) Fᵀ
     out[:, range(3), range(3)] += (sigma ** 2).to(C)
     return out
 
 
 def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z: torch.Tensor,
-                  likelihood: JointLikelihood) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                  likelihood: JointLikelihood,
+                  velocity: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The prediction and update of τ for one observed frame, and the particles' log predictive likelihood.
 
     Args:
         joints: (P, J, 3) world joints placed at the predicted translation t̂ = μ⁻[:3].
         C: (P, 6, 6) the previous frame's covariance of τ (predicted here: C⁻ = F C Fᵀ + Q).
         sigma: (3,) σ_t.
+        velocity: (3,) v, the velocity's decay in F (None: ones, constant velocity).
         z: (J, 2) pixels, NaN where a joint was not seen (at least one seen).
         likelihood: a Gaussian :class:`JointLikelihood` (its camera and σ_e).
 
@@ -86,11 +91,12 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z:
         X, Z, C_prev, Pn, pn = (joints.detach().contiguous().numpy(), z.contiguous().numpy(),
                                 C.detach().contiguous().numpy(), P.numpy(), p.numpy())
         sigma_sq = (sigma ** 2).to(C).numpy()
+        v = (torch.ones(3) if velocity is None else velocity).to(C).numpy()
         out = (shift.numpy(), C_post.numpy(), correction.numpy(), d_sq.numpy())
         split_rows(len(X), lambda r: update(X[r], Z, Pn, pn, inv_var, MIN_DEPTH, likelihood.miss_sq, C_prev[r],
-                                            sigma_sq, *(a[r] for a in out)))
+                                            sigma_sq, v, *(a[r] for a in out)))
         return shift, C_post, likelihood.gaussian(d_sq, len(seen)) + correction
-    C = predict_covariance(C, sigma)
+    C = predict_covariance(C, sigma, velocity)
     uv, J, in_front = likelihood.camera.project_jacobian(joints)                    # (P, n, 2), (P, n, 2, 3)
     d = torch.where(in_front[..., None], z - uv, 0.0)
     d_sq = torch.where(in_front, (d * d).sum(dim=-1), likelihood.miss_sq).sum(dim=-1)

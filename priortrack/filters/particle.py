@@ -155,8 +155,9 @@ class ParticleFilter(SequentialFilter):
         annealed filter weighs several layers and keeps the last one's)."""
         if not self.marginal:
             return self.model.log_likelihood(joints, z), None
-        shift, C_post, log_likelihood = kalman_update(joints, self.covariance, self.model.global_motion.sigma[:3],
-                                                      z, self.model.likelihood)
+        motion = self.model.global_motion
+        shift, C_post, log_likelihood = kalman_update(joints, self.covariance, motion.sigma[:3], z, self.model.likelihood,
+                                                      motion.velocity)
         return log_likelihood, (shift, C_post)
 
     def keep_update(self, pending: tuple | None, joints: torch.Tensor) -> torch.Tensor:
@@ -177,7 +178,8 @@ class ParticleFilter(SequentialFilter):
     def skip_update(self) -> None:
         """A frame without an update: a marginalised translation's covariance is only predicted."""
         if self.marginal:
-            self.covariance = predict_covariance(self.covariance, self.model.global_motion.sigma[:3])
+            motion = self.model.global_motion
+            self.covariance = predict_covariance(self.covariance, motion.sigma[:3], motion.velocity)
 
     def normalised(self, log_weights: torch.Tensor, flags: list[str]) -> torch.Tensor:
         """log w − logsumexp(log w) in float64; uniform (and flagged) if every entry is −inf or NaN."""

@@ -54,7 +54,7 @@ class TrackingModel:
 
     def predict(self, s: torch.Tensor, generator: torch.Generator, translation: bool = True) -> torch.Tensor:
         """One draw of s_t per row of s_{t-1}; with ``translation=False`` the translation is not
-        drawn but predicted, t_t = 2 t_{t-1} − t_{t-2} (for a filter that integrates it out)."""
+        drawn but predicted, t_t = t̂_t (GlobalMotion: for a filter that integrates it out)."""
         x, g, g_prev = self.split(s)
         g_t = self.global_motion.sample(g, g_prev, generator, translation=translation)
         return torch.cat([self.prior.sample(x, generator), g_t, g], -1)

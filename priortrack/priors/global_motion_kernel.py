@@ -2,7 +2,7 @@
 float32 placements.
 
 :meth:`priortrack.priors.global_motion.GlobalMotion.sample` splits each rotation into heading and
-tilt (:func:`priortrack.geometry.so3.heading_tilt`), predicts t̂ = 2 t_1 − t_2, ψ̂ = ψ_1 + wrap(ψ_1 − ψ_2)
+tilt (:func:`priortrack.geometry.so3.heading_tilt`), predicts t̂ = t_1 + v ⊙ (t_1 − t_2), ψ̂ = ψ_1 + wrap(ψ_1 − ψ_2)
 and τ̂ = μ + a (τ_1 − μ), perturbs the three, and joins them back into a rotation vector
 (:func:`~priortrack.geometry.so3.from_heading_tilt`, then the quaternion logarithm). In torch that
 is some forty elementwise passes over 10⁴ rows; here each row is one short loop with the same
@@ -59,14 +59,15 @@ def _heading_tilt(x, y, z):
 
 
 @numba.njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
-def sample(g1, g2, noise, sigma, tilt, out):
+def sample(g1, g2, noise, sigma, tilt, velocity, out):
     """out (P, 6) ← one draw of g_t per row of g_{t-1} = g1, g_{t-2} = g2 (P, 6), from the standard
     normal variates ``noise`` (P, 6) scaled by ``sigma`` (6,) (translation; tilt x, heading, tilt z),
-    with the tilt's mean μ = tilt[0] and decay a = tilt[1] (2, 2), float32."""
+    with the tilt's mean μ = tilt[0] and decay a = tilt[1] (2, 2) and the translation velocity's
+    decay v = ``velocity`` (3,), float32."""
     two_pi, pi = np.float32(2.0 * math.pi), np.float32(math.pi)
     for i in range(g1.shape[0]):
         for a in range(3):
-            out[i, a] = np.float32(2.0) * g1[i, a] - g2[i, a] + noise[i, a] * sigma[a]
+            out[i, a] = g1[i, a] + velocity[a] * (g1[i, a] - g2[i, a]) + noise[i, a] * sigma[a]
         psi1, tx1, tz1 = _heading_tilt(g1[i, 3], g1[i, 4], g1[i, 5])
         psi2, _, _ = _heading_tilt(g2[i, 3], g2[i, 4], g2[i, 5])
         step = psi1 - psi2 + pi
