@@ -18,6 +18,7 @@ from priortrack.priors.global_motion import GlobalMotion
 from linear_gaussian import LinearGaussian
 
 SIGMA = torch.tensor([0.002, 0.003, 0.0025], dtype=torch.float64)
+CONSTANT = torch.ones(3, dtype=torch.float64)                           # v: constant velocity
 
 
 @pytest.fixture(scope="module")
@@ -33,13 +34,13 @@ def scene():
     # A covariance of (t_t, t_{t-1}) from a few steps of the filter's own recursion.
     C = torch.zeros(64, 6, 6, dtype=torch.float64)
     for _ in range(3):
-        C = predict_covariance(C, SIGMA * (1 + torch.rand(64, 1, 1, generator=g, dtype=torch.float64)[:, 0]))
+        C = predict_covariance(C, SIGMA * (1 + torch.rand(64, 1, 1, generator=g, dtype=torch.float64)[:, 0]), CONSTANT)
     return camera, joints, z, C
 
 
 def dense(camera, joints, C, z, sigma_px):
     """The textbook EKF step with the 2n × 2n innovation covariance S = H C⁻ Hᵀ + σ² I, H = [J, 0]."""
-    C = predict_covariance(C, SIGMA)
+    C = predict_covariance(C, SIGMA, CONSTANT)
     seen = torch.isfinite(z).all(-1)
     uv, J, _ = camera.project_jacobian(joints[:, seen])
     r = (z[seen] - uv).reshape(len(joints), -1)                         # (P, 2n)
@@ -57,8 +58,8 @@ def test_update_equals_the_textbook_kalman_step(scene, path):
     """Shift, posterior covariance and predictive likelihood equal the 2n × 2n formulas (float64)."""
     camera, joints, z, C = scene
     likelihood = JointLikelihood(camera, sigma_px=7.0)
-    shift, C_post, log_predictive = kalman_update(joints.clone().requires_grad_(path == "torch"), C, SIGMA, z,
-                                                  likelihood)
+    shift, C_post, log_predictive = kalman_update(joints.clone().requires_grad_(path == "torch"), C, SIGMA, CONSTANT,
+                                                  z, likelihood)
     shift_ref, C_ref, log_predictive_ref = dense(camera, joints, C, z, 7.0)
     torch.testing.assert_close(shift.detach(), shift_ref, rtol=1e-9, atol=1e-12)
     torch.testing.assert_close(C_post.detach(), C_ref, rtol=1e-9, atol=1e-14)
@@ -74,9 +75,9 @@ def test_kernel_matches_the_torch_path(scene, dtype):
     joints, z, C = joints64.to(dtype), z64.to(dtype), C64.to(dtype)
     likelihood = JointLikelihood(camera)
     v = torch.tensor([1.0, 0.7, 1.0])
-    fused = kalman_update(joints, C, SIGMA, z, likelihood, v)
-    reference = [x.detach() for x in kalman_update(joints.clone().requires_grad_(True), C, SIGMA, z, likelihood, v)]
-    exact = kalman_update(joints64, C64, SIGMA, z64, likelihood, v)
+    fused = kalman_update(joints, C, SIGMA, v, z, likelihood)
+    reference = [x.detach() for x in kalman_update(joints.clone().requires_grad_(True), C, SIGMA, v, z, likelihood)]
+    exact = kalman_update(joints64, C64, SIGMA, v, z64, likelihood)
     for a, b, c in zip(fused, reference, exact):
         assert a.dtype == b.dtype == dtype
         if dtype == torch.float64:
@@ -97,8 +98,8 @@ def test_joints_behind_the_camera_and_missing_ones_do_not_inform(scene):
     only_rest[0] = float("nan")
     miss = likelihood.gaussian(torch.tensor(likelihood.miss_sq, dtype=torch.float64), 1)
     for path_grad in (False, True):
-        a = kalman_update(behind.clone().requires_grad_(path_grad), C, SIGMA, z, likelihood)
-        b = kalman_update(behind.clone().requires_grad_(path_grad), C, SIGMA, only_rest, likelihood)
+        a = kalman_update(behind.clone().requires_grad_(path_grad), C, SIGMA, CONSTANT, z, likelihood)
+        b = kalman_update(behind.clone().requires_grad_(path_grad), C, SIGMA, CONSTANT, only_rest, likelihood)
         torch.testing.assert_close(a[0].detach(), b[0].detach())
         torch.testing.assert_close(a[1].detach(), b[1].detach())
         torch.testing.assert_close(a[2].detach(), b[2].detach() + miss)
@@ -126,7 +127,7 @@ def test_covariance_prediction_is_F_C_Ft_plus_Q():
     F = torch.zeros(6, 6, dtype=torch.float64)
     F[:3, :3], F[:3, 3:], F[3:, :3] = 2 * torch.eye(3), -torch.eye(3), torch.eye(3)
     Q = torch.diag(torch.cat([SIGMA ** 2, torch.zeros(3, dtype=torch.float64)]))
-    torch.testing.assert_close(predict_covariance(C, SIGMA), F @ C @ F.T + Q)
+    torch.testing.assert_close(predict_covariance(C, SIGMA, CONSTANT), F @ C @ F.T + Q)
     v = torch.tensor([1.0, 0.7, 1.0], dtype=torch.float64)                  # the height's velocity damped
     F[:3, :3], F[:3, 3:] = torch.eye(3) + torch.diag(v), -torch.diag(v)
     torch.testing.assert_close(predict_covariance(C, SIGMA, v), F @ C @ F.T + Q)
@@ -214,8 +215,8 @@ def test_mismatched_shapes_are_named_before_either_path(scene, grad):
     camera, joints, z, C = scene
     likelihood = JointLikelihood(camera)
     joints = joints.clone().requires_grad_(grad)
-    for args in [(joints, C[:10], SIGMA, z), (joints[:, :14], C, SIGMA, z), (joints[..., :2], C, SIGMA, z),
-                 (joints, C, SIGMA, z[:, :1])]:
+    for args in [(joints, C[:10], SIGMA, CONSTANT, z), (joints[:, :14], C, SIGMA, CONSTANT, z),
+                 (joints[..., :2], C, SIGMA, CONSTANT, z), (joints, C, SIGMA, CONSTANT, z[:, :1])]:
         with pytest.raises(PriortrackError, match=r"expected \(P, J, 3\), \(P, 6, 6\) and \(J, 2\)"):
             kalman_update(*args, likelihood)
 

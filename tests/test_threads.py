@@ -43,13 +43,13 @@ def test_kernels_split_among_threads_equal_one_call():
     placement = (0.3 * torch.randn(n, 6, generator=g)).float()
     camera = default_camera(walks[0].positions("eval15"))
     z, _ = camera.project(torch.as_tensor(walks[0].positions("eval15")[2]))
-    C = predict_covariance(torch.zeros(n, 6, 6), torch.full((3,), 0.003))
+    C = predict_covariance(torch.zeros(n, 6, 6), torch.full((3,), 0.003), torch.ones(3))
     sigma = torch.full((3,), 0.0025)
     results = []
     for threads in (1, 2):
         with torch_threads(threads):
             joints = prior.space.joints(x)
             world = to_world(joints, placement)
-            results.append((joints, world, *kalman_update(world, C, sigma, z.float(), JointLikelihood(camera))))
+            results.append((joints, world, *kalman_update(world, C, sigma, torch.ones(3), z.float(), JointLikelihood(camera))))
     for one, split in zip(*results):
         assert torch.equal(one, split)

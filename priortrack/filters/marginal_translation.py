@@ -45,10 +45,10 @@ from priortrack.observation.likelihood import JointLikelihood
 from priortrack.threads import split_rows
 
 
-def predict_covariance(C: torch.Tensor, sigma: torch.Tensor, velocity: torch.Tensor | None = None) -> torch.Tensor:
-    """C⁻ = F C Fᵀ + Q (P, 6, 6) from C (P, 6, 6), σ_t (3,) and the velocity's decay v (3,;
-    None: ones, constant velocity) (module docstring)."""
-    v = torch.ones(3, dtype=C.dtype, device=C.device) if velocity is None else velocity.to(C)
+def predict_covariance(C: torch.Tensor, sigma: torch.Tensor, velocity: torch.Tensor) -> torch.Tensor:
+    """C⁻ = F C Fᵀ + Q (P, 6, 6) from C (P, 6, 6), σ_t (3,) and the velocity's decay v (3,; ones:
+    constant velocity) (module docstring)."""
+    v = velocity.to(C)
     t, t_prev = C[:, :3], C[:, 3:]                                     # rows of τ = (t_t, t_{t-1})
     rows = torch.cat([t + v[:, None] * (t - t_prev), t], dim=1)       # F C
     t, t_prev = rows[..., :3], rows[..., 3:]
@@ -57,16 +57,15 @@ def predict_covariance(C: torch.Tensor, sigma: torch.Tensor, velocity: torch.Ten
     return out
 
 
-def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z: torch.Tensor,
-                  likelihood: JointLikelihood,
-                  velocity: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, velocity: torch.Tensor, z: torch.Tensor,
+                  likelihood: JointLikelihood) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The prediction and update of τ for one observed frame, and the particles' log predictive likelihood.
 
     Args:
         joints: (P, J, 3) world joints placed at the predicted translation t̂ = μ⁻[:3].
         C: (P, 6, 6) the previous frame's covariance of τ (predicted here: C⁻ = F C Fᵀ + Q).
         sigma: (3,) σ_t.
-        velocity: (3,) v, the velocity's decay in F (None: ones, constant velocity).
+        velocity: (3,) v, the velocity's decay in F (ones: constant velocity).
         z: (J, 2) pixels, NaN where a joint was not seen (at least one seen).
         likelihood: a Gaussian :class:`JointLikelihood` (its camera and σ_e).
 
@@ -91,7 +90,7 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, z:
         X, Z, C_prev, Pn, pn = (joints.detach().contiguous().numpy(), z.contiguous().numpy(),
                                 C.detach().contiguous().numpy(), P.numpy(), p.numpy())
         sigma_sq = (sigma ** 2).to(C).numpy()
-        v = (torch.ones(3) if velocity is None else velocity).to(C).numpy()
+        v = velocity.to(C).numpy()
         out = (shift.numpy(), C_post.numpy(), correction.numpy(), d_sq.numpy())
         split_rows(len(X), lambda r: update(X[r], Z, Pn, pn, inv_var, MIN_DEPTH, likelihood.miss_sq, C_prev[r],
                                             sigma_sq, v, *(a[r] for a in out)))

@@ -156,8 +156,8 @@ class ParticleFilter(SequentialFilter):
         if not self.marginal:
             return self.model.log_likelihood(joints, z), None
         motion = self.model.global_motion
-        shift, C_post, log_likelihood = kalman_update(joints, self.covariance, motion.sigma[:3], z, self.model.likelihood,
-                                                      motion.velocity)
+        shift, C_post, log_likelihood = kalman_update(joints, self.covariance, motion.sigma[:3], motion.velocity, z,
+                                                      self.model.likelihood)
         return log_likelihood, (shift, C_post)
 
     def keep_update(self, pending: tuple | None, joints: torch.Tensor) -> torch.Tensor:
