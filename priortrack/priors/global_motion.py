@@ -16,9 +16,9 @@ a level height, its vertical velocity mean free); the tilt is first order and me
 with σ_t, σ_ψ, σ_τ, the tilt's mean μ and decay a ∈ [0, 1] and the height's velocity decay
 b ∈ [0, 1] fitted by maximum likelihood to training placements. Why the height's velocity decays:
 constant velocity extrapolates the pelvis's bob, so through a blackout of 1.1 s the body sank
-300–430 mm below the floor (map-gpdm and pf-gpdm on 07_10 and 07_11); walks give b ≈ 0.74. Why the tilt is not second order: an upright body's lean is stationary
-(within a few degrees on walks), and a constant-velocity model lets its angular velocity random
-walk. Seen by one camera, a lean towards or away from it is nearly invisible (the translation's
+300–430 mm below the floor (map-gpdm and pf-gpdm on 07_10 and 07_11); walks give b ≈ 0.74.
+Why the tilt is not second order: an upright body's lean is stationary (within a few degrees on
+walks), and a constant-velocity model lets its angular velocity random walk. Seen by one camera, a lean towards or away from it is nearly invisible (the translation's
 depth makes up for the foreshortening), so a particle filter with the Lie prior drifted into
 leans of 15–25° and placed the body 5 % too near (07_11, occlusion, 4 seeds: world MPJPE
 225 → 143 mm, root-relative 153 → 73 mm with this model).
@@ -108,11 +108,10 @@ class GlobalMotion:
         g, g1, g2 = (torch.cat(x).to(torch.float64) for x in (g, g1, g2))
         tau, tau1 = _split(g)[2], _split(g1)[2]
         d, d1 = tau - tau.mean(0), tau1 - tau1.mean(0)
-        decay = torch.clamp((d * d1).sum(0) / torch.clamp((d1 * d1).sum(0), min=1e-30), 0.0, 1.0)
+        decay = _lag_one(d, d1)
         intercept = tau.mean(0) - decay * tau1.mean(0)
         mean = torch.where(decay < 1 - 1e-9, intercept / torch.clamp(1 - decay, min=1e-9), tau.mean(0))
-        dy, dy1 = g[:, 1] - g1[:, 1], g1[:, 1] - g2[:, 1]
-        height = float(torch.clamp((dy * dy1).sum() / torch.clamp((dy1 * dy1).sum(), min=1e-30), 0.0, 1.0))
+        height = float(_lag_one(g[:, 1] - g1[:, 1], g1[:, 1] - g2[:, 1]))                 # Δy_t on Δy_{t-1}
         sigma = cls(torch.ones(6), mean, decay, height).residual(g, g1, g2).pow(2).mean(dim=0).sqrt()   # σ not in it
         return cls(torch.clamp(sigma, min=SIGMA_FLOOR), mean, decay, height)
 
@@ -184,6 +183,12 @@ class GlobalMotion:
         M = so3.exp(psi[:, None] * e_y) @ so3.left_jacobian(tilt)
         M[:, :, 1] = e_y
         return M @ torch.diag_embed(self.sigma[3:].to(g) ** 2) @ M.transpose(-1, -2)
+
+
+def _lag_one(x: torch.Tensor, x_prev: torch.Tensor) -> torch.Tensor:
+    """The least-squares coefficient of x ≈ c x_prev through the origin, per column of (N, ...)
+    series, clamped to [0, 1]: Σ x x_prev / Σ x_prev²."""
+    return torch.clamp((x * x_prev).sum(0) / torch.clamp((x_prev * x_prev).sum(0), min=1e-30), 0.0, 1.0)
 
 
 def _split(g: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

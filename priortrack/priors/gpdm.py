@@ -34,8 +34,8 @@ solved here is bounded:
 - every log hyperparameter lies in [ln 10⁻⁶, ln 10⁶] (as Wang's reference code clamps them), and:
   1/β3 ≥ 10⁻⁴ β1 (reconstruction noise at least 10⁻⁴ of the W-scaled data variance);
   1/α4 ≥ 10⁻⁴ (dynamics noise std at least 1 % of the unit latent std, ~3 % of a 30-fps latent
-  step; ``GPDM.fit(dynamics_noise_floor=…)`` sets another floor); α2, β2 ≥ 10⁻² (RBF length scales at most 10 latent std: beyond the latent extent an RBF
-  is a polynomial and only drifts).
+  step; ``GPDM.fit(dynamics_noise_floor=…)`` sets another floor); α2, β2 ≥ 10⁻² (RBF length
+  scales at most 10 latent std: beyond the latent extent an RBF is a polynomial and only drifts).
 
 L is continuous on that compact set, so a minimum exists. The balanced fit ends with the dynamics
 noise on its floor (an active bound, the only one it needs) and a smooth closed latent cycle for
