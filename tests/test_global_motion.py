@@ -235,8 +235,14 @@ def test_world_joints_from_body_joints_and_placement(space_class):
 
 
 def test_bad_input():
-    with pytest.raises(PriortrackError, match="6 positive"):
+    with pytest.raises(PriortrackError, match=r"sigma must be 6 finite value\(s\), got \[1.0, 2.0\]"):
         GlobalMotion([1.0, 2.0])
+    with pytest.raises(PriortrackError, match="sigma must be 6 positive"):
+        GlobalMotion([1.0, 2.0, 0.0, 1.0, 1.0, 1.0])
+    with pytest.raises(PriortrackError, match="height_decay must be numbers, got 'x'"):
+        GlobalMotion(torch.ones(6), height_decay="x")
+    with pytest.raises(PriortrackError, match=r"height_decay must be 1 finite value\(s\), got nan"):
+        GlobalMotion(torch.ones(6), height_decay=float("nan"))
     with pytest.raises(PriortrackError, match=r"T ≥ 3, 6"):
         GlobalMotion.fit([torch.zeros(2, 6)])
     with pytest.raises(PriortrackError, match="NaN or inf"):

@@ -61,6 +61,18 @@ def to_world(body_joints: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     return torch.baddbmm(g[:, None, :3], body_joints, R.transpose(-1, -2))
 
 
+def _parameter(name: str, value, shape: tuple[int, ...]) -> torch.Tensor:
+    """``value`` as a finite float64 tensor of ``shape``, or a ``PriortrackError`` naming ``name``."""
+    try:
+        t = torch.as_tensor(value, dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError):
+        raise PriortrackError(f"global motion {name} must be numbers, got {value!r}") from None
+    if t.shape != shape or not torch.all(torch.isfinite(t)):
+        raise PriortrackError(f"global motion {name} must be {shape[0] if shape else 1} finite value(s), "
+                              f"got {t.tolist()}")
+    return t
+
+
 class GlobalMotion:
     """The placement model above: g_t given g_{t-1}, g_{t-2}.
 
@@ -74,18 +86,17 @@ class GlobalMotion:
     """
 
     def __init__(self, sigma, tilt_mean=(0.0, 0.0), tilt_decay=(1.0, 1.0), height_decay=1.0):
-        self.sigma = torch.as_tensor(sigma, dtype=torch.float64)
-        self.tilt_mean = torch.as_tensor(tilt_mean, dtype=torch.float64)
-        self.tilt_decay = torch.as_tensor(tilt_decay, dtype=torch.float64)
-        if not 0 <= float(height_decay) <= 1:
-            raise PriortrackError(f"global motion height_decay must lie in [0, 1], got {height_decay}")
-        self.velocity = torch.tensor([1.0, float(height_decay), 1.0], dtype=torch.float64)
-        if self.sigma.shape != (6,) or not torch.all(self.sigma > 0):
-            raise PriortrackError(f"global motion sigma must be 6 positive values, got {tuple(self.sigma.shape)}")
-        if self.tilt_mean.shape != (2,) or not torch.all(torch.isfinite(self.tilt_mean)):
-            raise PriortrackError(f"global motion tilt_mean must be 2 finite values, got {tuple(self.tilt_mean.shape)}")
-        if self.tilt_decay.shape != (2,) or not torch.all((self.tilt_decay >= 0) & (self.tilt_decay <= 1)):
+        self.sigma = _parameter("sigma", sigma, (6,))
+        self.tilt_mean = _parameter("tilt_mean", tilt_mean, (2,))
+        self.tilt_decay = _parameter("tilt_decay", tilt_decay, (2,))
+        b = _parameter("height_decay", height_decay, ())
+        if not torch.all(self.sigma > 0):
+            raise PriortrackError(f"global motion sigma must be 6 positive values, got {self.sigma.tolist()}")
+        if not torch.all((self.tilt_decay >= 0) & (self.tilt_decay <= 1)):
             raise PriortrackError(f"global motion tilt_decay must be 2 values in [0, 1], got {self.tilt_decay.tolist()}")
+        if not 0 <= float(b) <= 1:
+            raise PriortrackError(f"global motion height_decay must lie in [0, 1], got {float(b)}")
+        self.velocity = torch.stack([torch.ones((), dtype=torch.float64), b, torch.ones((), dtype=torch.float64)])
 
     @classmethod
     def fit(cls, placements: Sequence[torch.Tensor]) -> GlobalMotion:
