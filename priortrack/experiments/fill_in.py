@@ -67,8 +67,9 @@ Checked, all on this protocol:
   observed frames join the training set, its missing frames' latents are held by the dynamics
   alone, i.e. their rows are marginalised out of the reconstruction GP; warm-started from the
   fitted model and the MAP path, 200 L-BFGS-B iterations; a scratch prototype, not kept):
-  B-GPDM 35_29 5.62 (window and model refitted) and 07_11 8.32 (window latents only) against
-  5.98 / 9.40 here and KNN-15's 4.36 / 5.51. Better, but far from KNN-15.
+  B-GPDM 5.62 / 5.77 / 8.30 with the window and the whole model (W included) refitted per window
+  (07_11 8.32 with the window's latents only), against 5.98 / 6.37 / 9.40 here and KNN-15's
+  4.36 / 4.03 / 5.51: mean 6.56 against 4.63. Better, but far from KNN-15.
 - the dynamics noise floor (``GPDM.fit(dynamics_noise_floor=…)``, 10⁻⁴ here), raised as for the
   ``map-gpdm`` tracker: B-GPDM 7.92 at 10⁻³ (35_29 4.76, 07_11 12.12) and 8.25 at 10⁻², GPDM
   9.96 / 9.62; no help.
@@ -84,6 +85,9 @@ Checked, all on this protocol:
   D/d → 10.5; over all walks D/d is worse than 1 (7.02 vs 6.41).
 - latent dimension: 07_11's floor is 7.0° at d = 3, 5.6° at d = 4, 4.8° at d = 5 (538 frames);
   d = 5 fills 35_29 worse (5.84 vs 3.40) and fits 2.5× slower.
+  Chosen on validation instead (trained on 35_01, 07_01, 07_02; windows of 35_02 and 07_09):
+  B-GPDM 2.89 / 6.43 at d = 3 and 3.17 / 5.87 at d = 4 against KNN-15's 3.74 / 4.61 (floors
+  3.04 / 6.11 and 2.63 / 4.21): neither beats KNN-15, which wins on subject 07 at either d.
 """
 
 from __future__ import annotations
