@@ -7,9 +7,18 @@ import sys
 import numpy as np
 import pytest
 import rerun as rr
+import torch
 
+from priortrack import load_motion
 from priortrack.cli.main import main
 from priortrack.observation import Observations
+
+
+def _points(path, entity, row):
+    """The ``row``-th Points3D positions (N, 3) logged at ``entity`` in the recording at ``path``."""
+    rows = [np.array(p) for chunk in rr.chunk.RrdReader(str(path)).stream().to_chunks() if chunk.entity_path == entity
+            for p in chunk.to_record_batch().column("Points3D:positions").to_pylist()]
+    return rows[row]
 
 
 def _entities(path):
@@ -117,6 +126,17 @@ def test_fit_a_gpdm_with_its_dynamics_noise_floor(tmp_path, capsys):
                  "--out", str(prior)]) == 0
     model = load_prior(prior)
     assert model.fit_summary["dynamics_noise_floor"] == 1e-2 and 1 / model.alpha[3] >= 1e-2 * (1 - 1e-12)
+    # Rollouts from the held-out 35_02: the truth logged beside them is its real pose (its pairwise
+    # joint distances are the mocap's), not μ_Y of its latent, which is off by centimetres.
+    rrd = tmp_path / "rollouts.rrd"
+    assert main(["sample", str(prior), "--from", "walkjog:35_02", "--frame", "4", "--steps", "2", "--n", "2",
+                 "--out", str(rrd)]) == 0
+    truth = np.stack([_points(rrd, "/world/truth", row) for row in range(3)])
+    real = torch.as_tensor(load_motion("walkjog:35_02").resample(10).positions("eval15")[4:7])
+    truth = torch.as_tensor(truth, dtype=torch.float64)
+    np.testing.assert_allclose(torch.cdist(truth, truth), torch.cdist(real, real), atol=1e-5)
+    reconstructed = model.joints(model.encode(load_motion("walkjog:35_02"))[4:7])
+    assert (torch.cdist(reconstructed, reconstructed) - torch.cdist(real, real)).abs().max() > 0.01
     capsys.readouterr()
     assert main(["fit", "bgpdm", "--train", "walkjog:35_01", "--dynamics-noise-floor", "2", "--out", str(prior)]) == 2
     assert "dynamics_noise_floor must lie in" in capsys.readouterr().err

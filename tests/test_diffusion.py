@@ -120,6 +120,15 @@ def test_bad_files(tmp_path, walks):
     np.savez(tmp_path / "v99.npz", **arrays)
     with pytest.raises(PriortrackError, match="version 99"):
         load_prior(tmp_path / "v99.npz")
+    header["version"] = "1"                         # a string is another version, and says so
+    arrays["header"] = np.array(json.dumps(header))
+    np.savez(tmp_path / "v1s.npz", **arrays)
+    with pytest.raises(PriortrackError, match="version '1' is not supported"):
+        load_prior(tmp_path / "v1s.npz")
+    for text, message in (('{"format": "priortrack-prior", ', "header is not JSON"), ("[1, 2]", "header is a list")):
+        np.savez(tmp_path / "badheader.npz", **{**arrays, "header": np.array(text)})
+        with pytest.raises(PriortrackError, match=message):
+            load_prior(tmp_path / "badheader.npz")
     del arrays["sigma"]
     header["version"] = 1
     arrays["header"] = np.array(json.dumps(header))
@@ -136,6 +145,12 @@ def test_bad_training_data_and_states(walks):
         model.sample(torch.zeros(3, 49), torch.Generator())
     with pytest.raises(PriortrackError, match="NaN"):
         model.log_prob(torch.full((2, 50), float("nan")), torch.zeros(2, 50))
+    with pytest.raises(PriortrackError, match="x_next has 4 rows and x 3"):
+        model.log_prob(torch.zeros(4, 50), torch.zeros(3, 50))
+    on_spheres = Diffusion.fit(walks, space="directions")
+    x = on_spheres.encode(walks[0])[:2]
+    with pytest.raises(PriortrackError, match=r"not on the spheres: .* norms in \[2, 2\]"):
+        on_spheres.sample(2 * x, torch.Generator())
     short = walks[0][:1]
     with pytest.raises(PriortrackError, match="frames"):
         prepare_motions([short], 30.0, min_frames=2)

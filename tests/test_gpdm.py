@@ -414,6 +414,8 @@ def test_bad_input_raises(model):
         model.sample(torch.zeros(4, 2, dtype=torch.float64), torch.Generator().manual_seed(0))
     with pytest.raises(PriortrackError, match="shape"):
         model.log_prob(torch.zeros(4, 3), torch.zeros(4, 4))
+    with pytest.raises(PriortrackError, match="x_next has 4 rows and x 3"):
+        model.log_prob(torch.zeros(4, 3), torch.zeros(3, 3))
     with pytest.raises(PriortrackError, match="NaN"):
         model.mean(torch.full((2, 3), float("nan")))
     with pytest.raises(PriortrackError, match="shape"):

@@ -589,6 +589,18 @@ def test_bad_input_raises(walk_split, synthetic):
         prior.sample(torch.zeros(3, 41), g)
     with pytest.raises(PriortrackError, match="shape"):
         prior.log_prob(torch.zeros(3, 42), torch.zeros(3, 3, 14))
+    x = prior.encode(train[0])[:4]
+    with pytest.raises(PriortrackError, match="x_next has 4 rows and x 3"):
+        prior.log_prob(x, x[:3])
+    # Off the spheres: zeros (whose log map is NaN) and scaled directions (5× skeletons) are refused.
+    for off, norms in ((torch.zeros(2, 42), r"\[0, 0\]"), (5 * x[:2], r"\[5, 5\]"), (1.01 * x[:2], r"\[1.01, 1.01\]")):
+        with pytest.raises(PriortrackError, match=rf"state is not on the spheres: .* norms in {norms}"):
+            prior.sample(off, g)
+        with pytest.raises(PriortrackError, match="x_next is not on the spheres"):
+            prior.log_prob(off, x[:2])
+        with pytest.raises(PriortrackError, match="not on the spheres"):
+            prior.joints(off)
+    assert torch.isfinite(prior.log_prob(x[1:3].float(), x[:2].float())).all()      # float32 rows pass
     bad = prior.encode(train[0])[:3].clone()
     bad[1, 4] = float("nan")
     with pytest.raises(PriortrackError, match="NaN"):

@@ -59,13 +59,17 @@ def _motions(sources: list[str]):
 
 
 class _Progress:
-    """A one-line progress display on stderr: a step count and a value (objective, or total)."""
+    """A one-line progress display on stderr: a step count and a value (objective, or total).
+    Shown only on a terminal: a log file would get every update on one line."""
 
     def __init__(self, label: str, template: str = "step {0:5d}  objective {1:.6g}"):
         self.label, self.template = label, template
+        self.shown = sys.stderr.isatty()
         self.last = None
 
     def __call__(self, step: int, value: float) -> None:
+        if not self.shown:
+            return
         self.last = (step, value)
         print(f"\r{self.label}: " + self.template.format(step, value), end="", file=sys.stderr, flush=True)
 
@@ -108,19 +112,25 @@ def _sample(args: argparse.Namespace) -> None:
     from priortrack.viz.recording import Recording
 
     prior = load_prior(args.prior)
-    states = prior.encode(load_motion(args.source))
-    if not 0 <= args.frame < len(states) or args.steps < 1 or args.n < 1:
-        raise PriortrackError(f"--frame must be in [0, {len(states) - 1}] at {prior.fps:g} fps, "
-                              f"--steps and --n positive (got {args.frame}, {args.steps}, {args.n})")
+    motion = load_motion(args.source)
+    motion = motion if motion.fps == prior.fps else motion.resample(prior.fps)
+    states = prior.encode(motion)
+    if not 0 <= args.frame < len(states):
+        raise PriortrackError(f"--frame must be in [0, {len(states) - 1}] ({args.source} at {prior.fps:g} fps), "
+                              f"got {args.frame}")
+    for name in ("steps", "n"):
+        if getattr(args, name) < 1:
+            raise PriortrackError(f"--{name} must be positive, got {getattr(args, name)}")
     generator = torch.Generator().manual_seed(args.seed)
     x = states[args.frame].expand(args.n, -1).contiguous()
-    truth = prior.joints(states[args.frame:args.frame + args.steps + 1])
+    body = prior.space.for_body(motion)           # the subject's bones, for the rollouts and the truth alike
+    truth = body.pose_joints(motion)[args.frame:args.frame + args.steps + 1]
     with Recording(args.out) as rec:
         for step in range(args.steps + 1):
             rec.frame(args.frame + step)
             if step < len(truth):
                 rec.skeleton("truth", truth[step], color=(60, 160, 255))
-            for k, pose in enumerate(prior.joints(x)):
+            for k, pose in enumerate(body.joints(prior.check_state(x))):
                 rec.skeleton(f"rollouts/{k}", pose, color=(255, 90, 60))
             x = prior.sample(x, generator)
     print(f"wrote {args.out}: {args.n} rollouts of {args.steps} steps from frame {args.frame} of {args.source} "
@@ -146,10 +156,11 @@ def _track(args: argparse.Namespace) -> None:
 
     if args.rrd:
         output_path(args.rrd, "rerun recording")
-    progress = _Progress(f"track {args.filter}", "frame {0} of {1}") if sys.stderr.isatty() else None
-    run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd), progress=progress,
-                frames=args.frames)
-    if progress:
+    progress = _Progress(f"track {args.filter}", "frame {0} of {1}")
+    try:
+        run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd),
+                    progress=progress, frames=args.frames)
+    finally:
         progress.close()
     if args.rrd:
         replay(run.motion, run.observations, args.rrd, track=run.track)

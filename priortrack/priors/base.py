@@ -96,14 +96,27 @@ class TransitionModel(ABC):
 
     # ---- checks --------------------------------------------------------------------------
     def check_state(self, x, name: str = "state") -> torch.Tensor:
-        """Raise a PriortrackError unless x is a (P, S) tensor without NaN."""
+        """Raise a PriortrackError unless x is a (P, S) tensor of points of the state space
+        (:meth:`~priortrack.priors.spaces.StateSpace.check_points`) without NaN or inf.
+        The finiteness test runs on x's minimum and maximum (both propagate NaN): one pass
+        without a temporary, as this sits on every filter's sampling path."""
         x = torch.as_tensor(x)
         if x.dim() != 2 or x.shape[1] != self.state_dim:
             raise PriortrackError(f"{name} has shape {tuple(x.shape)}; expected (P, {self.state_dim}) "
                                   f"for a {self.kind} prior")
-        if not torch.isfinite(x).all():
+        if x.numel() and not bool(torch.isfinite(torch.stack(torch.aminmax(x))).all()):
             raise PriortrackError(f"{name} contains NaN or inf")
+        self.space.check_points(x, name)
         return x
+
+    def check_pair(self, x_next, x) -> tuple[torch.Tensor, torch.Tensor]:
+        """(x_next, x) checked as states, and as rows of the same transitions (same P)."""
+        x = self.check_state(x)
+        x_next = self.check_state(x_next, "x_next")
+        if x_next.shape[0] != x.shape[0]:
+            raise PriortrackError(f"x_next has {x_next.shape[0]} rows and x {x.shape[0]}; "
+                                  f"log_prob scores one transition per row")
+        return x_next, x
 
     # ---- files ---------------------------------------------------------------------------
     @abstractmethod
@@ -142,11 +155,17 @@ def load_prior(path: str | Path) -> TransitionModel:
         raise PriortrackError(f"{path} is not a readable prior file (truncated or not npz: {exc})") from None
     if "header" not in arrays:
         raise PriortrackError(f"{path} is not a priortrack prior (no header)")
-    header = json.loads(str(arrays.pop("header")))
+    try:
+        header = json.loads(str(arrays.pop("header")))
+    except json.JSONDecodeError as exc:
+        raise PriortrackError(f"{path} is not a priortrack prior (its header is not JSON: {exc})") from None
+    if not isinstance(header, dict):
+        raise PriortrackError(f"{path} is not a priortrack prior (its header is a {type(header).__name__}, "
+                              f"not a JSON object)")
     if header.get("format") != FORMAT:
         raise PriortrackError(f"{path} is not a priortrack prior (format {header.get('format')!r})")
     if header.get("version") != FORMAT_VERSION:
-        raise PriortrackError(f"{path}: prior format version {header.get('version')} is not supported "
+        raise PriortrackError(f"{path}: prior format version {header.get('version')!r} is not supported "
                               f"(this priortrack reads version {FORMAT_VERSION})")
     kind = header.get("kind")
     if kind not in KINDS:

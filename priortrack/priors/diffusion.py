@@ -79,7 +79,7 @@ class Diffusion(TransitionModel):
         return self.space.boxplus(x, self.space.tangent_noise(x, self._std_for(x), generator))
 
     def log_prob(self, x_next, x):
-        x, x_next = self.check_state(x), self.check_state(x_next, "x_next")
+        x_next, x = self.check_pair(x_next, x)
         sq = self.space.group_norms_sq(self.space.boxminus(x_next, x))            # (P, G)
         var = (self.sigma ** 2).to(device=x.device, dtype=x.dtype)
         dims = self._dims.to(device=x.device, dtype=x.dtype)

@@ -313,6 +313,11 @@ class LatentSpace(EuclideanSpace):
         flat = x.reshape(-1, self.dim)
         return self.angles.joints(self.model.pose_mean(flat)).reshape(x.shape[:-1] + (15, 3))
 
+    def pose_joints(self, motion: Motion) -> torch.Tensor:
+        """(T, 15, 3) the motion's own poses through the angle space, not μ_Y of their latents
+        (a reconstruction, off by the model's error)."""
+        return self.angles.pose_joints(motion)
+
     def for_body(self, motion: Motion) -> LatentSpace:
         return LatentSpace(self.model, self.angles.for_body(motion))
 
@@ -527,9 +532,9 @@ class GPDM(TransitionModel):
 
     def log_prob(self, x_next, x) -> torch.Tensor:
         """(P, d), (P, d) → (P,) ln N(x_next; μ_X(x), σ_X²(x)/λ I_d)."""
-        x = torch.as_tensor(x)
-        x_next = self._latent(x_next, "x_next").to(torch.float64)
+        x_next, x = self.check_pair(x_next, x)
         mu, var = self._transition(self._latent(x))
+        x_next = x_next.to(torch.float64)
         lp = -0.5 * (x_next - mu).pow(2).sum(-1) / var - 0.5 * self.d * torch.log(2 * math.pi * var)
         return lp.to(x.dtype)
 

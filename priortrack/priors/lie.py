@@ -811,20 +811,6 @@ class LiePrior(TransitionModel):
                     mixture.components, info["frames"], info["message_length"], info["sweeps"])
         return cls(space, mixture, scale, fps, info["message_length"], info["log_likelihood"], info["frames"])
 
-    def check_state(self, x, name: str = "state") -> torch.Tensor:
-        """Raise a PriortrackError unless x is a (P, 42) tensor without NaN or inf.
-
-        As the base check, with the finiteness test done on x's minimum and maximum (both
-        propagate NaN), one pass without a temporary instead of four on the sampling path.
-        """
-        x = torch.as_tensor(x)
-        if x.dim() != 2 or x.shape[1] != self.state_dim:
-            raise PriortrackError(f"{name} has shape {tuple(x.shape)}; expected (P, {self.state_dim}) "
-                                  f"for a {self.kind} prior")
-        if x.numel() and not bool(torch.isfinite(torch.stack(torch.aminmax(x))).all()):
-            raise PriortrackError(f"{name} contains NaN or inf")
-        return x
-
     def sample(self, x, generator):
         """(P, 42) → (P, 42): x_next = exp_x(v / s), v ~ p(v | x) (k ~ π(x), then the Gaussian conditional)."""
         x = self.check_state(x)
@@ -832,7 +818,7 @@ class LiePrior(TransitionModel):
 
     def velocity_log_prob(self, x_next, x) -> torch.Tensor:
         """(P, 42), (P, 42) → (P,) ln p(v | x) at v = s · log_x(x_next), in orthonormal coordinates of T_x."""
-        x, x_next = self.check_state(x), self.check_state(x_next, "x_next")
+        x_next, x = self.check_pair(x_next, x)
         v = self.scale * self.space.boxminus(x_next, x)
         return self.mixture.velocity_log_prob(v.contiguous(), x.contiguous())
 

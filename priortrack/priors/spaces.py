@@ -32,6 +32,10 @@ from priortrack.geometry import so3
 from priortrack.geometry.sphere import exp_map, karcher_mean, log_map, project_to_tangent
 from priortrack.randomness import standard_normal
 
+#: How far a bone direction's norm may be from 1 in a state of :class:`DirectionSpace` (float32
+#: rounding after many exp-map steps stays far below it).
+UNIT_TOLERANCE = 1e-3
+
 #: Channels of a CMU angle whose training spread is below this (radians) are constants
 #: (CMU's finger and thumb bones carry no data) and are not modelled.
 CONSTANT_CHANNEL_STD = 1e-6
@@ -59,6 +63,17 @@ class StateSpace(ABC):
     @abstractmethod
     def joints(self, x: torch.Tensor) -> torch.Tensor:
         """(..., S) states → (..., 15, 3) eval15 joints in metres, in the space's body frame."""
+
+    def pose_joints(self, motion: Motion) -> torch.Tensor:
+        """(T, 15, 3) the motion's own poses in this space's body frame (the frame of
+        :meth:`joints`): the joints of its encoded states, which decode exactly where the
+        states are the pose itself (angles; bone directions with the subject's lengths,
+        :meth:`for_body`)."""
+        return self.joints(self.encode(motion))
+
+    def check_points(self, x: torch.Tensor, name: str) -> None:
+        """Raise a PriortrackError unless the finite (P, S) rows x are points of the space
+        (every row of R^S is, so the base accepts them all)."""
 
     def global_pose(self, motion: Motion) -> torch.Tensor:
         """(T, 6) global placement g = (t, ω) of a motion's frames: world joints are
@@ -238,6 +253,16 @@ class DirectionSpace(StateSpace):
 
     def _spheres(self, x: torch.Tensor) -> torch.Tensor:
         return x.reshape(x.shape[:-1] + (len(BONE_CHILDREN), 3))
+
+    def check_points(self, x, name):
+        """Every bone direction of x (P, 42) must be a unit vector, to ``UNIT_TOLERANCE``: the exp
+        and log maps, the mixture's tangent bases and the decoded bones all assume it."""
+        if x.numel():
+            norms = torch.linalg.vector_norm(self._spheres(x), dim=-1)
+            low, high = torch.aminmax(norms)
+            if float(low) < 1 - UNIT_TOLERANCE or float(high) > 1 + UNIT_TOLERANCE:
+                raise PriortrackError(f"{name} is not on the spheres: its bone directions have norms in "
+                                      f"[{float(low):.6g}, {float(high):.6g}], not 1 (±{UNIT_TOLERANCE:g})")
 
     def joints(self, x):
         d = self._spheres(x)
