@@ -124,7 +124,7 @@ def _sample(args: argparse.Namespace) -> None:
     generator = torch.Generator().manual_seed(args.seed)
     x = states[args.frame].expand(args.n, -1).contiguous()
     body = prior.space.for_body(motion)           # the subject's bones, for the rollouts and the truth alike
-    truth = body.pose_joints(motion)[args.frame:args.frame + args.steps + 1]
+    truth = body.pose_joints(motion[args.frame:args.frame + args.steps + 1])
     with Recording(args.out) as rec:
         for step in range(args.steps + 1):
             rec.frame(args.frame + step)

@@ -96,7 +96,7 @@ class GlobalMotion:
             raise PriortrackError(f"global motion tilt_decay must be 2 values in [0, 1], got {self.tilt_decay.tolist()}")
         if not 0 <= float(b) <= 1:
             raise PriortrackError(f"global motion height_decay must lie in [0, 1], got {float(b)}")
-        self.velocity = torch.stack([torch.ones((), dtype=torch.float64), b, torch.ones((), dtype=torch.float64)])
+        self.velocity = torch.tensor([1.0, float(b), 1.0], dtype=torch.float64)
 
     @classmethod
     def fit(cls, placements: Sequence[torch.Tensor]) -> GlobalMotion:

@@ -431,9 +431,12 @@ class GPDM(TransitionModel):
         return self._device_cache[key]
 
     def _latent(self, x, name: str = "x") -> torch.Tensor:
-        """Check (P, d) latent rows; returned in float32 if they are float32, else in float64, on
-        their device."""
-        x = self.check_state(x, name)
+        """Check (P, d) latent rows; returned in their working dtype (:meth:`_working`)."""
+        return self._working(self.check_state(x, name))
+
+    @staticmethod
+    def _working(x: torch.Tensor) -> torch.Tensor:
+        """Checked latent rows in float32 if they are float32, else in float64, on their device."""
         return x if x.dtype == torch.float32 else x.to(torch.float64)
 
     def _reconstruct(self, x: torch.Tensor, variance: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -533,7 +536,7 @@ class GPDM(TransitionModel):
     def log_prob(self, x_next, x) -> torch.Tensor:
         """(P, d), (P, d) → (P,) ln N(x_next; μ_X(x), σ_X²(x)/λ I_d)."""
         x_next, x = self.check_pair(x_next, x)
-        mu, var = self._transition(self._latent(x))
+        mu, var = self._transition(self._working(x))
         x_next = x_next.to(torch.float64)
         lp = -0.5 * (x_next - mu).pow(2).sum(-1) / var - 0.5 * self.d * torch.log(2 * math.pi * var)
         return lp.to(x.dtype)
