@@ -107,6 +107,11 @@ def test_fit_and_sample_a_prior(tmp_path, capsys):
                  "--out", str(rrd)]) == 0
     rows = _entities(rrd)
     assert rows["/world/truth"] == 13 and all(rows[f"/world/rollouts/{k}"] == 13 for k in range(3))
+    capsys.readouterr()
+    for argv, message in ((["--frame", "79"], r"--frame must be in [0, 78] (cmu:07_01 at 30 fps), got 79"),
+                          (["--steps", "0"], "--steps must be positive, got 0"), (["--n", "-3"], "--n must be positive, got -3")):
+        assert main(["sample", str(prior), "--from", "cmu:07_01", *argv, "--out", str(rrd)]) == 2
+        assert message in capsys.readouterr().err
 
 
 def test_fit_lie_and_plot_refuses_non_gpdm(tmp_path, capsys):
