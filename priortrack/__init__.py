@@ -5,7 +5,7 @@ The database was created with funding from NSF EIA-0196217.
 """
 
 from priortrack.errors import PriortrackError
-from priortrack.body.skeleton import Skeleton
+from priortrack.data.skeleton import Skeleton
 from priortrack.data.motion import Motion
 from priortrack.data.load import load_motion
 from priortrack.data.bundled import load_walkjog, bundled_clips

@@ -14,6 +14,7 @@ from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
 from priortrack.priors.global_motion import GlobalMotion
+from priortrack.body.fk import joint_positions
 
 
 def test_survival_is_the_normalised_ess():
@@ -39,7 +40,7 @@ def walk():
     train = list(walkjog.walks("train"))[:8]
     prior = Diffusion.fit(train, local=True)
     motion = walkjog.test[1][:30]
-    X = motion.positions("eval15")
+    X = joint_positions(motion, "eval15")
     obs = synthesize(X, motion.fps, default_camera(X), "noise", seed=0, sigma_px=5.0)
     model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
                           JointLikelihood(obs.camera))

@@ -12,6 +12,7 @@ import torch
 from priortrack import load_motion
 from priortrack.cli.main import main
 from priortrack.observation import Observations
+from priortrack.body.fk import joint_positions
 
 
 def _points(path, entity, row):
@@ -137,7 +138,7 @@ def test_fit_a_gpdm_with_its_dynamics_noise_floor(tmp_path, capsys):
     assert main(["sample", str(prior), "--from", "walkjog:35_02", "--frame", "4", "--steps", "2", "--n", "2",
                  "--out", str(rrd)]) == 0
     truth = np.stack([_points(rrd, "/world/truth", row) for row in range(3)])
-    real = torch.as_tensor(load_motion("walkjog:35_02").resample(10).positions("eval15")[4:7])
+    real = torch.as_tensor(joint_positions(load_motion("walkjog:35_02").resample(10), "eval15")[4:7])
     truth = torch.as_tensor(truth, dtype=torch.float64)
     np.testing.assert_allclose(torch.cdist(truth, truth), torch.cdist(real, real), atol=1e-5)
     reconstructed = model.joints(model.encode(load_motion("walkjog:35_02"))[4:7])

@@ -11,6 +11,8 @@ from priortrack import PriortrackError, load_motion
 from priortrack.data.amc import read_amc
 from priortrack.data.asf import INCH, read_asf
 from priortrack.data.bundled import ASF_AMC_DIR, bundled_clips, load_walkjog
+from priortrack.body.fk import joint_positions
+from priortrack.body.layout import layout_names
 
 # CMU's frame counts, from shared/data/README.md.
 FRAMES = {
@@ -88,7 +90,7 @@ def test_every_bundled_clip_parses_with_constant_bone_lengths(trial):
     motion = load_motion(f"cmu:{trial}")
     assert len(motion) == FRAMES[trial]
     assert motion.fps == 120.0 and motion.subject == trial.split("_")[0]
-    p = motion.positions("full")
+    p = joint_positions(motion, "full")
     parents = motion.skeleton.parents
     lengths = np.linalg.norm(p[:, 1:] - p[:, parents[1:]], axis=-1)
     assert np.abs(lengths - motion.skeleton.bone_lengths()[1:]).max() < 1e-7
@@ -101,7 +103,7 @@ def test_every_bundled_clip_parses_with_constant_bone_lengths(trial):
 def test_fk_matches_independent_acclaim_implementation(trial, frames):
     subject = trial.split("_")[0]
     motion = load_motion(f"cmu:{trial}")
-    p = motion.positions("full")
+    p = joint_positions(motion, "full")
     unit = INCH / 0.45
     for frame in frames:
         ends = acclaim_fk(ASF_AMC_DIR / f"{subject}.asf", _frame_lines(ASF_AMC_DIR / f"{trial}.amc", frame))
@@ -132,8 +134,8 @@ def test_walkjog_split_and_same_positions_as_120hz_clip():
     resampled = at_120.resample(30)
     assert len(resampled) == len(at_30)
     # The npz stores float32 (angles in degrees, translations in ASF units): 1e-5 m.
-    np.testing.assert_allclose(resampled.positions("full"), at_30.positions("full"), atol=1e-5)
-    np.testing.assert_allclose(at_120[::4].positions("full"), at_30.positions("full"), atol=1e-5)
+    np.testing.assert_allclose(joint_positions(resampled, "full"), joint_positions(at_30, "full"), atol=1e-5)
+    np.testing.assert_allclose(joint_positions(at_120[::4], "full"), joint_positions(at_30, "full"), atol=1e-5)
 
 
 def test_resample_is_exact_on_source_instants_and_interpolates_between():
@@ -168,12 +170,13 @@ def test_motion_slicing_and_names():
     part = m[10:50:2]
     assert len(part) == 20 and part.fps == 60.0
     np.testing.assert_array_equal(part.channels, m.channels[10:50:2])
-    assert m.joint_names("eval15")[0] == "pelvis" and len(m.joint_names("full")) == m.skeleton.num_joints
-    assert m.positions().shape == (len(m), 15, 3)
+    assert layout_names(m.skeleton, "eval15")[0] == "pelvis"
+    assert len(layout_names(m.skeleton, "full")) == m.skeleton.num_joints
+    assert joint_positions(m).shape == (len(m), 15, 3)
     with pytest.raises(PriortrackError, match="slice"):
         m[3]
     with pytest.raises(PriortrackError, match="layout"):
-        m.positions("eval17")
+        joint_positions(m, "eval17")
 
 
 def test_load_motion_paths_and_cmu_naming(tmp_path):

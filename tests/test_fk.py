@@ -122,8 +122,8 @@ def test_wrong_shapes_are_clear_errors():
         fk(np.zeros((2, 5, 62)))
     with pytest.raises(PriortrackError, match=r"joints \[3, 38\] outside the skeleton's 38 joints"):
         fk(np.zeros((2, 62)), joints=[3, 38])
-    with pytest.raises(PriortrackError, match="outside the skeleton's 38 joints"):
-        fk.local_rotations(np.zeros((2, 62)), joints=[-1])
+    with pytest.raises(PriortrackError, match="outside the skeleton '07''s 38 joints"):
+        motion.skeleton.local_rotations(np.zeros((2, 62)), joints=[-1])
 
 
 def test_chosen_joints_equal_the_full_result():
@@ -136,9 +136,13 @@ def test_chosen_joints_equal_the_full_result():
     positions, G = fk(channels, rotations=True)
     sub_positions, sub_G = fk(channels, rotations=True, joints=chosen)
     assert torch.equal(sub_positions, positions[:, chosen]) and torch.equal(sub_G, G[:, chosen])
-    L = fk.local_rotations(channels)
-    torch.testing.assert_close(fk.local_rotations(channels, joints=chosen), L[:, chosen], atol=1e-15, rtol=0)
-    torch.testing.assert_close(L[:, 0], G[:, 0], atol=1e-15, rtol=0)                    # the root's L is G
+    L = torch.as_tensor(motion.skeleton.local_rotations(channels.numpy()))
+    torch.testing.assert_close(torch.as_tensor(motion.skeleton.local_rotations(channels.numpy(), joints=chosen)),
+                               L[:, chosen], atol=1e-15, rtol=0)
+    # The skeleton's local rotations L_j (axis products) compose to FK's global ones: G_j = G_parent L_j.
+    parents = torch.as_tensor(motion.skeleton.parents)
+    composed = torch.where((parents >= 0)[:, None, None], G[:, parents.clamp(min=0)] @ L, L)
+    torch.testing.assert_close(composed, G, atol=1e-12, rtol=0)
 
 
 def test_pruned_skeleton_places_the_kept_joints_exactly():

@@ -18,6 +18,7 @@ from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import GPDM, Diffusion
 from priortrack.priors.global_motion import GlobalMotion, to_world
+from priortrack.body.fk import joint_positions
 
 FPS = 15.0
 SIGMA_PX = 5.0
@@ -42,7 +43,7 @@ def setting():
         prior = GPDM.fit(train, balanced=True, fps=FPS)
     global_motion = GlobalMotion.fit([prior.space.global_pose(at_15fps(m, 45)) for m in walks])
     motion = at_15fps(walks[0], FRAMES)
-    X = motion.positions("eval15")
+    X = joint_positions(motion, "eval15")
     camera = default_camera(X)
     noisy = synthesize(X, FPS, camera, "noise", seed=0, sigma_px=SIGMA_PX)
     blackout = synthesize(X, FPS, camera, "blackout", seed=0, sigma_px=SIGMA_PX,

@@ -16,6 +16,7 @@ from priortrack.priors import Diffusion
 from priortrack.priors.global_motion import GlobalMotion
 
 from linear_gaussian import LinearGaussian
+from priortrack.body.fk import joint_positions
 
 SIGMA = torch.tensor([0.002, 0.003, 0.0025], dtype=torch.float64)
 CONSTANT = torch.ones(3, dtype=torch.float64)                           # v: constant velocity
@@ -25,7 +26,7 @@ CONSTANT = torch.ones(3, dtype=torch.float64)                           # v: con
 def scene():
     """A walk's first frames, its camera, and P = 64 perturbed copies of one frame's joints."""
     motion = load_walkjog().test[1][:3]
-    X = torch.as_tensor(motion.positions("eval15"))
+    X = torch.as_tensor(joint_positions(motion, "eval15"))
     camera = default_camera(X.numpy())
     g = torch.Generator().manual_seed(0)
     joints = X[2] + 0.05 * torch.randn((64, 15, 3), generator=g, dtype=torch.float64)
@@ -138,7 +139,7 @@ def _walk_filter(translation: str, seed: int, frames: int = 60, scenario: str = 
     train = list(walkjog.walks("train"))
     prior = Diffusion.fit(train, local=True)
     motion = walkjog.test[1][:frames]
-    X = motion.positions("eval15")
+    X = joint_positions(motion, "eval15")
     obs = synthesize(X, motion.fps, default_camera(X), scenario, seed=seed, sigma_px=5.0)
     model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
                           JointLikelihood(obs.camera))

@@ -9,6 +9,7 @@ from priortrack.body.layout import EVAL15_NAMES, eval15_indices
 from priortrack.body.normalise import (BONE_CHILDREN, NormalisedPose, body_frame, body_positions,
                                        denormalise, normalise)
 from priortrack.data.bvh import read_bvh, write_bvh
+from priortrack.body.fk import joint_positions
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +21,7 @@ def test_eval15_from_cmu_names(walk):
     names = [walk.skeleton.names[j] for j in eval15_indices(walk.skeleton)]
     assert names == ["root", "lowerneck", "head_end", "lhumerus", "lradius", "lwrist", "rhumerus",
                      "rradius", "rwrist", "lfemur", "ltibia", "lfoot", "rfemur", "rtibia", "rfoot"]
-    p = walk.positions("eval15")
+    p = joint_positions(walk, "eval15")
     assert p.shape == (len(walk), 15, 3)
     # Anatomy: head above neck above pelvis, ankles lowest, thigh and shin 0.3 to 0.5 m.
     y = p[..., 1]
@@ -32,7 +33,7 @@ def test_eval15_from_cmu_names(walk):
 def test_eval15_from_bvh_names_cmu_bvh_and_mixamo(tmp_path, walk):
     write_bvh(walk[:5], tmp_path / "walk.bvh")
     back = read_bvh(tmp_path / "walk.bvh")
-    np.testing.assert_allclose(back.positions("eval15"), walk[:5].positions("eval15"), atol=1e-6)
+    np.testing.assert_allclose(joint_positions(back, "eval15"), joint_positions(walk[:5], "eval15"), atol=1e-6)
     joints = ["Hips", "Spine", "Neck", "Head", "LeftArm", "LeftForeArm", "LeftHand", "RightArm",
               "RightForeArm", "RightHand", "LeftUpLeg", "LeftLeg", "LeftFoot", "RightUpLeg", "RightLeg", "RightFoot"]
     text = "HIERARCHY\nROOT mixamorig:Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n"
@@ -51,7 +52,7 @@ def test_eval15_from_bvh_names_cmu_bvh_and_mixamo(tmp_path, walk):
 
 def test_positions_to_directions_and_back_exact(walk):
     for motion in (walk, load_motion("cmu:131_04")[::10], load_motion("cmu:01_01")[::25]):
-        p = torch.as_tensor(motion.positions("eval15"))
+        p = torch.as_tensor(joint_positions(motion, "eval15"))
         pose = normalise(p)
         assert pose.directions.shape == (len(motion), 14, 3) and pose.lengths.shape == (len(motion), 14)
         assert (torch.linalg.vector_norm(pose.directions, dim=-1) - 1).abs().max() < 1e-12
@@ -59,7 +60,7 @@ def test_positions_to_directions_and_back_exact(walk):
 
 
 def test_body_frame_definition(walk):
-    p = torch.as_tensor(walk.positions("eval15"))
+    p = torch.as_tensor(joint_positions(walk, "eval15"))
     h, R = body_frame(p)
     assert (R @ R.transpose(-1, -2) - torch.eye(3, dtype=R.dtype)).abs().max() < 1e-12
     assert (torch.linalg.det(R) - 1).abs().max() < 1e-12
@@ -74,7 +75,7 @@ def test_body_frame_definition(walk):
 
 
 def test_directions_invariant_to_global_rigid_motion(walk):
-    p = torch.as_tensor(walk.positions("eval15")[::7])
+    p = torch.as_tensor(joint_positions(walk, "eval15")[::7])
     angle = 1.1
     Q = torch.tensor([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
     moved = p @ Q.T + torch.tensor([2.0, 0.1, -3.0], dtype=torch.float64)
@@ -84,7 +85,7 @@ def test_directions_invariant_to_global_rigid_motion(walk):
 
 
 def test_body_positions_put_hip_centre_at_origin(walk):
-    pose = normalise(torch.as_tensor(walk.positions("eval15")[:20]))
+    pose = normalise(torch.as_tensor(joint_positions(walk, "eval15")[:20]))
     b = body_positions(pose.directions, pose.lengths)
     assert (b[:, 9] + b[:, 12]).abs().max() < 1e-12
     assert len(BONE_CHILDREN) == 14

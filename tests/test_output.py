@@ -9,6 +9,7 @@ from priortrack.observation.synthetic import default_camera, synthesize
 from priortrack.output import output_path
 from priortrack.priors import Diffusion
 from priortrack.viz.recording import Recording
+from priortrack.body.fk import joint_positions
 
 
 def test_output_path_accepts_a_writable_file_and_names_what_is_wrong(tmp_path):
@@ -30,7 +31,7 @@ def test_every_writer_checks_its_path(tmp_path):
         Diffusion.fit([motion], local=True).save(missing / "prior.npz")
     with pytest.raises(PriortrackError, match="rerun recording .* does not exist"):
         Recording(missing / "walk.rrd")
-    positions = motion.positions("eval15")
+    positions = joint_positions(motion, "eval15")
     observations = synthesize(positions, motion.fps, default_camera(positions), "clean", seed=0)
     with pytest.raises(PriortrackError, match="observations file .* does not exist"):
         observations.save(missing / "obs.npz")

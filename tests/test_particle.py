@@ -16,6 +16,7 @@ from priortrack.priors import Diffusion
 from priortrack.priors.global_motion import GlobalMotion
 
 from linear_gaussian import LinearGaussian, kalman
+from priortrack.body.fk import joint_positions
 
 
 @pytest.fixture
@@ -90,7 +91,7 @@ def test_tracks_a_walk_better_than_holding_the_first_pose(dtype, translation):
     train = list(walkjog.walks("train"))
     prior = Diffusion.fit(train, local=True)
     motion = walkjog.test[1][:40]
-    X = motion.positions("eval15")
+    X = joint_positions(motion, "eval15")
     obs = synthesize(X, motion.fps, default_camera(X), "clean", seed=0)
     model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
                           JointLikelihood(obs.camera))
@@ -110,7 +111,7 @@ def test_mean_state_averages_placements_on_so3():
     walkjog = load_walkjog()
     prior = Diffusion.fit(list(walkjog.walks("train"))[:2], local=True)
     model = TrackingModel(prior, GlobalMotion(torch.full((6,), 0.01)), JointLikelihood(default_camera(
-        walkjog.test[1][:3].positions("eval15"))))
+        joint_positions(walkjog.test[1][:3], "eval15"))))
     S = prior.state_dim
     s = torch.zeros(4, S + 12, dtype=torch.float64)
     s[:, S:S + 3] = torch.tensor([[0.0, 1, 2], [2, 3, 4], [1, 1, 1], [5, 5, 5]])
@@ -132,7 +133,7 @@ def test_mean_rotation_is_the_chordal_mean_by_svd():
     walkjog = load_walkjog()
     prior = Diffusion.fit(list(walkjog.walks("train"))[:2], local=True)
     model = TrackingModel(prior, GlobalMotion(torch.full((6,), 0.01)), JointLikelihood(default_camera(
-        walkjog.test[1][:3].positions("eval15"))))
+        joint_positions(walkjog.test[1][:3], "eval15"))))
     S = prior.state_dim
     g = torch.Generator().manual_seed(4)
     for spread in (0.05, 0.5, 1.2):

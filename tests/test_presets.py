@@ -10,6 +10,7 @@ from priortrack import PriortrackError
 from priortrack.experiments.tracking import TABLE_PRESETS
 from priortrack.filters import presets as presets_module
 from priortrack.filters.presets import load_preset, parse_preset, preset_names
+from priortrack.body.fk import joint_positions
 
 BASE = {
     "filter": {"kind": "pf", "particles": 50},
@@ -120,6 +121,6 @@ def test_build_gives_the_named_filter_with_its_parameters(tmp_path):
 
     preset = parse_preset(table(), "small")
     motion = preset.training_motions[0]
-    filt = preset.build(default_camera(motion.positions("eval15")), seed=3, cache=tmp_path)
+    filt = preset.build(default_camera(joint_positions(motion, "eval15")), seed=3, cache=tmp_path)
     assert type(filt).__name__ == "ParticleFilter" and filt.P == 50
     assert np.isclose(filt.model.likelihood.sigma_px, 10.0)

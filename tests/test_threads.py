@@ -13,6 +13,7 @@ from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
 from priortrack.priors.global_motion import to_world
 from priortrack.threads import split_rows, torch_threads
+from priortrack.body.fk import joint_positions
 
 
 def test_split_rows_covers_every_row_once_on_the_workers():
@@ -41,8 +42,8 @@ def test_kernels_split_among_threads_equal_one_call():
     x = (prior.encode(walks[0])[:1].expand(n, -1) + 0.05 * torch.randn(n, prior.state_dim, generator=g,
                                                                        dtype=torch.float64)).float()
     placement = (0.3 * torch.randn(n, 6, generator=g)).float()
-    camera = default_camera(walks[0].positions("eval15"))
-    z, _ = camera.project(torch.as_tensor(walks[0].positions("eval15")[2]))
+    camera = default_camera(joint_positions(walks[0], "eval15"))
+    z, _ = camera.project(torch.as_tensor(joint_positions(walks[0], "eval15")[2]))
     C = predict_covariance(torch.zeros(n, 6, 6), torch.full((3,), 0.003), torch.ones(3))
     sigma = torch.full((3,), 0.0025)
     results = []

@@ -12,6 +12,7 @@ from priortrack import PriortrackError
 from priortrack.cli.main import main
 from priortrack.experiments.metrics import mpjpe
 from priortrack.experiments.tracking import TABLE_PRESETS, track
+from priortrack.body.fk import joint_positions
 
 pytestmark = pytest.mark.xdist_group("presets")
 FRAMES = 40
@@ -20,7 +21,7 @@ FRAMES = 40
 @pytest.mark.parametrize("preset", TABLE_PRESETS)
 def test_every_preset_tracks_a_held_out_walk_better_than_holding_still(preset):
     run = track("walkjog:35_29", preset, "clean", seed=0, frames=FRAMES)
-    X = run.motion.positions("eval15")
+    X = joint_positions(run.motion, "eval15")
     still = mpjpe(np.repeat(X[1:2], FRAMES - 2, 0), X[2:]).mean()
     assert np.isfinite(run.track.estimates).all()
     assert run.result["mpjpe_mm"] < 0.5 * still, (run.result, still)

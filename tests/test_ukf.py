@@ -18,6 +18,7 @@ from priortrack.priors.lie import GeodesicMixture, LiePrior
 from priortrack.priors.spaces import AngleSpace, DirectionSpace
 
 from linear_gaussian import LinearGaussian, kalman
+from priortrack.body.fk import joint_positions
 
 
 @pytest.fixture
@@ -33,7 +34,7 @@ def walks():
 
 
 def tracking_model(prior, train, motion, scenario="clean", **likelihood):
-    X = motion.positions("eval15")
+    X = joint_positions(motion, "eval15")
     obs = synthesize(X, motion.fps, default_camera(X), scenario, seed=0)
     gm = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
     return TrackingModel(prior, gm, JointLikelihood(obs.camera, **likelihood)), obs, X

@@ -14,7 +14,7 @@ import os
 import numpy as np
 import torch
 
-from priortrack.body.skeleton import SLOTS, Skeleton
+from priortrack.data.skeleton import SLOTS, Skeleton
 
 
 def _steps(skeleton: Skeleton):

@@ -1,6 +1,6 @@
 """Batched forward kinematics in torch: channels (B, C) → joint positions (B, J, 3).
 
-For every joint (see :mod:`priortrack.body.skeleton`)
+For every joint (see :mod:`priortrack.data.skeleton`)
 
     L_j = Π_k R_{a_k}(θ_k),   G_j = G_parent · L_j,   p_j = p_parent + G_parent · (o_j + T_j).
 
@@ -34,7 +34,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from priortrack.body.skeleton import SLOTS, Skeleton, check_channels
+from priortrack.body.layout import layout_indices
+from priortrack.data.motion import Motion
+from priortrack.data.skeleton import SLOTS, Skeleton, check_channels
 from priortrack.errors import PriortrackError
 from priortrack.threads import split_rows
 
@@ -150,8 +152,6 @@ class ForwardKinematics:
         self._trans_used = as_t((skeleton.trans_channels >= 0)[:, :, None], dtype=dtype)   # (J, 3, 1)
         self._position_node = as_t(row[first] + place[first])                      # (J,) rows of all nodes
         self._frame_node = as_t(frame_row[last])                                   # (J,) rows of kept H
-        self._depth = depth[last]                                                  # (J,) level of each joint's H
-        self._rotating = np.array([any(slots[v] for v in range(first[j], last[j] + 1)) for j in range(J)])
         # float32 positions on the CPU: the fused kernel of priortrack.body.fk_kernel, on these arrays
         self._kernel = None
         if self.dtype == torch.float32 and self.device.type == "cpu":
@@ -167,16 +167,16 @@ class ForwardKinematics:
                                   f"{self.skeleton.num_channels}) or ({self.skeleton.num_channels},)")
         return channels
 
-    def _world(self, channels: torch.Tensor, levels: int | None = None) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    def _world(self, channels: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """Every node's position (nodes, 3, B) and, per level, the kept H as columns
-        (kept, 3, 3, B), level by level (the first ``levels`` levels only, if given)."""
+        (kept, 3, 3, B), level by level."""
         B = channels.shape[0]
         theta = channels.T.index_select(0, self._slot_channel) * self._slot_sign   # (N, B)
         cos, sin = torch.cos(theta)[:, None], torch.sin(theta)[:, None]          # (N, 1, B)
         H = torch.eye(3, dtype=self.dtype, device=self.device).view(1, 3, 3, 1).expand(1, 3, 3, B)
         p = torch.zeros(1, 3, B, dtype=self.dtype, device=self.device)
         positions, frames = [], []
-        for level in self._levels[:levels]:
+        for level in self._levels:
             up = level["parents"]
             if isinstance(up, slice):
                 H_parent, p_parent = H[up], p[up]
@@ -213,20 +213,6 @@ class ForwardKinematics:
         """G_j = H_j C_jᵀ (B, K, 3, 3) of the chosen joints."""
         H = torch.cat(frames).index_select(0, self._frame_node[chosen])
         return torch.einsum("jmib,jkm->bjik", H, self._frames[chosen])
-
-    def local_rotations(self, channels, joints=None) -> torch.Tensor:
-        """(B, C) channels → (B, J, 3, 3) local rotations L_j = G_parentᵀ G_j (L_root = G_root,
-        exactly I for a joint without rotation channels); (B, K, 3, 3) for ``joints`` (K,)."""
-        channels = self._as_batch(channels)
-        chosen = self._chosen(joints)
-        _, frames = self._world(channels, int(self._depth[chosen].max(initial=0)) + 1)
-        parents = self.skeleton.parents[chosen]
-        G = self._rotations(frames, np.concatenate([chosen, np.maximum(parents, 0)]))
-        G, G_parent = G[:, :len(chosen)], G[:, len(chosen):]
-        L = torch.where(torch.as_tensor(parents >= 0, device=self.device)[:, None, None],
-                        G_parent.transpose(-1, -2) @ G, G)
-        eye = torch.eye(3, dtype=self.dtype, device=self.device)
-        return torch.where(torch.as_tensor(self._rotating[chosen], device=self.device)[:, None, None], L, eye)
 
     def __call__(self, channels, rotations: bool = False, joints=None):
         """Joint positions (B, J, 3) in metres (and global rotations (B, J, 3, 3) if asked).
@@ -266,3 +252,10 @@ class ForwardKinematics:
 def forward_kinematics(skeleton: Skeleton, channels, device=None, dtype=torch.float64):
     """One-shot FK: (B, C) or (C,) channels → (B, J, 3) or (J, 3) positions, metres."""
     return ForwardKinematics(skeleton, device=device or "cpu", dtype=dtype)(channels)
+
+
+def joint_positions(motion: Motion, layout: str = "eval15", device: str | torch.device = "cpu") -> np.ndarray:
+    """(T, J, 3) float64 positions, metres, in the motion's world frame, of the joints of ``layout``
+    ("eval15" or "full", :mod:`priortrack.body.layout`) in every frame of ``motion``."""
+    index = layout_indices(motion.skeleton, layout)
+    return ForwardKinematics(motion.skeleton, device=device)(motion.channels)[:, index].cpu().numpy()

@@ -59,7 +59,7 @@ def _sin_cos(theta):
 def positions(channels, parents, offsets, axes, rot_channels, trans_channels, wanted, out):
     """Joint positions of ``wanted`` joints into ``out`` (n, K, 3) for channels (n, C), float32.
 
-    Skeleton arrays (as :class:`priortrack.body.skeleton.Skeleton`): parents (J,) int64, offsets
+    Skeleton arrays (as :class:`priortrack.data.skeleton.Skeleton`): parents (J,) int64, offsets
     (J, 3) and axes (J, 3, 3) float32, rot_channels (J, 3) and trans_channels (J, 3) int64 (−1:
     unused); wanted (K,) int64.
     """

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from priortrack.body.skeleton import Skeleton
+from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
 
 EVAL15_NAMES = (

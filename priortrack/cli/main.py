@@ -30,6 +30,7 @@ def _data_list(args: argparse.Namespace) -> None:
 
 
 def _replay(args: argparse.Namespace) -> None:
+    from priortrack.body.fk import joint_positions
     from priortrack.data.load import load_motion
     from priortrack.observation.synthetic import default_camera, parse_scenario, synthesize
     from priortrack.viz.replay import replay
@@ -41,7 +42,7 @@ def _replay(args: argparse.Namespace) -> None:
     if args.fps:
         motion = motion.resample(args.fps)
     name, params = parse_scenario(args.scenario)
-    positions = motion.positions("eval15")
+    positions = joint_positions(motion, "eval15")
     observations = synthesize(positions, motion.fps, default_camera(positions), name, seed=args.seed, **params)
     if args.observations:
         observations.save(args.observations)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from priortrack.body.skeleton import Skeleton
+from priortrack.data.skeleton import Skeleton
 from priortrack.data.asf import _Lines
 
 

@@ -4,7 +4,7 @@ Acclaim forward kinematics (column vectors), as in CMU's data: for ``axis ax ay 
 the bone's axis matrix is C = Rz(az)·Ry(ay)·Rx(ax); the AMC angles give
 M = Rz(rz)·Ry(ry)·Rx(rx); the bone's local rotation is L = C·M·Cᵀ, its global rotation
 G = G_parent·L, and its end point is the parent's end point + length·G·direction.
-In :mod:`priortrack.body.skeleton` terms a bone becomes a joint at its start point whose
+In :mod:`priortrack.data.skeleton` terms a bone becomes a joint at its start point whose
 offset is the parent bone's vector and whose rotation axes are C's columns; leaf bones get
 an extra ``<bone>_end`` joint at their end point.
 """
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from priortrack.body.skeleton import SLOTS, Skeleton
+from priortrack.data.skeleton import SLOTS, Skeleton
 from priortrack.errors import PriortrackError
 
 INCH = 0.0254

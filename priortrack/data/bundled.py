@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from priortrack.body.skeleton import Skeleton
+from priortrack.data.skeleton import Skeleton
 from priortrack.data.amc import read_amc
 from priortrack.data.asf import read_asf
 from priortrack.data.motion import Motion

@@ -2,7 +2,7 @@
 
 A BVH file is a HIERARCHY of joints (``ROOT``/``JOINT`` blocks with an ``OFFSET`` from
 the parent and a list of ``CHANNELS``; ``End Site`` blocks with only an ``OFFSET``) and a
-MOTION section with one row of channel values per frame. In :mod:`priortrack.body.skeleton`
+MOTION section with one row of channel values per frame. In :mod:`priortrack.data.skeleton`
 terms (column vectors, G_root's parent = I)
 
     p_j = p_parent + G_parent · (o_j + T_j),    G_j = G_parent · L_j,
@@ -47,10 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
-
-from priortrack.body.fk import ForwardKinematics
-from priortrack.body.skeleton import SLOTS, Skeleton
+from priortrack.data.skeleton import SLOTS, Skeleton
 from priortrack.data.asf import _Lines
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
@@ -388,7 +385,7 @@ def write_bvh(motion: Motion, path: str | Path, length_unit: float = 0.01) -> No
     """Write a Motion as a BVH file with a normalised channel layout (see the module doc).
 
     The local rotations L_j of every frame, (T, J, 3, 3), come from
-    :meth:`ForwardKinematics.local_rotations` in float64 and are written as the ZXY angles
+    :meth:`Skeleton.local_rotations` in float64 and are written as the ZXY angles
     of :func:`zxy_angles` in degrees; a joint with translation channels is written with
     OFFSET 0 and positions (o_j + T_j) / length_unit, others with OFFSET o_j / length_unit.
     Reading the file back gives the same joint positions. Frame Time = 1 / fps.
@@ -406,8 +403,7 @@ def write_bvh(motion: Motion, path: str | Path, length_unit: float = 0.01) -> No
     for name in skeleton.names:
         _check_name(skeleton, name)
     T, J = len(channels), skeleton.num_joints
-    fk = ForwardKinematics(skeleton, dtype=torch.float64)
-    L = fk.local_rotations(torch.as_tensor(channels)).numpy() if T else np.zeros((0, J, 3, 3))
+    L = skeleton.local_rotations(channels)
     degrees = np.degrees(zxy_angles(L))                                        # (T, J, 3) z, x, y
     # Index -1 (no translation channel) picks the appended zero column.
     translation = np.concatenate([channels, np.zeros((T, 1))], axis=1)[:, skeleton.trans_channels]  # (T, J, 3)

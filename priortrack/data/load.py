@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from priortrack.body.skeleton import Skeleton
+from priortrack.data.skeleton import Skeleton
 from priortrack.data.amc import read_amc
 from priortrack.data.asf import read_asf
 from priortrack.data.bundled import load_bundled

@@ -6,11 +6,8 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-import torch
 
-from priortrack.body.fk import ForwardKinematics
-from priortrack.body.layout import layout_indices, layout_names
-from priortrack.body.skeleton import Skeleton, check_channels
+from priortrack.data.skeleton import Skeleton, check_channels
 from priortrack.errors import PriortrackError
 
 
@@ -57,14 +54,6 @@ class Motion:
     def duration(self) -> float:
         """Seconds from the first frame to the last."""
         return (len(self) - 1) / self.fps
-
-    def joint_names(self, layout: str = "eval15") -> tuple[str, ...]:
-        return layout_names(self.skeleton, layout)
-
-    def positions(self, layout: str = "eval15", device: str | torch.device = "cpu") -> np.ndarray:
-        """(T, J, 3) joint positions in metres, world Y-up, computed in float64."""
-        index = layout_indices(self.skeleton, layout)
-        return ForwardKinematics(self.skeleton, device=device)(self.channels)[:, index].cpu().numpy()
 
     def resample(self, fps: float) -> Motion:
         """The motion at another frame rate, over the same time span.

@@ -39,6 +39,7 @@ from priortrack.priors.global_motion import GlobalMotion
 from priortrack.priors.gpdm import GPDM
 from priortrack.priors.lie import LiePrior
 from priortrack.threads import torch_threads
+from priortrack.body.fk import joint_positions
 
 logger = logging.getLogger(__name__)
 
@@ -104,7 +105,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         raise PriortrackError(f"bench pf: every prior must run at the test walk's {walk.fps:g} fps, got "
                               f"{ {name: prior.fps for name, prior in priors.items()} }")
     train = list(load_walkjog().walks("train"))
-    X = walk.positions("eval15")
+    X = joint_positions(walk, "eval15")
     observations = synthesize(X, walk.fps, default_camera(X), "noise", seed=seed)
     filters = {}
     for name, prior in priors.items():

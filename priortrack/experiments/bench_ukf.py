@@ -27,6 +27,7 @@ from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors.diffusion import Diffusion
 from priortrack.priors.global_motion import GlobalMotion
 from priortrack.threads import torch_threads
+from priortrack.body.fk import joint_positions
 
 logger = logging.getLogger(__name__)
 
@@ -54,7 +55,7 @@ def bench_ukf(repeats: int = 5, seed: int = 0, threads: int = 1) -> dict:
         train = list(walks.walks("train"))
         prior = Diffusion.fit(train, local=True)
         global_motion = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
-        X = motion.positions("eval15")
+        X = joint_positions(motion, "eval15")
         observations = synthesize(X, motion.fps, default_camera(X), "clean", seed=seed)
         model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera))
 

@@ -30,6 +30,7 @@ from priortrack.experiments.metrics import error_2d, mpjpe, mpjpe_root_relative
 from priortrack.filters.presets import Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 from priortrack.observation.synthetic import Observations, default_camera, parse_scenario, synthesize
+from priortrack.body.fk import joint_positions
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +80,7 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
             raise PriortrackError(f"frames must be at least 3 (two known, one tracked), got {frames}")
         motion = motion[:frames]
     name, params = parse_scenario(scenario)
-    X = motion.positions("eval15")
+    X = joint_positions(motion, "eval15")
     camera = default_camera(X)
     observations = synthesize(X, motion.fps, camera, name, seed=seed, **params)
     torch.manual_seed(seed)

@@ -16,6 +16,7 @@ import numpy as np
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
+from priortrack.body.fk import joint_positions
 
 
 class SequentialFilter:
@@ -40,7 +41,7 @@ class SequentialFilter:
         fps = self.model.prior.fps
         known = motion if motion.fps == fps else motion.resample(fps)
         estimates = np.full((T, 15, 3), np.nan)
-        estimates[:KNOWN_FRAMES] = known.positions("eval15")[:KNOWN_FRAMES]
+        estimates[:KNOWN_FRAMES] = joint_positions(known, "eval15")[:KNOWN_FRAMES]
         ess = np.full(T, np.nan)
         flags: list[list[str]] = [[] for _ in range(KNOWN_FRAMES)]
         snapshots = []

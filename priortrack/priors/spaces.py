@@ -25,12 +25,13 @@ import torch
 from priortrack.body.fk import ForwardKinematics
 from priortrack.body.layout import EVAL15_NAMES, eval15_indices
 from priortrack.body.normalise import BONE_CHILDREN, body_positions, normalise
-from priortrack.body.skeleton import Skeleton
+from priortrack.data.skeleton import Skeleton
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
 from priortrack.geometry.sphere import exp_map, karcher_mean, log_map, project_to_tangent
 from priortrack.randomness import standard_normal
+from priortrack.body.fk import joint_positions
 
 #: How far a bone direction's norm may be from 1 in a state of :class:`DirectionSpace` (float32
 #: rounding after many exp-map steps stays far below it).
@@ -200,12 +201,11 @@ class AngleSpace(EuclideanSpace):
 
     def global_pose(self, motion: Motion) -> torch.Tensor:
         """t = the root's world position (rest offset + translation channels), ω = log of its rotation."""
-        fk = ForwardKinematics(motion.skeleton)
         channels = torch.as_tensor(motion.channels)
         root = motion.skeleton.trans_channels[0]
         t = torch.as_tensor(motion.skeleton.offsets[0]).expand(len(motion), 3).clone()
         t[:, root >= 0] += channels[:, root[root >= 0]]
-        return torch.cat([t, so3.log(fk.local_rotations(channels, joints=[0])[:, 0])], dim=-1)
+        return torch.cat([t, so3.log(torch.as_tensor(motion.skeleton.local_rotations(motion.channels, joints=[0])[:, 0]))], dim=-1)
 
     def for_body(self, motion: Motion) -> AngleSpace:
         """The same channels and reference pose on ``motion``'s skeleton (same channel layout)."""
@@ -238,19 +238,19 @@ class DirectionSpace(StateSpace):
 
     @classmethod
     def fit(cls, motions: Sequence[Motion]) -> DirectionSpace:
-        lengths = torch.cat([normalise(m.positions("eval15")).lengths for m in motions])
+        lengths = torch.cat([normalise(joint_positions(m, "eval15")).lengths for m in motions])
         return cls(lengths.mean(dim=0).numpy())
 
     def encode(self, motion: Motion) -> torch.Tensor:
-        return normalise(motion.positions("eval15")).directions.reshape(len(motion), -1)
+        return normalise(joint_positions(motion, "eval15")).directions.reshape(len(motion), -1)
 
     def for_body(self, motion: Motion) -> DirectionSpace:
         """Bone lengths of ``motion``'s subject (the mean over its frames)."""
-        return DirectionSpace(normalise(motion.positions("eval15")).lengths.mean(dim=0).numpy())
+        return DirectionSpace(normalise(joint_positions(motion, "eval15")).lengths.mean(dim=0).numpy())
 
     def global_pose(self, motion: Motion) -> torch.Tensor:
         """t = the hip centre, ω = log of the body frame's world-from-body rotation Rᵀ."""
-        pose = normalise(motion.positions("eval15"))
+        pose = normalise(joint_positions(motion, "eval15"))
         return torch.cat([pose.origin, so3.log(pose.rotation.transpose(-1, -2))], dim=-1)
 
     def _spheres(self, x: torch.Tensor) -> torch.Tensor:

@@ -11,6 +11,7 @@ from priortrack.data.motion import Motion
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 from priortrack.observation.synthetic import Observations
 from priortrack.viz.recording import Recording
+from priortrack.body.fk import joint_positions
 
 ESTIMATE_COLOR = (255, 90, 60)
 
@@ -21,7 +22,7 @@ def replay(motion: Motion, observations: Observations, path: str | Path, track: 
     the filter's estimate (after the known frames) and its projection, and the particle cloud or
     sigma points coloured by weight (if ``track`` kept its snapshots), with the 1σ ellipsoid of the
     body's translation where the filter integrated it out. Returns the path."""
-    positions = motion.positions("eval15")
+    positions = joint_positions(motion, "eval15")
     snapshots = {s.frame: s for s in track.snapshots or []} if track is not None else {}
     with Recording(path) as rec:
         rec.camera(observations.camera)

@@ -120,6 +120,30 @@ class Skeleton:
         scale[translations] = self.length_unit
         return scale
 
+    def local_rotations(self, channels, joints=None) -> np.ndarray:
+        """(T, C) channels → (T, K, 3, 3) float64 local rotations
+        L_j = R_{a_1}(θ_1) · R_{a_2}(θ_2) · R_{a_3}(θ_3) of the joints ``joints`` (K,) (all by default),
+        each R_a(θ) = I + sin θ [a]ₓ + (1 − cos θ) [a]ₓ² (Rodrigues); unused slots give I."""
+        channels = np.asarray(channels, dtype=np.float64)
+        check_channels(channels, self)
+        chosen = np.arange(self.num_joints) if joints is None else np.asarray(joints, dtype=int).reshape(-1)
+        if len(chosen) and not 0 <= chosen.min() <= chosen.max() < self.num_joints:
+            raise PriortrackError(f"joints {chosen.tolist()} outside the skeleton {self.name!r}'s "
+                                  f"{self.num_joints} joints")
+        frames = channels.reshape(-1, self.num_channels)
+        L = np.broadcast_to(np.eye(3), (len(frames), len(chosen), 3, 3)).copy()
+        for slot in range(SLOTS):
+            index = self.rot_channels[chosen, slot]                                   # (K,)
+            a = self.rot_axes[chosen, slot]                                           # (K, 3)
+            theta = np.where(index >= 0, frames[:, np.maximum(index, 0)], 0.0)        # (T, K)
+            cross = np.zeros((len(chosen), 3, 3))
+            cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
+            cross -= cross.transpose(0, 2, 1)
+            R = (np.eye(3) + np.sin(theta)[..., None, None] * cross
+                 + (1 - np.cos(theta))[..., None, None] * (cross @ cross))
+            L = L @ R
+        return L.reshape(channels.shape[:-1] + (len(chosen), 3, 3))
+
     def pruned(self, keep) -> tuple[Skeleton, np.ndarray]:
         """The smallest skeleton that places the joints ``keep``: their ancestors only, and no
         rotation slots on joints that end up leaves (a joint's own rotation moves only its
