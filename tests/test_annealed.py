@@ -9,11 +9,10 @@ import torch
 from priortrack import PriortrackError, load_walkjog
 from priortrack.experiments.metrics import mpjpe
 from priortrack.filters.annealed import AnnealedParticleFilter, annealing_exponent, survival
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
-from priortrack.priors.global_motion import GlobalMotion
 from priortrack.body.fk import joint_positions
 
 
@@ -42,7 +41,7 @@ def walk():
     motion = walkjog.test[1][:30]
     X = joint_positions(motion, "eval15")
     obs = synthesize(X, motion.fps, default_camera(X), "noise", seed=0, sigma_px=5.0)
-    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
+    model = TrackingModel.fitted(prior, train,
                           JointLikelihood(obs.camera))
     return model, motion, X, obs
 

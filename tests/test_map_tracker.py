@@ -13,7 +13,7 @@ from priortrack.data.motion import Motion
 from priortrack.experiments.metrics import mpjpe, mpjpe_root_relative
 from priortrack.filters.map_tracker import MapTracker
 from priortrack.threads import torch_threads
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import GPDM, Diffusion
@@ -41,14 +41,13 @@ def setting():
     train = [at_15fps(m, 20) for m in walks]
     with torch_threads(1):
         prior = GPDM.fit(train, balanced=True, fps=FPS)
-    global_motion = GlobalMotion.fit([prior.space.global_pose(at_15fps(m, 45)) for m in walks])
     motion = at_15fps(walks[0], FRAMES)
     X = joint_positions(motion, "eval15")
     camera = default_camera(X)
     noisy = synthesize(X, FPS, camera, "noise", seed=0, sigma_px=SIGMA_PX)
     blackout = synthesize(X, FPS, camera, "blackout", seed=0, sigma_px=SIGMA_PX,
                           start_s=BLACKOUT[0] / FPS, length_s=(BLACKOUT[1] - BLACKOUT[0]) / FPS)
-    model = TrackingModel(prior, global_motion, JointLikelihood(camera, sigma_px=SIGMA_PX))
+    model = TrackingModel.fitted(prior, [at_15fps(m, 45) for m in walks], JointLikelihood(camera, sigma_px=SIGMA_PX))
     return prior, model, motion, X, noisy.uv, blackout.uv
 
 

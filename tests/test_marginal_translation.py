@@ -9,11 +9,10 @@ import torch
 from priortrack import PriortrackError, load_walkjog
 from priortrack.filters.marginal_translation import kalman_update, predict_covariance
 from priortrack.filters.particle import ParticleFilter
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
-from priortrack.priors.global_motion import GlobalMotion
 
 from linear_gaussian import LinearGaussian
 from priortrack.body.fk import joint_positions
@@ -141,7 +140,7 @@ def _walk_filter(translation: str, seed: int, frames: int = 60, scenario: str = 
     motion = walkjog.test[1][:frames]
     X = joint_positions(motion, "eval15")
     obs = synthesize(X, motion.fps, default_camera(X), scenario, seed=seed, sigma_px=5.0)
-    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
+    model = TrackingModel.fitted(prior, train,
                           JointLikelihood(obs.camera))
     return ParticleFilter(model, 300, dtype="float32", translation=translation, seed=seed), obs, motion, X
 

@@ -50,7 +50,7 @@ def _must_not_run(*args, **kwargs):
 ])
 def test_the_command_line_checks_outputs_before_the_work(argv, message, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("priortrack.priors.fit.fit_prior", _must_not_run)
+    monkeypatch.setattr("priortrack.priors.registry.PriorKind.fit", _must_not_run)
     monkeypatch.setattr("priortrack.experiments.tracking.track", _must_not_run)
     monkeypatch.setattr("priortrack.data.load.load_motion", _must_not_run)
     assert main(argv) == 2

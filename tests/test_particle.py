@@ -9,7 +9,7 @@ import torch
 from priortrack import PriortrackError, load_walkjog
 from priortrack.experiments.metrics import mpjpe
 from priortrack.filters.particle import ParticleFilter
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
@@ -93,7 +93,7 @@ def test_tracks_a_walk_better_than_holding_the_first_pose(dtype, translation):
     motion = walkjog.test[1][:40]
     X = joint_positions(motion, "eval15")
     obs = synthesize(X, motion.fps, default_camera(X), "clean", seed=0)
-    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train]),
+    model = TrackingModel.fitted(prior, train,
                           JointLikelihood(obs.camera))
     pf = ParticleFilter(model, 300, dtype=dtype, translation=translation, seed=0)
     track = pf.run(obs.uv, motion)

@@ -8,8 +8,8 @@ import torch
 
 from priortrack import PriortrackError
 from priortrack.experiments.tracking import TABLE_PRESETS
-from priortrack.filters import presets as presets_module
-from priortrack.filters.presets import load_preset, parse_preset, preset_names
+from priortrack.experiments import presets as presets_module
+from priortrack.experiments.presets import load_preset, parse_preset, preset_names
 from priortrack.body.fk import joint_positions
 
 BASE = {
@@ -124,3 +124,41 @@ def test_build_gives_the_named_filter_with_its_parameters(tmp_path):
     filt = preset.build(default_camera(joint_positions(motion, "eval15")), seed=3, cache=tmp_path)
     assert type(filt).__name__ == "ParticleFilter" and filt.P == 50
     assert np.isclose(filt.model.likelihood.sigma_px, 10.0)
+
+
+def test_a_preset_can_name_a_fitted_prior_file(tmp_path):
+    """`[prior] file` (relative to the preset's folder): the kind and frame rate come from the file,
+    nothing is fitted, and fitting keys or a wrong kind are refused by name."""
+    fitted = parse_preset(table(), "small").prior(cache=tmp_path / "cache")
+    fitted.save(tmp_path / "walk.npz")
+    preset_file = tmp_path / "mine.toml"
+    preset_file.write_text('[filter]\nkind = "pf"\nparticles = 20\n\n'
+                           '[prior]\nfile = "walk.npz"\ntrain = ["walkjog:35_01"]\n')
+    preset = load_preset(preset_file)
+    assert preset.prior_kind == "diffusion-local" and preset.prior_file == tmp_path / "walk.npz"
+    x = fitted.encode(preset.training_motions[0])[:4]
+    loaded = preset.prior(cache=tmp_path / "empty")
+    assert torch.equal(loaded.mean(x), fitted.mean(x)) and not (tmp_path / "empty").exists()
+    file_table = {"filter": {"kind": "pf"}, "prior": {"file": "walk.npz", "train": ["walkjog:35_01"]}}
+    with pytest.raises(PriortrackError, match=r"\[prior\] kind 'lie', but its file .*walk.npz holds a 'diffusion-local'"):
+        parse_preset({**file_table, "prior": {**file_table["prior"], "kind": "lie"}}, "bad", folder=tmp_path)
+    with pytest.raises(PriortrackError, match="options is for fitting one and cannot go with it"):
+        parse_preset({**file_table, "prior": {**file_table["prior"], "options": {}}}, "bad", folder=tmp_path)
+    with pytest.raises(PriortrackError, match=r"\[prior\] file .*nothing.npz does not exist"):
+        parse_preset({**file_table, "prior": {**file_table["prior"], "file": "nothing.npz"}}, "bad", folder=tmp_path)
+    with pytest.raises(PriortrackError, match="filter 'ukf' cannot run"):
+        lie = parse_preset(table(prior__kind="lie", prior__train=["walkjog:35_0[1-4]"],
+                                 prior__options={"max_components": 2}), "l").prior(tmp_path / "c")
+        lie.save(tmp_path / "lie.npz")
+        parse_preset({"filter": {"kind": "ukf"}, "prior": {"file": "lie.npz", "train": ["walkjog:35_01"]}}, "bad",
+                     folder=tmp_path)
+
+
+def test_the_registry_is_the_one_list_of_kinds():
+    from priortrack.priors.registry import PRIOR_KINDS, kinds_with, prior_kind
+
+    assert list(PRIOR_KINDS) == ["diffusion-global", "diffusion-local", "gpdm", "bgpdm", "lie"]
+    assert kinds_with("latent") == ("gpdm", "bgpdm") and "lie" not in kinds_with("gaussian")
+    assert set(prior_kind("bgpdm").options()) == {"d", "seed", "dynamics_noise_floor"}
+    with pytest.raises(PriortrackError, match="unknown prior kind 'hmm'; kinds: diffusion-global"):
+        prior_kind("hmm")

@@ -8,7 +8,7 @@ from scipy.stats import chi2
 
 from priortrack import PriortrackError, load_walkjog
 from priortrack.experiments.metrics import mpjpe
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.filters.ukf import EIGEN_FLOOR, UnscentedFilter, UnscentedTracking
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
@@ -177,13 +177,13 @@ def test_diffusion_noise_covariance_is_that_of_its_steps(walks, space):
     model, _, _ = tracking_model(prior, train[:2], motion[:20])
     form = UnscentedTracking(model)
     x = prior.encode(motion[:1])
-    steps = form.chart.boxminus(prior.sample(x.expand(20000, -1), torch.Generator().manual_seed(0)), x[0])
+    steps = form.space.local(prior.sample(x.expand(20000, -1), torch.Generator().manual_seed(0)), x[0])
     Q = prior.transition_covariance(x)[0].numpy()
     empirical = np.cov(steps.numpy().T)
     scale = np.sqrt(np.outer(np.diag(Q), np.diag(Q)))
     np.testing.assert_allclose(np.diag(empirical) / np.diag(Q), 1.0, atol=0.06)
     assert np.abs((empirical - Q) / scale).max() < 0.06
-    assert Q.shape == (form.chart.dim, form.chart.dim)
+    assert Q.shape == (form.space.tangent_dim, form.space.tangent_dim)
 
 
 # ---- real priors -----------------------------------------------------------------------------------

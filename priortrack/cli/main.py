@@ -80,19 +80,14 @@ class _Progress:
 
 
 def _fit(args: argparse.Namespace) -> None:
-    from priortrack.priors.fit import fit_prior
+    from priortrack.priors.registry import PRIOR_KINDS, fit_prior
 
     output_path(args.out, "prior file")
     motions = _motions(args.train)
-    options = {"fps": args.fps}
-    if args.kind.startswith("diffusion"):
-        options["space"] = args.space
-    elif args.kind in ("gpdm", "bgpdm"):
-        options.update(d=args.d, seed=args.seed)
-        if args.dynamics_noise_floor is not None:
-            options["dynamics_noise_floor"] = args.dynamics_noise_floor
-    else:
-        options.update(max_components=args.components, seed=args.seed)
+    flags = {"space": args.space, "d": args.d, "dynamics_noise_floor": args.dynamics_noise_floor,
+             "max_components": args.components, "seed": args.seed}
+    schema = PRIOR_KINDS[args.kind].options()          # each kind takes the flags its fit has
+    options = {"fps": args.fps, **{k: v for k, v in flags.items() if k in schema and v is not None}}
     progress = _Progress(f"fit {args.kind}")
     try:
         model = fit_prior(args.kind, motions, progress=progress, **options)
@@ -141,11 +136,11 @@ def _sample(args: argparse.Namespace) -> None:
 def _plot(args: argparse.Namespace) -> None:
     from priortrack.errors import PriortrackError
     from priortrack.priors import load_prior
-    from priortrack.priors.gpdm import GPDM
+    from priortrack.priors.registry import PRIOR_KINDS
     from priortrack.viz.latent_plot import plot_latent
 
     prior = load_prior(args.prior)
-    if not isinstance(prior, GPDM):
+    if "latent" not in PRIOR_KINDS[prior.kind].capabilities:
         raise PriortrackError(f"{args.prior} is a {prior.kind} prior; 'plot' draws the latent space of a gpdm or bgpdm")
     plot_latent(prior, args.out)
     print(f"wrote {args.out}")
@@ -177,19 +172,20 @@ def _track(args: argparse.Namespace) -> None:
 
 
 def _eval_tracking(args: argparse.Namespace) -> None:
-    from priortrack.experiments.tracking import eval_tracking
+    from priortrack.experiments.tracking import TABLE_MOTIONS, TABLE_PRESETS, TABLE_SCENARIOS, TABLE_SEEDS, eval_tracking
 
     def show(row: dict) -> None:
         logging.getLogger("priortrack.track").info("%s %s %s seed %d: %.1f mm", row["filter"], row["motion"],
                                                     row["scenario"], row["seed"], row["mpjpe_mm"])
 
-    result = eval_tracking(args.presets, args.scenarios, args.motions, args.seeds, progress=show, jobs=args.jobs)
+    presets, scenarios = args.presets or list(TABLE_PRESETS), args.scenarios or list(TABLE_SCENARIOS)
+    motions, seeds = args.motions or list(TABLE_MOTIONS), TABLE_SEEDS if args.seeds is None else args.seeds
+    result = eval_tracking(presets, scenarios, motions, seeds, progress=show, jobs=args.jobs)
     if args.json:
         _print_json(result)
         return
-    scenarios = list(args.scenarios)
     for key, label in (("mpjpe_mm", "MPJPE"), ("mpjpe_root_rel_mm", "root-relative MPJPE")):
-        print(f"{label} (mm), mean ± std over {len(args.motions)} motions × {args.seeds} seeds; "
+        print(f"{label} (mm), mean ± std over {len(motions)} motions × {seeds} seeds; "
               f"ratio to pf-diffusion-local in brackets")
         print("| preset | " + " | ".join(scenarios) + " |")
         print("|---|" + "---|" * len(scenarios))
@@ -267,12 +263,31 @@ def _bench_fk(args: argparse.Namespace) -> None:
               f"({result['ratio']:.1f}x); max |difference| in float64 {result['max_abs_err_m']:.1e} m")
 
 
+def _presets(args: argparse.Namespace) -> None:
+    from priortrack.experiments.presets import load_preset, preset_names
+
+    presets = [load_preset(name) for name in preset_names()]
+    if args.json:
+        print(json.dumps([{"name": p.name, "filter": p.filter_kind, "prior": p.prior_kind, "description": p.description}
+                          for p in presets], indent=2))
+        return
+    print(f"{'preset':<22} {'filter':<6} {'prior':<17} description")
+    for p in presets:
+        print(f"{p.name:<22} {p.filter_kind:<6} {p.prior_kind:<17} {p.description}")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    from priortrack.experiments.tracking import TABLE_MOTIONS, TABLE_PRESETS, TABLE_SCENARIOS, TABLE_SEEDS
+    """The command line's parser; it imports nothing heavy (no torch), so ``--help`` and argument
+    errors are immediate."""
+    from priortrack.priors.registry import PRIOR_KINDS
 
     parser = argparse.ArgumentParser(prog="priortrack", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     verbs = parser.add_subparsers(dest="verb", required=True)
+
+    presets = verbs.add_parser("presets", help="list the filter presets")
+    presets.add_argument("--json", action="store_true")
+    presets.set_defaults(run=_presets)
 
     data = verbs.add_parser("data", help="bundled motion data").add_subparsers(dest="action", required=True)
     listing = data.add_parser("list", help="list the bundled clips")
@@ -290,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay.set_defaults(run=_replay)
 
     fit = verbs.add_parser("fit", help="fit a prior to motions")
-    fit.add_argument("kind", choices=["diffusion-global", "diffusion-local", "gpdm", "bgpdm", "lie"])
+    fit.add_argument("kind", choices=list(PRIOR_KINDS))
     fit.add_argument("--train", nargs="+", required=True,
                      help="bundled names (patterns allowed: 'walkjog:35_0*'), .amc or .bvh files")
     fit.add_argument("--out", required=True, help="the prior file to write (.npz)")
@@ -378,10 +393,10 @@ def build_parser() -> argparse.ArgumentParser:
     loglik.add_argument("--json", action="store_true")
     loglik.set_defaults(run=_eval_loglik)
     tracking = evaluate.add_parser("tracking", help="the accuracy table: every preset x scenario over seeds")
-    tracking.add_argument("--presets", nargs="+", default=list(TABLE_PRESETS))
-    tracking.add_argument("--scenarios", nargs="+", default=list(TABLE_SCENARIOS))
-    tracking.add_argument("--motions", nargs="+", default=list(TABLE_MOTIONS), help="held-out motions to track")
-    tracking.add_argument("--seeds", type=int, default=TABLE_SEEDS)
+    tracking.add_argument("--presets", nargs="+", help="default: the table's nine presets")
+    tracking.add_argument("--scenarios", nargs="+", help="default: clean, occlusion and blackout at 5 px")
+    tracking.add_argument("--motions", nargs="+", help="held-out motions to track (default: 35_29, 07_10, 07_11)")
+    tracking.add_argument("--seeds", type=int, help="seeds per motion (default 5)")
     tracking.add_argument("--jobs", type=int, default=1,
                           help="runs in this many worker processes (the same numbers; the MAP and unscented "
                                "filters run on one thread each, so 2 jobs about halve their rows' time)")

@@ -30,12 +30,11 @@ from priortrack.errors import PriortrackError
 from priortrack.experiments.bench import load_average
 from priortrack.experiments.bench_gpdm import bench_walks
 from priortrack.filters.particle import DTYPES, ParticleFilter
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors.base import TransitionModel
 from priortrack.priors.diffusion import Diffusion
-from priortrack.priors.global_motion import GlobalMotion
 from priortrack.priors.gpdm import GPDM
 from priortrack.priors.lie import LiePrior
 from priortrack.threads import torch_threads
@@ -109,8 +108,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
     observations = synthesize(X, walk.fps, default_camera(X), "noise", seed=seed)
     filters = {}
     for name, prior in priors.items():
-        global_motion = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
-        model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera))
+        model = TrackingModel.fitted(prior, train, JointLikelihood(observations.camera))
         filters[name] = ParticleFilter(model, particles, dtype=dtype, translation=translation, seed=seed)
         filters[name].initialise(walk)
 

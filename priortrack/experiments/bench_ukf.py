@@ -20,12 +20,11 @@ import torch
 from priortrack.data.bundled import load_walkjog
 from priortrack.errors import PriortrackError
 from priortrack.experiments.bench import interleaved_median_ms
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.filters.ukf import UnscentedFilter
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors.diffusion import Diffusion
-from priortrack.priors.global_motion import GlobalMotion
 from priortrack.threads import torch_threads
 from priortrack.body.fk import joint_positions
 
@@ -54,10 +53,9 @@ def bench_ukf(repeats: int = 5, seed: int = 0, threads: int = 1) -> dict:
     with torch_threads(threads):
         train = list(walks.walks("train"))
         prior = Diffusion.fit(train, local=True)
-        global_motion = GlobalMotion.fit([prior.space.global_pose(m) for m in train])
         X = joint_positions(motion, "eval15")
         observations = synthesize(X, motion.fps, default_camera(X), "clean", seed=seed)
-        model = TrackingModel(prior, global_motion, JointLikelihood(observations.camera))
+        model = TrackingModel.fitted(prior, train, JointLikelihood(observations.camera))
 
         filters = {"batched": UnscentedFilter(model, batched=True), "filterpy": UnscentedFilter(model, batched=False)}
         for f in filters.values():

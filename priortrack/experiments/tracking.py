@@ -27,7 +27,7 @@ from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import error_2d, mpjpe, mpjpe_root_relative
-from priortrack.filters.presets import Preset, load_preset
+from priortrack.experiments.presets import Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 from priortrack.observation.synthetic import Observations, default_camera, parse_scenario, synthesize
 from priortrack.body.fk import joint_positions

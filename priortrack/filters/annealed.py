@@ -27,7 +27,7 @@ import torch
 
 from priortrack.errors import PriortrackError
 from priortrack.filters.particle import ParticleFilter
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.priors.global_motion import GlobalMotion
 
 #: Bisection steps for β (the survival rate is matched to about 2^-40 in β).

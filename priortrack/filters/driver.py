@@ -27,21 +27,24 @@ class SequentialFilter:
         """Initialise on the first two frames of ``motion`` and filter the rest.
 
         Args:
-            observations: (T, 15, 2) pixels at the prior's frame rate, NaN where missing.
+            observations: (T, *model.observation_shape) at the prior's frame rate, NaN where missing.
             motion: the known motion whose first two frames start the filter.
             keep_snapshots: keep every step's Snapshot in the Track.
             progress: called as progress(t, T) after each frame.
         """
         observations = np.asarray(observations, dtype=float)
         T = len(observations)
-        if observations.ndim != 3 or observations.shape[1:] != (15, 2) or T < KNOWN_FRAMES + 1:
-            raise PriortrackError(f"observations have shape {observations.shape}; expected (T ≥ 3, 15, 2)")
+        shape = tuple(self.model.observation_shape)
+        if observations.shape[1:] != shape or T < KNOWN_FRAMES + 1:
+            raise PriortrackError(f"observations have shape {observations.shape}; expected (T ≥ 3, "
+                                  f"{', '.join(map(str, shape))})")
         start = time.perf_counter()
         self.initialise(motion)
         fps = self.model.prior.fps
         known = motion if motion.fps == fps else motion.resample(fps)
-        estimates = np.full((T, 15, 3), np.nan)
-        estimates[:KNOWN_FRAMES] = joint_positions(known, "eval15")[:KNOWN_FRAMES]
+        given = joint_positions(known, "eval15")[:KNOWN_FRAMES]
+        estimates = np.full((T,) + given.shape[1:], np.nan)
+        estimates[:KNOWN_FRAMES] = given
         ess = np.full(T, np.nan)
         flags: list[list[str]] = [[] for _ in range(KNOWN_FRAMES)]
         snapshots = []

@@ -53,9 +53,9 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 from priortrack.priors.global_motion import to_world
-from priortrack.priors.gpdm import GPDM
+from priortrack.models.protocols import LatentTransition
 from priortrack.threads import torch_threads
 
 log = logging.getLogger(__name__)
@@ -76,8 +76,8 @@ class MapTracker(SequentialFilter):
     """Sliding-window MAP tracker for a (balanced) GPDM prior (module docstring: eq. 21, Algorithm 1).
 
     Args:
-        model: the GPDM prior, global motion and 2D likelihood (``model.prior`` must be a
-            :class:`~priortrack.priors.gpdm.GPDM`, kind "gpdm" or "bgpdm").
+        model: the GPDM prior, global motion and 2D likelihood (``model.prior`` must keep the
+            :class:`~priortrack.models.protocols.LatentTransition` protocol: kinds "gpdm", "bgpdm").
         window: τ, the window holds τ + 1 states (τ = 2 in the paper).
         annealing: λ, the exponent on the GPDM dynamics density (0.5 in the paper). Our fits put
             the dynamics noise on its floor (σ_X² = 10⁻⁴), so λ = 0.5 ties the latent path tightly
@@ -95,9 +95,12 @@ class MapTracker(SequentialFilter):
     (n, D) the poses of the n ≤ τ + 1 free states (full mode; None in fast mode).
     """
 
+    #: What the tracker needs of a prior (priortrack.priors.registry): a GPDM's latent space.
+    requires = "latent"
+
     def __init__(self, model: TrackingModel, window: int = 2, annealing: float = 0.5, mode: str = "full",
                  iterations: int = 50, rounds: int = 1):
-        if not isinstance(model.prior, GPDM):
+        if not isinstance(model.prior, LatentTransition):
             raise PriortrackError(f"the MAP tracker needs a GPDM prior (kinds 'gpdm', 'bgpdm'); got a "
                                   f"{getattr(model.prior, 'kind', type(model.prior).__name__)!r} prior")
         if mode not in MODES:

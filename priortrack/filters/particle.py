@@ -30,7 +30,7 @@ from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.marginal_translation import kalman_update, predict_covariance
 from priortrack.filters.resampling import resampler
 from priortrack.filters.snapshot import Snapshot
-from priortrack.filters.tracking_model import TrackingModel
+from priortrack.models.tracking import TrackingModel
 
 
 #: The particles' dtypes, by name.
@@ -60,6 +60,9 @@ class ParticleFilter(SequentialFilter):
             Snapshot carries its particles' as ``translation_covariance``).
         seed: seeds the filter's own torch.Generator.
     """
+
+    #: What the filter needs of a prior: nothing beyond the transition-model protocol.
+    requires = None
 
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
                  ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", seed: int = 0):
@@ -121,7 +124,8 @@ class ParticleFilter(SequentialFilter):
         weights = torch.exp(self.log_weights)
         ess = float(1.0 / (weights ** 2).sum())
         t2 = time.perf_counter()
-        estimate = self.model.observe(self.model.mean(self.states, weights)[None])[0]
+        mean = self.model.mean(self.states, weights)
+        estimate = self.model.observe(mean[None])[0]
         best = joints[int(torch.argmax(weights))]
         t3 = time.perf_counter()
         snapshot_states, snapshot_covariance, ancestors = self.states, self.covariance, None
@@ -133,7 +137,7 @@ class ParticleFilter(SequentialFilter):
         timings.update(predict=t1 - t0, weight=t2 - t1, estimate=t3 - t2, resample=t4 - t3)
         self.frame += 1
         return Snapshot(self.frame, snapshot_states, weights, ess, ancestors, estimate.cpu().numpy(),
-                        best.cpu().numpy(), joints, flags, timings, snapshot_covariance)
+                        best.cpu().numpy(), joints, flags, timings, snapshot_covariance, mean=mean)
 
     def update(self, z: torch.Tensor, flags: list[str]) -> torch.Tensor:
         """Bayes' rule on the predicted particles: log w += log p(z | s), normalised.

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from priortrack.filters.tracking_model import GLOBAL_DIM
+from priortrack.models.tracking import GLOBAL_DIM
 
 
 #: Frames a run starts from (pose and placement known), before the first filtered one.
@@ -16,12 +16,15 @@ KNOWN_FRAMES = 2
 
 @dataclass
 class Snapshot:
-    """One filter step, for a notebook to look at or a recording to log.
+    """One filter step, for a notebook to look at or a recording to log. Every filter fills the
+    weighted point set (particles and weights; the unscented filter's sigma points and their mean
+    weights; the MAP tracker's window of states); a Gaussian filter also gives its ``mean`` and
+    ``covariance``.
 
     Attributes:
         frame: index of the observation this step consumed.
-        particles: (P, S_full) states after the update, before resampling (particles or
-            sigma points), pose state then placement (g_t, g_{t-1}).
+        particles: (P, dim) states after the update, before resampling (particles, sigma points
+            or the window's states), in the filter model's layout.
         weights: (P,) normalised weights of ``particles``.
         ess: effective sample size 1 / Σ w².
         ancestors: (P,) indices into ``particles`` of the resampled set, None if not resampled.
@@ -50,6 +53,10 @@ class Snapshot:
     flags: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     translation_covariance: torch.Tensor | None = None
+    #: (dim,) the estimate's state and, for a Gaussian filter, (n, n) its covariance in the
+    #: tangent coordinates at it; None where the filter has none.
+    mean: torch.Tensor | None = None
+    covariance: torch.Tensor | None = None
 
     def translation_spread(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The weighted mean t̄ (3,) and covariance (3, 3), metres, of the body's translation t_t
@@ -72,7 +79,7 @@ class Snapshot:
 
 @dataclass
 class Track:
-    """A whole run: per-frame estimates (T, 15, 3), ESS (T,), flags and timings.
+    """A whole run: per-frame estimates (T, J, 3), ESS (T,), flags and timings.
 
     Frames before the filter started (the known initial frames) hold the given poses.
     """

@@ -68,7 +68,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -78,11 +77,10 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
-from priortrack.filters.tracking_model import GLOBAL_DIM, TrackingModel
 from priortrack.geometry import so3
-from priortrack.geometry.sphere import transport
-from priortrack.geometry.tangent_basis import from_coordinates, tangent_basis, to_coordinates
-from priortrack.priors.spaces import DirectionSpace, StateSpace
+from priortrack.geometry.manifold_mean import signed_mean
+from priortrack.models.protocols import GaussianTransition
+from priortrack.models.tracking import GLOBAL_DIM, TrackingModel
 
 log = logging.getLogger(__name__)
 
@@ -90,104 +88,11 @@ log = logging.getLogger(__name__)
 COPY_JITTER = 1e-10
 #: Eigenvalues of a repaired covariance are at least this times its largest.
 EIGEN_FLOOR = 1e-9
-#: The sigma-point mean iteration stops when its step is below this (largest |coordinate|: metres,
-#: radians; the iterate is then within about twice that of the fixed point) …
-MEAN_TOL = 1e-10
-#: … or after this many steps (logged). With the unscented weights' large negative W_0 the
-#: rotations' iteration contracts slowly (by about 0.65 per step seen on walks with spread
-#: sigma points): 45 steps from 1e-2 to MEAN_TOL.
-MEAN_MAX_STEPS = 100
 #: Van der Merwe's sigma-point parameters (defaults): spread α, prior knowledge β, κ.
 ALPHA, BETA, KAPPA = 0.5, 2.0, 0.0
 #: What the filter needs of a model that is not a TrackingModel (the linear-Gaussian test model keeps it).
 UNSCENTED_INTERFACE = ("dim", "tangent_dim", "observation_shape", "mean_step", "measure", "observe",
                        "process_covariance", "measurement_covariance", "boxplus", "boxminus", "sigma_mean", "transport")
-
-
-# ---- tangent coordinates of the pose --------------------------------------------------------------
-
-class EuclideanChart:
-    """A Euclidean pose space: its coordinates are its tangent coordinates (n = S)."""
-
-    def __init__(self, space: StateSpace):
-        self.space, self.dim = space, space.dim
-
-    def boxplus(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-        """x (N, S) ⊞ c (N, S) → (N, S)."""
-        return self.space.boxplus(x, c)
-
-    def boxminus(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """y (N, S) ⊟ x (S,) → (N, S)."""
-        return self.space.boxminus(y, x)
-
-    def transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """Coordinates at a → coordinates at b: the identity (S, S)."""
-        return torch.eye(self.dim, dtype=a.dtype, device=a.device)
-
-    def mean(self, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-        """Σ_i w_i x_i: x (N, S), w (N,) → (S,)."""
-        return w @ x
-
-
-class SphereChart:
-    """(S²)ᴷ stored as 3K numbers, 2K tangent coordinates: per bone the coordinates in the
-    tangent basis E(x) (K, 2, 3) at the base point x."""
-
-    def __init__(self, space: DirectionSpace):
-        self.space, self.bones = space, len(space.group_names)
-        self.dim = 2 * self.bones
-
-    def _points(self, x: torch.Tensor) -> torch.Tensor:
-        return x.reshape(x.shape[:-1] + (self.bones, 3))
-
-    def boxplus(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-        """x ⊞ c = exp_x(E(x)ᵀ c): x (N, 3K), c (N, 2K) → (N, 3K)."""
-        v = from_coordinates(tangent_basis(self._points(x)), c.reshape(c.shape[:-1] + (self.bones, 2)))
-        return self.space.boxplus(x, v.reshape(x.shape))
-
-    def boxminus(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """y ⊟ x = E(x) log_x(y): y (N, 3K), x (3K,) → (N, 2K)."""
-        v = self.space.boxminus(y, x.expand_as(y))
-        c = to_coordinates(tangent_basis(self._points(x)), self._points(v))
-        return c.reshape(y.shape[:-1] + (self.dim,))
-
-    def transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """Coordinates at a → coordinates at b (2K, 2K), block-diagonal: on bone k the rotation
-        T_k[i, j] = e_i(b_k) · Γ_{a_k→b_k} e_j(a_k), Γ the parallel transport."""
-        pa, pb = self._points(a), self._points(b)
-        moved = transport(pa[:, None], pb[:, None], tangent_basis(pa))           # (K, 2, 3): Γ e_j(a)
-        return torch.block_diag(*(tangent_basis(pb) @ moved.transpose(-1, -2)))
-
-    def mean(self, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-        """Fixed point of m ← exp_m(Σ_i w_i log_m(x_i)) from x_0: x (N, 3K), w (N,) → (3K,)."""
-        return signed_mean(x[0], w, lambda m: self.space.boxminus(x, m.expand_as(x)),
-                           lambda m, v: self.space.boxplus(m[None], v[None])[0])
-
-
-def pose_chart(space: StateSpace) -> EuclideanChart | SphereChart:
-    """The tangent coordinates of a prior's state space."""
-    if isinstance(space, DirectionSpace):
-        return SphereChart(space)
-    if not space.manifold:
-        return EuclideanChart(space)
-    raise PriortrackError(f"the unscented filter has no tangent coordinates for the state space {type(space).__name__}")
-
-
-def signed_mean(start: torch.Tensor, w: torch.Tensor, minus: Callable[[torch.Tensor], torch.Tensor],
-                plus: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]) -> torch.Tensor:
-    """The weighted mean of points on a manifold for weights w (N,) summing to 1 of any sign (the
-    unscented weights): the fixed point of m ← m ⊞ Σ_i w_i (x_i ⊟ m) from ``start``, with
-    minus(m) = (x_i ⊟ m)_i (N, k) and plus(m, v) = m ⊞ v. Stops once the step's largest entry is
-    below MEAN_TOL (after MEAN_MAX_STEPS steps, logged)."""
-    mean = start
-    for _ in range(MEAN_MAX_STEPS):
-        step = w @ minus(mean)
-        mean = plus(mean, step)
-        if float(step.abs().max()) < MEAN_TOL:
-            return mean
-    log.warning("sigma-point mean: no convergence in %d steps (last step %.3g)", MEAN_MAX_STEPS,
-                float(step.abs().max()))
-    return mean
 
 
 def _placements(g: torch.Tensor) -> torch.Tensor:
@@ -231,7 +136,7 @@ class UnscentedTracking:
 
     def __init__(self, model: TrackingModel):
         prior, likelihood = model.prior, model.likelihood
-        if not hasattr(prior, "transition_covariance"):
+        if not isinstance(prior, GaussianTransition):
             raise PriortrackError(f"the unscented filter needs a prior with a Gaussian transition (a mean step and a "
                                   f"noise covariance); the {prior.kind!r} prior ({type(prior).__name__}) has none: "
                                   f"use the particle filter")
@@ -239,8 +144,8 @@ class UnscentedTracking:
             raise PriortrackError(f"the unscented filter needs a Gaussian likelihood (R = σ_px² I); this one is a "
                                   f"Student-t (robust_nu={likelihood.robust_nu:g}), which has no measurement "
                                   f"covariance: use the particle filter, or a JointLikelihood without robust_nu")
-        self.model, self.chart = model, pose_chart(prior.space)
-        self.dim, self.tangent_dim = model.dim, self.chart.dim + 2 * GLOBAL_DIM
+        self.model, self.space = model, prior.space
+        self.dim, self.tangent_dim = model.dim, self.space.tangent_dim + 2 * GLOBAL_DIM
         self.observation_shape = model.observation_shape
         self.mean_step, self.observe = model.mean_step, model.observe
         m = int(np.prod(self.observation_shape))
@@ -248,26 +153,26 @@ class UnscentedTracking:
 
     def boxplus(self, s: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         """s (N, A) ⊞ v (N, n) → (N, A)."""
-        S, n = self.model.pose_dim, self.chart.dim
-        return torch.cat([self.chart.boxplus(s[:, :S], v[:, :n]), placements_plus(s[:, S:], v[:, n:])], -1)
+        S, n = self.model.pose_dim, self.space.tangent_dim
+        return torch.cat([self.space.retract(s[:, :S], v[:, :n]), placements_plus(s[:, S:], v[:, n:])], -1)
 
     def boxminus(self, s: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
         """s (N, A) ⊟ base (A,) → (N, n), in the tangent coordinates at base."""
         S = self.model.pose_dim
-        return torch.cat([self.chart.boxminus(s[:, :S], base[:S]), placements_minus(s[:, S:], base[S:])], -1)
+        return torch.cat([self.space.local(s[:, :S], base[:S]), placements_minus(s[:, S:], base[S:])], -1)
 
     def sigma_mean(self, s: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         """Mean (A,) of states s (N, A) for weights w (N,) summing to 1 (any sign): on each factor
         of the product manifold the fixed point of m ← m ⊞ Σ_i w_i (s_i ⊟ m) (:func:`signed_mean`;
         one step, the weighted sum, where ⊞ = +)."""
         S = self.model.pose_dim
-        return torch.cat([self.chart.mean(s[:, :S], w), placements_mean(s[:, S:], w)])
+        return torch.cat([self.space.signed_mean(s[:, :S], w), placements_mean(s[:, S:], w)])
 
     def transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         """(n, n) map from tangent coordinates at state a (A,) to those at b (A,)."""
         S = self.model.pose_dim
         eye = torch.eye(2 * GLOBAL_DIM, dtype=a.dtype, device=a.device)
-        return torch.block_diag(self.chart.transport(a[:S], b[:S]), eye)
+        return torch.block_diag(self.space.coordinate_transport(a[:S], b[:S]), eye)
 
     def measure(self, s: torch.Tensor) -> torch.Tensor:
         """h: states (N, A) → (N, 30) pixels (u, v of each eval15 joint), NaN where behind the camera."""
@@ -429,6 +334,9 @@ class UnscentedFilter(SequentialFilter):
         kf: the :class:`BatchedUKF` (filterpy's state: ``kf.x`` (A,), ``kf.P`` (n, n)).
     """
 
+    #: What the filter needs of a prior (priortrack.priors.registry): one Gaussian transition.
+    requires = "gaussian"
+
     def __init__(self, model, alpha: float = ALPHA, beta: float = BETA, kappa: float = KAPPA, batched: bool = True):
         if not alpha > 0:
             raise PriortrackError(f"alpha must be positive, got {alpha}")
@@ -501,7 +409,8 @@ class UnscentedFilter(SequentialFilter):
         self.frame += 1
         return Snapshot(self.frame, sigmas, torch.from_numpy(kf.Wm.copy()), float(len(sigmas)), None,
                         estimate.cpu().numpy(), estimate.cpu().numpy(), joints, flags,
-                        {"predict": t1 - t0, "weight": t2 - t1, "estimate": t3 - t2})
+                        {"predict": t1 - t0, "weight": t2 - t1, "estimate": t3 - t2},
+                        mean=self.mean, covariance=self.covariance)
 
     def _update(self, z: np.ndarray, flags: list[str]) -> None:
         """The measurement update with z (m,) on the observed coordinates that every sigma point

@@ -41,6 +41,8 @@ class JointLikelihood:
         if robust_nu is not None and not robust_nu > 0:
             raise PriortrackError(f"robust_nu must be positive (or None for a Gaussian), got {robust_nu}")
         self.camera, self.sigma_px, self.robust_nu = camera, float(sigma_px), robust_nu
+        #: One frame's data: (J, 2) pixels of the 15 eval15 joints.
+        self.observation_shape = (15, 2)
         #: |d_j|² of a predicted joint behind the camera: the squared image diagonal.
         self.miss_sq = float(camera.width ** 2 + camera.height ** 2)
 

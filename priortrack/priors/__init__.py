@@ -1,12 +1,22 @@
 """Motion priors as transition models: Gaussian diffusion, (balanced) GPDM, Lie-algebra mixture.
 
-Importing this package registers every prior kind, so :func:`load_prior` reads them all.
+The kinds are listed once, in :mod:`priortrack.priors.registry`; :func:`load_prior` reads any of them.
+The names below are imported on first use, so that the registry (and the command line's help)
+loads without torch.
 """
 
-from priortrack.priors.base import KINDS, TransitionModel, load_prior
-from priortrack.priors.diffusion import Diffusion
-from priortrack.priors.gpdm import GPDM
-from priortrack.priors.lie import LiePrior
-from priortrack.priors.fit import FIT_KINDS, fit_prior
+import importlib
 
-__all__ = ["KINDS", "FIT_KINDS", "TransitionModel", "load_prior", "fit_prior", "Diffusion", "GPDM", "LiePrior"]
+_NAMES = {
+    "TransitionModel": "priortrack.priors.base", "load_prior": "priortrack.priors.base",
+    "Diffusion": "priortrack.priors.diffusion", "GPDM": "priortrack.priors.gpdm", "LiePrior": "priortrack.priors.lie",
+    "PRIOR_KINDS": "priortrack.priors.registry", "fit_prior": "priortrack.priors.registry",
+    "prior_kind": "priortrack.priors.registry",
+}
+__all__ = list(_NAMES)
+
+
+def __getattr__(name: str):
+    if name in _NAMES:
+        return getattr(importlib.import_module(_NAMES[name]), name)
+    raise AttributeError(f"module 'priortrack.priors' has no attribute {name!r}")

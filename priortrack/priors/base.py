@@ -30,24 +30,12 @@ import torch
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.output import output_path
+from priortrack.priors.registry import PRIOR_KINDS
 from priortrack.priors.spaces import StateSpace
 
 FORMAT = "priortrack-prior"
 FORMAT_VERSION = 1
 DEFAULT_FPS = 30.0
-
-#: kind → class, filled by :func:`register`.
-KINDS: dict[str, type[TransitionModel]] = {}
-
-
-def register(*kinds: str):
-    """Class decorator: make a prior class loadable (and fittable) under these kind names."""
-    def decorate(cls):
-        for kind in kinds:
-            KINDS[kind] = cls
-        return cls
-    return decorate
-
 
 class TransitionModel(ABC):
     """Base of every prior. Subclasses set ``kind``, ``space`` and ``fps``."""
@@ -168,10 +156,10 @@ def load_prior(path: str | Path) -> TransitionModel:
         raise PriortrackError(f"{path}: prior format version {header.get('version')!r} is not supported "
                               f"(this priortrack reads version {FORMAT_VERSION})")
     kind = header.get("kind")
-    if kind not in KINDS:
-        raise PriortrackError(f"{path}: unknown prior kind {kind!r}; kinds: {', '.join(sorted(KINDS))}")
+    if kind not in PRIOR_KINDS:
+        raise PriortrackError(f"{path}: unknown prior kind {kind!r}; kinds: {', '.join(PRIOR_KINDS)}")
     try:
-        return KINDS[kind]._restore(arrays, header)
+        return PRIOR_KINDS[kind].prior_class()._restore(arrays, header)
     except KeyError as exc:
         raise PriortrackError(f"{path}: the {kind} prior lacks {exc.args[0]!r}") from None
 

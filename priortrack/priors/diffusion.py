@@ -21,14 +21,13 @@ import torch
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
+from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions
 from priortrack.priors.spaces import SPACES, StateSpace
 
 #: Smallest σ a fit may return (radians): a joint that never moved in training still diffuses.
 SIGMA_FLOOR = 1e-4
 
 
-@register("diffusion-global", "diffusion-local")
 class Diffusion(TransitionModel):
     """A Gaussian random walk in a state space.
 

@@ -78,7 +78,7 @@ except ImportError:  # optional: only a speed-up
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
+from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions
 from priortrack.priors.spaces import AngleSpace, EuclideanSpace
 from priortrack.randomness import standard_normal
 from priortrack.threads import torch_threads
@@ -328,7 +328,6 @@ class LatentSpace(EuclideanSpace):
         return self.angles.global_pose(motion)
 
 
-@register("gpdm", "bgpdm")
 class GPDM(TransitionModel):
     """A (balanced) GPDM over latent states x (P, d).
 

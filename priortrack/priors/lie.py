@@ -80,7 +80,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry.sphere import clamped_cosine, karcher_mean, log_map, theta_over_sin
 from priortrack.geometry.tangent_basis import tangent_basis, to_coordinates
-from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions, register
+from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions
 from priortrack.priors.spaces import DirectionSpace
 from priortrack.randomness import standard_normal
 from priortrack.threads import block_pool
@@ -746,7 +746,6 @@ class _MessageLengthEM:
 # ---------------------------------------------------------------------------------------------
 
 
-@register("lie")
 class LiePrior(TransitionModel):
     """The Lie-algebra kinematic prior as a transition model on :class:`DirectionSpace` states (P, 42).
 

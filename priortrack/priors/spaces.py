@@ -29,7 +29,9 @@ from priortrack.data.skeleton import Skeleton
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
-from priortrack.geometry.sphere import exp_map, karcher_mean, log_map, project_to_tangent
+from priortrack.geometry.manifold_mean import signed_mean
+from priortrack.geometry.sphere import exp_map, karcher_mean, log_map, project_to_tangent, transport
+from priortrack.geometry.tangent_basis import from_coordinates, tangent_basis, to_coordinates
 from priortrack.randomness import standard_normal
 from priortrack.body.fk import joint_positions
 
@@ -96,6 +98,28 @@ class StateSpace(ABC):
     def boxminus(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """y ⊟ x: the tangent step (..., S) at x that reaches y."""
 
+    @property
+    def tangent_dim(self) -> int:
+        """n, the intrinsic dimension: the number of tangent coordinates of a state."""
+        return int(np.sum(self.tangent_dims))
+
+    @abstractmethod
+    def retract(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        """x (N, S) ⊞ c (N, n): the state reached by the tangent coordinates c at x."""
+
+    @abstractmethod
+    def local(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """y (N, S) ⊟ x (S,) → (N, n), in the tangent coordinates at x."""
+
+    @abstractmethod
+    def coordinate_transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """(n, n) map from tangent coordinates at state a (S,) to those at b (S,)."""
+
+    @abstractmethod
+    def signed_mean(self, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """(S,) mean of states x (N, S) for weights w (N,) summing to 1 of any sign (the unscented
+        weights): :func:`~priortrack.geometry.manifold_mean.signed_mean` in this space."""
+
     @abstractmethod
     def tangent_noise(self, x: torch.Tensor, std: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """Isotropic Gaussian tangent steps at x (P, S), std (S,) per coordinate (equal within a group)."""
@@ -123,6 +147,20 @@ class EuclideanSpace(StateSpace):
 
     def boxminus(self, y, x):
         return y - x
+
+    def retract(self, x, c):
+        return x + c
+
+    def local(self, y, x):
+        return y - x
+
+    def coordinate_transport(self, a, b):
+        """The identity (S, S): a Euclidean space's coordinates are the same at every point."""
+        return torch.eye(self.dim, dtype=a.dtype, device=a.device)
+
+    def signed_mean(self, x, w):
+        """Σ_i w_i x_i: x (N, S), w (N,) → (S,)."""
+        return w @ x
 
     def tangent_noise(self, x, std, generator):
         return standard_normal(x.shape, generator, x) * std
@@ -279,6 +317,31 @@ class DirectionSpace(StateSpace):
 
     def boxminus(self, y, x):
         return log_map(self._spheres(x), self._spheres(y)).reshape(y.shape)
+
+    def retract(self, x, c):
+        """x ⊞ c = exp_x(E(x)ᵀ c): x (N, 3K), c (N, 2K) → (N, 3K), with E(x) (K, 2, 3) the
+        :func:`~priortrack.geometry.tangent_basis.tangent_basis` at each bone direction."""
+        K = len(BONE_CHILDREN)
+        v = from_coordinates(tangent_basis(self._spheres(x)), c.reshape(c.shape[:-1] + (K, 2)))
+        return self.boxplus(x, v.reshape(x.shape))
+
+    def local(self, y, x):
+        """y ⊟ x = E(x) log_x(y): y (N, 3K), x (3K,) → (N, 2K)."""
+        v = self.boxminus(y, x.expand_as(y))
+        c = to_coordinates(tangent_basis(self._spheres(x)), self._spheres(v))
+        return c.reshape(y.shape[:-1] + (self.tangent_dim,))
+
+    def coordinate_transport(self, a, b):
+        """(2K, 2K) block-diagonal: on bone k the rotation T_k[i, j] = e_i(b_k) · Γ_{a_k→b_k} e_j(a_k),
+        Γ the parallel transport along the geodesic."""
+        pa, pb = self._spheres(a), self._spheres(b)
+        moved = transport(pa[:, None], pb[:, None], tangent_basis(pa))           # (K, 2, 3): Γ e_j(a)
+        return torch.block_diag(*(tangent_basis(pb) @ moved.transpose(-1, -2)))
+
+    def signed_mean(self, x, w):
+        """Fixed point of m ← exp_m(Σ_i w_i log_m(x_i)) from x_0: x (N, 3K), w (N,) → (3K,)."""
+        return signed_mean(x[0], w, lambda m: self.boxminus(x, m.expand_as(x)),
+                           lambda m, v: self.boxplus(m[None], v[None])[0])
 
     def tangent_noise(self, x, std, generator):
         ambient = standard_normal(x.shape, generator, x) * std

@@ -1,6 +1,6 @@
 """Filter presets: a TOML file names a filter, its prior and training motions, and the observation model.
 
-A preset (the top-level ``filters/`` folder holds the shipped ones; any path works too)::
+A preset (the shipped ones: ``priortrack presets``; any path works too)::
 
     description = "particle filter, local Gaussian diffusion in joint-angle space"
 
@@ -9,19 +9,25 @@ A preset (the top-level ``filters/`` folder holds the shipped ones; any path wor
     particles = 1000
 
     [prior]
-    kind = "diffusion-local"      # a kind of priortrack.priors.FIT_KINDS
+    kind = "diffusion-local"      # a kind of priortrack.priors.registry
     train = ["walkjog:35_0*"]     # motions as `load_motion` takes them (bundled patterns allowed)
     fps = 30.0
     options = { space = "angles" }   # keyword arguments of the kind's fit
+    # file = "walk.npz"           # a prior written by `priortrack fit` instead of fitting one
+    #                               (relative to the preset's folder; train then fits the global motion only)
 
     [observation]                 # JointLikelihood's parameters
     sigma_px = 10.0
 
 The valid keys of ``[filter]`` are the filter class's constructor parameters (besides the model
-and the seed), those of ``[prior].options`` the prior's ``fit`` parameters; anything else is a
+and the seed), those of ``[prior].options`` the kind's option schema
+(:meth:`~priortrack.priors.registry.PriorKind.options`); anything else is a
 :class:`PriortrackError` that lists the valid keys. Fitted priors are cached as prior files
 (no pickle) under :func:`cache_dir`, keyed by a hash of the ``[prior]`` table, the expanded
 training sources and the prior file format, so a second run does not refit.
+
+The shipped presets' source is the repository's top-level ``filters/`` folder, installed as the
+package data ``priortrack/experiments/preset_files/`` (pyproject.toml maps one onto the other).
 """
 
 from __future__ import annotations
@@ -44,33 +50,35 @@ from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
+from priortrack.models.tracking import TrackingModel
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors.base import DEFAULT_FPS, FORMAT_VERSION, TransitionModel, load_prior, prepare_motions
-from priortrack.priors.fit import FIT_KINDS, fit_prior
-from priortrack.priors.global_motion import GlobalMotion
+from priortrack.priors.registry import PRIOR_KINDS, check_options, fit_prior, kinds_with
 
 log = logging.getLogger(__name__)
 
-#: Where the shipped presets live: the repository's top-level ``filters/`` folder.
-PRESET_DIR = Path(__file__).resolve().parents[2] / "filters"
+#: Where the shipped presets live: the package data of an installed priortrack, else (a source
+#: checkout, an editable install) the repository's top-level ``filters/`` folder.
+PRESET_DIR = next((d for d in (Path(__file__).resolve().parent / "preset_files",
+                               Path(__file__).resolve().parents[2] / "filters") if d.is_dir()),
+                  Path(__file__).resolve().parent / "preset_files")
 TOP_KEYS = ("description", "filter", "prior", "observation")
-PRIOR_KEYS = ("kind", "train", "fps", "options", "annealing")
-GPDM_KINDS = ("gpdm", "bgpdm")
-GAUSSIAN_KINDS = ("diffusion-global", "diffusion-local", "gpdm", "bgpdm")
+PRIOR_KEYS = ("kind", "train", "fps", "options", "annealing", "file")
 
 
-#: Filter kind → (module, class, the prior kinds it can run).
-FILTERS: dict[str, tuple[str, str, tuple[str, ...]]] = {
-    "pf": ("priortrack.filters.particle", "ParticleFilter", FIT_KINDS),
-    "apf": ("priortrack.filters.annealed", "AnnealedParticleFilter", FIT_KINDS),
-    "ukf": ("priortrack.filters.ukf", "UnscentedFilter", GAUSSIAN_KINDS),
-    "map": ("priortrack.filters.map_tracker", "MapTracker", GPDM_KINDS),
+#: Filter kind → (module, class). Each class says what it needs of a prior in ``requires``
+#: (a capability of :mod:`priortrack.priors.registry`, or None for any prior).
+FILTERS: dict[str, tuple[str, str]] = {
+    "pf": ("priortrack.filters.particle", "ParticleFilter"),
+    "apf": ("priortrack.filters.annealed", "AnnealedParticleFilter"),
+    "ukf": ("priortrack.filters.ukf", "UnscentedFilter"),
+    "map": ("priortrack.filters.map_tracker", "MapTracker"),
 }
 
 
 def filter_class(kind: str) -> type:
     """The filter class of a preset's ``[filter] kind`` (imported on first use)."""
-    module, name, _ = FILTERS[kind]
+    module, name = FILTERS[kind]
     return getattr(importlib.import_module(module), name)
 
 
@@ -81,6 +89,7 @@ def _parameters(func: Callable, skip: tuple[str, ...]) -> dict[str, Any]:
 
 
 def _check_keys(where: str, given: dict, valid) -> None:
+    """Raise a PriortrackError naming the keys of ``given`` that are not in ``valid``, with the valid ones."""
     unknown = sorted(set(given) - set(valid))
     if unknown:
         raise PriortrackError(f"{where}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}; "
@@ -95,6 +104,8 @@ class Preset:
         name: the file's stem.
         filter_kind: "pf", "apf", "ukf" or "map"; filter_options: the filter's parameters.
         prior_kind, train (expanded sources), fps, prior_options: what the prior is fitted to.
+        prior_file: a fitted prior to use instead of fitting one (``train`` then fits only the
+            global motion), or None.
         annealing: the GPDM's dynamics annealing λ for filters that draw from it
             (:meth:`GPDM.annealed`; 1 = as learned); applied after fitting, not part of the cache key.
         observation: JointLikelihood parameters (sigma_px, robust_nu).
@@ -110,6 +121,7 @@ class Preset:
     prior_options: dict[str, Any] = field(default_factory=dict)
     observation: dict[str, Any] = field(default_factory=dict)
     annealing: float = 1.0
+    prior_file: Path | None = None
 
     @property
     def cache_key(self) -> str:
@@ -119,7 +131,14 @@ class Preset:
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def prior(self, cache: Path | None = None, progress=None) -> TransitionModel:
-        """The fitted prior, from the cache if it is there (fitted and cached otherwise)."""
+        """The prior: the preset's prior file, else the fitted prior from the cache if it is there
+        (fitted and cached otherwise)."""
+        if self.prior_file is not None:
+            prior = load_prior(self.prior_file)
+            if prior.kind != self.prior_kind:
+                raise PriortrackError(f"preset {self.name!r}: [prior] file {self.prior_file} holds a {prior.kind!r} "
+                                      f"prior, not {self.prior_kind!r}")
+            return prior if self.annealing == 1.0 else prior.annealed(self.annealing)
         cache = cache_dir() if cache is None else Path(cache)
         path = cache / f"{self.prior_kind}-{self.cache_key}.npz"
         if path.exists():
@@ -144,23 +163,18 @@ class Preset:
         for the global motion of every run)."""
         return tuple(prepare_motions([load_motion(source) for source in self.train], self.fps))
 
-    def global_motion(self, prior: TransitionModel) -> GlobalMotion:
-        """The placement model (position and heading second order, tilt AR(1)), fitted to the
-        training motions' placements."""
-        return GlobalMotion.fit([prior.space.global_pose(m) for m in self.training_motions])
-
     def likelihood(self, camera: PinholeCamera) -> JointLikelihood:
         return JointLikelihood(camera, **self.observation)
 
+    def model(self, camera: PinholeCamera, cache: Path | None = None, progress=None) -> TrackingModel:
+        """The tracking model: the prior, the global motion fitted to the training motions, the likelihood."""
+        return TrackingModel.fitted(self.prior(cache, progress), self.training_motions, self.likelihood(camera))
+
     def build(self, camera: PinholeCamera, seed: int = 0, cache: Path | None = None, progress=None):
         """The filter, ready to ``run(observations, motion)``."""
-        from priortrack.filters.tracking_model import TrackingModel
-
-        prior = self.prior(cache, progress)
-        model = TrackingModel(prior, self.global_motion(prior), self.likelihood(camera))
         cls = filter_class(self.filter_kind)
         seeded = {"seed": seed} if "seed" in inspect.signature(cls.__init__).parameters else {}  # the UKF is deterministic
-        return cls(model, **seeded, **self.filter_options)
+        return cls(self.model(camera, cache, progress), **seeded, **self.filter_options)
 
 
 def cache_dir() -> Path:
@@ -172,7 +186,7 @@ def cache_dir() -> Path:
 
 
 def preset_names() -> list[str]:
-    """The shipped presets (stems of ``filters/*.toml``)."""
+    """The shipped presets (stems of the TOML files in :data:`PRESET_DIR`)."""
     return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
 
 
@@ -194,11 +208,12 @@ def load_preset(name: str | Path) -> Preset:
         table = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise PriortrackError(f"{path}: not valid TOML: {exc}") from None
-    return parse_preset(table, path.stem, str(path))
+    return parse_preset(table, path.stem, str(path), folder=path.parent)
 
 
-def parse_preset(table: dict, name: str, where: str = "preset") -> Preset:
-    """Validate a preset's parsed TOML ``table``."""
+def parse_preset(table: dict, name: str, where: str = "preset", folder: Path | None = None) -> Preset:
+    """Validate a preset's parsed TOML ``table``; a ``[prior] file`` is relative to ``folder``
+    (the preset's own folder; the working directory if None)."""
     _check_keys(where, table, TOP_KEYS)
     for section in ("filter", "prior"):
         if not isinstance(table.get(section), dict):
@@ -209,25 +224,34 @@ def parse_preset(table: dict, name: str, where: str = "preset") -> Preset:
         raise PriortrackError(f"{where}: [filter] kind {kind!r} is not one of {', '.join(FILTERS)}")
     prior = table["prior"]
     _check_keys(f"{where} [prior]", prior, PRIOR_KEYS)
-    prior_kind = prior.get("kind")
-    if prior_kind not in FIT_KINDS:
-        raise PriortrackError(f"{where}: [prior] kind {prior_kind!r} is not one of {', '.join(FIT_KINDS)}")
-    usable = FILTERS[kind][2]
-    if prior_kind not in usable:
-        raise PriortrackError(f"{where}: filter {kind!r} cannot run a {prior_kind!r} prior; it runs {', '.join(usable)}")
-    valid = _parameters(filter_class(kind).__init__, ("self", "model", "seed"))
+    prior_file = _prior_file(prior, where, folder)
+    prior_kind, fps = prior.get("kind"), prior.get("fps", DEFAULT_FPS)
+    if prior_file is not None:                  # the file says what it holds (and is checked on the way)
+        stored = load_prior(prior_file)
+        if prior_kind not in (None, stored.kind):
+            raise PriortrackError(f"{where}: [prior] kind {prior_kind!r}, but its file {prior_file} holds a "
+                                  f"{stored.kind!r} prior")
+        prior_kind, fps = stored.kind, stored.fps
+    if prior_kind not in PRIOR_KINDS:
+        raise PriortrackError(f"{where}: [prior] kind {prior_kind!r} is not one of {', '.join(PRIOR_KINDS)}")
+    cls = filter_class(kind)
+    if cls.requires is not None and cls.requires not in PRIOR_KINDS[prior_kind].capabilities:
+        raise PriortrackError(f"{where}: filter {kind!r} cannot run a {prior_kind!r} prior; it runs "
+                              f"{', '.join(kinds_with(cls.requires))}")
+    valid = _parameters(cls.__init__, ("self", "model", "seed"))
     _check_keys(f"{where} [filter] ({kind})", options, ["kind", *valid])
     train = prior.get("train")
     if not isinstance(train, list) or not train or not all(isinstance(s, str) for s in train):
         raise PriortrackError(f"{where}: [prior] train must be a non-empty list of motion names or paths")
     prior_options = dict(prior.get("options", {}))
-    _check_keys(f"{where} [prior] options ({prior_kind})", prior_options, _fit_parameters(prior_kind))
+    check_options(prior_kind, prior_options, PRIOR_KINDS[prior_kind].options(), f"{where} [prior] options")
 
     annealing = prior.get("annealing", 1.0)
     if "annealing" in prior:
-        if prior_kind not in GPDM_KINDS or kind == "map":
+        gpdm = kinds_with("latent")
+        if prior_kind not in gpdm or kind == "map":
             raise PriortrackError(f"{where}: [prior] annealing is the GPDM's dynamics annealing for the filters that "
-                                  f"draw from it (pf, apf, ukf with {' or '.join(GPDM_KINDS)}); the MAP tracker takes "
+                                  f"draw from it (pf, apf, ukf with {' or '.join(gpdm)}); the MAP tracker takes "
                                   f"its own [filter] annealing")
         if isinstance(annealing, bool) or not isinstance(annealing, (int, float)) or not 0 < annealing <= 1:
             raise PriortrackError(f"{where}: [prior] annealing must be a number in (0, 1], got {annealing!r}")
@@ -235,16 +259,22 @@ def parse_preset(table: dict, name: str, where: str = "preset") -> Preset:
     observation = dict(table.get("observation", {}))
     _check_keys(f"{where} [observation]", observation, _parameters(JointLikelihood.__init__, ("self", "camera")))
     return Preset(name, str(table.get("description", "")), kind, options, prior_kind,
-                  tuple(expand_sources(train)), float(prior.get("fps", DEFAULT_FPS)), prior_options, observation,
-                  float(annealing))
+                  tuple(expand_sources(train)), float(fps), prior_options, observation,
+                  float(annealing), prior_file)
 
 
-def _fit_parameters(kind: str) -> list[str]:
-    from priortrack.priors.diffusion import Diffusion
-    from priortrack.priors.gpdm import GPDM
-    from priortrack.priors.lie import LiePrior
-
-    fit = {"diffusion-global": Diffusion.fit, "diffusion-local": Diffusion.fit, "gpdm": GPDM.fit,
-           "bgpdm": GPDM.fit, "lie": LiePrior.fit}[kind]
-    # fit_prior sets these itself.
-    return list(_parameters(fit, ("cls", "motions", "local", "balanced", "progress", "fps")))
+def _prior_file(prior: dict, where: str, folder: Path | None) -> Path | None:
+    """``[prior] file`` resolved against ``folder``; with it, fitting keys are an error."""
+    if "file" not in prior:
+        return None
+    if not isinstance(prior["file"], str) or not prior["file"]:
+        raise PriortrackError(f"{where}: [prior] file must be the path of a prior file, got {prior['file']!r}")
+    fitting = sorted({"options", "fps"} & set(prior))
+    if fitting:
+        raise PriortrackError(f"{where}: [prior] file names a fitted prior; {', '.join(fitting)} "
+                              f"{'is' if len(fitting) == 1 else 'are'} for fitting one and cannot go with it")
+    path = Path(prior["file"]).expanduser()
+    path = path if path.is_absolute() or folder is None else Path(folder) / path
+    if not path.is_file():
+        raise PriortrackError(f"{where}: [prior] file {path} does not exist")
+    return path

@@ -8,13 +8,14 @@ observation model scores the world joints exp(ω_t)·joints(x_t) + t_t against t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
-from priortrack.observation.likelihood import JointLikelihood
-from priortrack.priors.base import TransitionModel
+from priortrack.models.protocols import ObservationModel, TransitionModel
 from priortrack.priors.global_motion import GlobalMotion, to_world
 
 GLOBAL_DIM = 6
@@ -29,13 +30,22 @@ class TrackingModel:
     runs in the dtype of the states it is given.
     """
 
-    observation_shape = (15, 2)
-
-    def __init__(self, prior: TransitionModel, global_motion: GlobalMotion, likelihood: JointLikelihood):
+    def __init__(self, prior: TransitionModel, global_motion: GlobalMotion, likelihood: ObservationModel):
         self.prior, self.global_motion, self.likelihood = prior, global_motion, likelihood
         #: The state space that decodes joints: the prior's, with the tracked subject's body
         #: (bone lengths) once :meth:`initial_states` has seen the subject's known first frames.
         self.body = prior.space
+
+    @classmethod
+    def fitted(cls, prior: TransitionModel, motions: Sequence[Motion], likelihood: ObservationModel) -> TrackingModel:
+        """The model with its global motion fitted to the placements of ``motions`` (the prior's
+        training motions, at its frame rate): the one way every preset, benchmark and test assembles it."""
+        return cls(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in motions]), likelihood)
+
+    @property
+    def observation_shape(self) -> tuple[int, ...]:
+        """The shape of one frame's observation: the observation model's."""
+        return tuple(self.likelihood.observation_shape)
 
     @property
     def pose_dim(self) -> int:
@@ -73,12 +83,12 @@ class TrackingModel:
         return torch.cat([self.prior.mean(x), self.global_motion.predict(g, g_prev), g], -1)
 
     def observe(self, s: torch.Tensor) -> torch.Tensor:
-        """(P, S + 12) → (P, 15, 3) world joints, metres, in s's dtype."""
+        """(P, S + 12) → (P, J, 3) world joints, metres, in s's dtype."""
         x, g, _ = self.split(s)
         return to_world(self.body.joints(x), g)
 
     def log_likelihood(self, joints: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        """(P, 15, 3) world joints, z (15, 2) pixels with NaN → (P,) log p(z | joints)."""
+        """(P, J, 3) world joints, z (observation_shape, NaN = missing) → (P,) log p(z | joints)."""
         return self.likelihood.log_likelihood(joints, z)
 
     def initial_states(self, motion: Motion, n: int, generator: torch.Generator, start: int = 1) -> torch.Tensor:
