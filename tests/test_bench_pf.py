@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from priortrack import PriortrackError, load_walkjog
-from priortrack.experiments.bench_pf import PHASES, bench_pf
+from priortrack.experiments.benchmarks.pf import PHASES, bench_pf
 from priortrack.priors import Diffusion
 from priortrack.priors.gpdm import GPDM
 from priortrack.priors.lie import LiePrior

@@ -9,7 +9,7 @@ from scipy.optimize import minimize
 
 from priortrack import PriortrackError, load_walkjog
 from priortrack.data.bundled import load_bundled
-from priortrack.experiments import fill_in
+from priortrack.experiments.reproductions import fill_in
 from priortrack.priors.base import load_prior
 from priortrack.priors.gpdm import GPDM, KAPPA, gpdm_objective
 from priortrack.priors.spaces import AngleSpace

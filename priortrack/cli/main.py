@@ -203,7 +203,7 @@ def _print_json(result: dict) -> None:
 
 
 def _eval_fill_in(args: argparse.Namespace) -> None:
-    from priortrack.experiments.fill_in import eval_fill_in
+    from priortrack.experiments.reproductions.fill_in import eval_fill_in
 
     result = eval_fill_in(seed=args.seed)
     if args.json:
@@ -215,7 +215,7 @@ def _eval_fill_in(args: argparse.Namespace) -> None:
 
 
 def _eval_loglik(args: argparse.Namespace) -> None:
-    from priortrack.experiments.loglik import eval_loglik
+    from priortrack.experiments.reproductions.loglik import eval_loglik
 
     result = eval_loglik(train=args.train, test=args.test, seed=args.seed)
     if args.json:
@@ -227,32 +227,32 @@ def _eval_loglik(args: argparse.Namespace) -> None:
 
 
 def _bench_gpdm_fit(args: argparse.Namespace) -> None:
-    from priortrack.experiments.bench_gpdm import bench_gpdm_fit
+    from priortrack.experiments.benchmarks.gpdm_fit import bench_gpdm_fit
 
     _print_json(bench_gpdm_fit(frames=args.frames, threads=args.threads))
 
 
 def _bench_lie_sample(args: argparse.Namespace) -> None:
-    from priortrack.experiments.bench_lie import bench_lie_sample
+    from priortrack.experiments.benchmarks.lie_sample import bench_lie_sample
 
     _print_json(bench_lie_sample(n=args.n, threads=args.threads))
 
 
 def _bench_ukf(args: argparse.Namespace) -> None:
-    from priortrack.experiments.bench_ukf import bench_ukf
+    from priortrack.experiments.benchmarks.ukf import bench_ukf
 
     _print_json(bench_ukf(repeats=args.repeats, seed=args.seed, threads=args.threads))
 
 
 def _bench_pf(args: argparse.Namespace) -> None:
-    from priortrack.experiments.bench_pf import bench_pf
+    from priortrack.experiments.benchmarks.pf import bench_pf
 
     _print_json(bench_pf(particles=args.particles, steps=args.steps, seed=args.seed, threads=args.threads,
                          dtype=args.dtype, translation=args.translation))
 
 
 def _bench_fk(args: argparse.Namespace) -> None:
-    from priortrack.experiments.bench import bench_fk
+    from priortrack.experiments.benchmarks.fk import bench_fk
 
     result = bench_fk(batch=args.batch, repeats=args.repeats, threads=args.threads)
     if args.json:

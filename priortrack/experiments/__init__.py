@@ -1,1 +1,2 @@
-"""Experiment helpers: error metrics and their summaries."""
+"""Experiments: shared metrics, filter presets, tracking runs and the accuracy table, the papers'
+reproductions (``reproductions/``) and the benchmarks (``benchmarks/``)."""

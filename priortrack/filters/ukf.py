@@ -50,7 +50,7 @@ transport of the basis at s̄' into the basis at s̄ (a 2 × 2 rotation per bone
 elsewhere (world-frame rotation perturbations need none). filterpy's own ``predict`` and
 ``update`` run every step; ``batched=False`` runs f through filterpy's per-sigma-point loop
 (``UnscentedKalmanFilter.compute_process_sigmas``) and h one sigma point per call (the pattern
-of filterpy's update loop), the reference that :mod:`priortrack.experiments.bench_ukf` times.
+of filterpy's update loop), the reference that :mod:`priortrack.experiments.benchmarks.ukf` times.
 
 **Care.** A frame without any observation skips the update (the prediction stands; flagged
 "no-observation"). A covariance that is not positive definite (an update's P' − K S Kᵀ losing

@@ -78,6 +78,7 @@ except ImportError:  # optional: only a speed-up
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
+from priortrack.geometry.linalg import jittered_cholesky
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions
 from priortrack.priors.spaces import AngleSpace, EuclideanSpace
 from priortrack.randomness import standard_normal
@@ -121,21 +122,10 @@ INIT_JITTER = 1e-3
 # ---- the objective -----------------------------------------------------------------------------
 
 def cholesky(K: torch.Tensor) -> torch.Tensor:
-    """Lower Cholesky factor of a symmetric (n, n) matrix; on failure the diagonal gets a jitter
-    of 1e-8 × its mean, ×10 on each further failure (10 tries), else a PriortrackError."""
-    L, info = torch.linalg.cholesky_ex(K)
-    if not info.any():
-        return L
-    scale = K.diagonal().mean().detach()
-    eye = torch.eye(K.shape[-1], dtype=K.dtype, device=K.device)
-    jitter = JITTER_START
-    for _ in range(JITTER_TRIES):
-        L, info = torch.linalg.cholesky_ex(K + (jitter * scale) * eye)
-        if not info.any():
-            return L
-        jitter *= 10
-    raise PriortrackError(f"kernel matrix ({K.shape[-1]}×{K.shape[-1]}) is not positive definite "
-                          f"even with a jitter of {jitter / 10:g} × its mean diagonal")
+    """Lower Cholesky factor of a kernel matrix (n, n): :func:`jittered_cholesky` from
+    JITTER_START × its mean diagonal, ×10 on each failure (JITTER_TRIES tries)."""
+    n = K.shape[-1]
+    return jittered_cholesky(K, f"kernel matrix ({n}×{n})", JITTER_START, JITTER_START * 10 ** (JITTER_TRIES - 1))
 
 
 def rbf(A: torch.Tensor, B: torch.Tensor, log_amplitude: torch.Tensor, inv_width: torch.Tensor) -> torch.Tensor:

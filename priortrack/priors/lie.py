@@ -80,6 +80,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry.sphere import clamped_cosine, karcher_mean, log_map, theta_over_sin
 from priortrack.geometry.tangent_basis import tangent_basis, to_coordinates
+from priortrack.geometry.linalg import jittered_cholesky
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions
 from priortrack.priors.spaces import DirectionSpace
 from priortrack.randomness import standard_normal
@@ -113,24 +114,9 @@ _C_MAX_32 = np.float32(1.0 - np.finfo(np.float32).eps / 2)
 
 
 def _cholesky(matrices: torch.Tensor, what: str) -> torch.Tensor:
-    """Lower Cholesky factors of a batch of symmetric matrices (..., n, n).
-
-    A factorisation that fails is retried with a jitter ε I added, ε growing tenfold from
-    1e-12 to 1e-6 times the mean diagonal; past that a PriortrackError names ``what``.
-    """
-    factor, info = torch.linalg.cholesky_ex(matrices)
-    if not bool((info > 0).any()):
-        return factor
-    eye = torch.eye(matrices.shape[-1], dtype=matrices.dtype, device=matrices.device)
-    scale = matrices.diagonal(dim1=-2, dim2=-1).mean().abs().clamp(min=torch.finfo(matrices.dtype).tiny)
-    jitter = 1e-12
-    while jitter <= 1e-6:
-        factor, info = torch.linalg.cholesky_ex(matrices + jitter * scale * eye)
-        if not bool((info > 0).any()):
-            logger.debug("cholesky of %s needed a jitter of %.1e", what, jitter)
-            return factor
-        jitter *= 10
-    raise PriortrackError(f"{what} is not positive definite (Cholesky fails even with a jitter of 1e-6)")
+    """Lower Cholesky factors of a batch of symmetric matrices (..., n, n): :func:`jittered_cholesky`
+    with a jitter from 1e-12 to 1e-6 times the mean diagonal."""
+    return jittered_cholesky(matrices, what, 1e-12, 1e-6)
 
 
 def _whitening(factor: torch.Tensor) -> torch.Tensor:
@@ -716,29 +702,12 @@ class _MessageLengthEM:
         self.cov[k] = cov + self.ridge * torch.eye(4, dtype=torch.float64)
         self.log_dens[:, k] = self._log_density(k, a, bv)
 
-    def _karcher(self, k: int, w: torch.Tensor, tol: float = 1e-10, max_iter: int = 50) -> None:
-        """μ_k ← the weighted Karcher mean of the poses, by μ ← exp_μ(Eᵀ Σ_i w_i a_i / Σ_i w_i) from the
-        current μ_k, until the step is below ``tol`` radians or after ``max_iter`` steps.
-
+    def _karcher(self, k: int, w: torch.Tensor) -> None:
+        """μ_k ← the weighted Karcher mean of the poses (:func:`~priortrack.geometry.sphere.karcher_mean`).
         Samples whose weight is below 1e-12 of the largest are left out (their pull on the mean
-        is below that fraction too).
-        """
+        is below that fraction too)."""
         keep = w > 1e-12 * w.max()
-        x, weights = self.x[keep], w[keep]
-        weights = (weights / weights.sum()).unsqueeze(0)
-        mu = self.mu[k]
-        for _ in range(max_iter):
-            basis = tangent_basis(mu)
-            frame = _block_diagonal(torch.cat([mu.unsqueeze(-2), basis], dim=-2).transpose(-1, -2))
-            a, _ = _coordinates(x, None, frame, self.b)
-            step = (weights @ a.reshape(len(x), -1)).reshape(self.b, 2)
-            tangent = (step.unsqueeze(-1) * basis).sum(dim=-2)                          # Eᵀ step (B, 3)
-            angle = torch.linalg.vector_norm(tangent, dim=-1, keepdim=True)
-            mu = torch.cos(angle) * mu + torch.sinc(angle / math.pi) * tangent        # exp_μ(step)
-            mu = mu / torch.linalg.vector_norm(mu, dim=-1, keepdim=True)
-            if float(torch.linalg.vector_norm(step)) < tol:
-                break
-        self.mu[k] = mu
+        self.mu[k] = karcher_mean(self.x[keep].reshape(-1, self.b, 3), weights=w[keep])
 
 
 # ---------------------------------------------------------------------------------------------

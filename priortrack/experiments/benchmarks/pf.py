@@ -8,7 +8,7 @@ the weight normalisation and estimate, and resampling when the ESS falls below P
 particles and a median step time t, the throughput is P / t.
 
 Setup, per prior: the prior is fitted on the subject-35 training walks of the bundled walk/jog
-set (the GPDM on their first ``gpdm_frames`` frames, :func:`priortrack.experiments.bench_gpdm.bench_walks`,
+set (the GPDM on their first ``gpdm_frames`` frames, :func:`priortrack.experiments.benchmarks.gpdm_fit.bench_walks`,
 so that its fit stays short), global motion by :meth:`GlobalMotion.fit` on the same walks, the
 likelihood a :class:`JointLikelihood` through :func:`priortrack.observation.default_camera`;
 observations are the ``noise`` scenario of the first test walk (the paper's eight joints). The
@@ -27,8 +27,8 @@ import torch
 
 from priortrack.data.bundled import load_walkjog
 from priortrack.errors import PriortrackError
-from priortrack.experiments.bench import load_average
-from priortrack.experiments.bench_gpdm import bench_walks
+from priortrack.experiments.benchmarks.timing import load_average
+from priortrack.experiments.benchmarks.gpdm_fit import bench_walks
 from priortrack.filters.particle import DTYPES, ParticleFilter
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize

@@ -7,7 +7,7 @@ set's training walks (state dim 50 + 12 = 62, so 2·62 + 1 = 125 sigma points), 
 and the Gaussian 2D likelihood (σ_px = 10) of clean synthetic observations of the held-out walk
 35_29 through the default camera. Both filters start on the walk's first two frames and step
 through the same frames in turn; timings are medians over interleaved repeats
-(:func:`priortrack.experiments.bench.interleaved_median_ms`), each repeat one whole ``step``.
+(:func:`priortrack.experiments.benchmarks.timing.interleaved_median_ms`), each repeat one whole ``step``.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import torch
 
 from priortrack.data.bundled import load_walkjog
 from priortrack.errors import PriortrackError
-from priortrack.experiments.bench import interleaved_median_ms
+from priortrack.experiments.benchmarks.timing import interleaved_median_ms
 from priortrack.models.tracking import TrackingModel
 from priortrack.filters.ukf import UnscentedFilter
 from priortrack.observation import default_camera, synthesize

@@ -5,7 +5,7 @@ The two do different work: the Lie prior draws x_t ~ p(x_t | x_{t-1}) for given 
 responsibilities π_k(x), a Gaussian conditional per row, a parallel transport and an
 exponential map); scikit-learn draws unconditional samples of a full-covariance Gaussian
 mixture in the same dimension (56 = 28 pose + 28 velocity tangent coordinates). Timings are
-medians over interleaved repeats (:func:`priortrack.experiments.bench.interleaved_median_ms`).
+medians over interleaved repeats (:func:`priortrack.experiments.benchmarks.timing.interleaved_median_ms`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import torch
 
 from priortrack.data.bundled import load_bundled, load_walkjog
 from priortrack.errors import PriortrackError
-from priortrack.experiments.bench import interleaved_median_ms, load_average
+from priortrack.experiments.benchmarks.timing import interleaved_median_ms, load_average
 from priortrack.priors.lie import LiePrior
 from priortrack.threads import torch_threads
 
@@ -60,7 +60,7 @@ def bench_lie_sample(n: int = 200_000, threads: int = 2, seed: int = 0, repeats:
         "single_thread_samples_per_s", "load_average"}``, dims the dimension of the joint (pose,
         velocity) tangent space (56); single_thread_samples_per_s, the Lie sampler again with one
         thread, and load_average, the machine's 1, 5 and 15 minute load averages when the timing
-        ended (:func:`~priortrack.experiments.bench.load_average`), show whether the threads had
+        ended (:func:`~priortrack.experiments.benchmarks.timing.load_average`), show whether the threads had
         the cores to themselves.
     """
     try:

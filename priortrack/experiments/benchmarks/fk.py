@@ -1,14 +1,6 @@
-"""Benchmarks: priortrack's code timed side by side with a reference in the same run.
-
-Timings are medians over interleaved repeats (reference, ours, reference, ours, …) so that
-machine noise hits both alike; compare the ratio, not the absolute figures.
-"""
+"""``priortrack bench fk``: our forward kinematics against pytorch-kinematics on the same poses."""
 
 from __future__ import annotations
-
-import os
-import time
-from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -17,26 +9,8 @@ from priortrack.body.chain import KinematicChain
 from priortrack.body.fk import ForwardKinematics
 from priortrack.data.bundled import load_bundled
 from priortrack.errors import PriortrackError
+from priortrack.experiments.benchmarks.timing import interleaved_median_ms
 from priortrack.threads import torch_threads
-
-
-def load_average() -> tuple[float, float, float] | None:
-    """The machine's 1, 5 and 15 minute load averages (``os.getloadavg``), None where the system
-    has none: whether a timing had the cores to itself."""
-    return os.getloadavg() if hasattr(os, "getloadavg") else None
-
-
-def interleaved_median_ms(functions: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
-    """Median wall time (ms) of each function, run in turn ``repeats`` times after one warm-up."""
-    times: dict[str, list[float]] = {name: [] for name in functions}
-    for name, f in functions.items():
-        f()
-    for _ in range(repeats):
-        for name, f in functions.items():
-            start = time.perf_counter()
-            f()
-            times[name].append(time.perf_counter() - start)
-    return {name: 1000.0 * float(np.median(t)) for name, t in times.items()}
 
 
 def bench_fk(batch: int = 10_000, repeats: int = 9, threads: int = 2, seed: int = 0,
