@@ -22,8 +22,7 @@ Methods:
   the straight latent line across the gap; both are optimised and the lower-energy optimum kept
   (a choice by the objective itself: (a) alone fails where the rollout drifts out of phase, (b)
   alone where the line cuts across the latent cycle), each run for at most ``MAP_MAXITER``
-  L-BFGS-B iterations (the runtime budget; 50, 80, 150 gave B-GPDM 7.30, 7.35, 7.26 with an
-  earlier two-thread fit). The missing poses are μ_Y(x'_t).
+  L-BFGS-B iterations (the runtime budget). The missing poses are μ_Y(x'_t).
 - ``knn15``: every 50-frame window of every training walk (stride 1; none crosses a sequence
   boundary) is compared on the observed frames (sum of squared angle differences); the missing
   frames of the 15 nearest are averaged.
@@ -33,61 +32,13 @@ Methods:
   missing frame's eq.-18 latent inferred from its true pose, i.e. the fill-in were the gap seen.
 
 Torch runs on one thread (``TORCH_THREADS``): the same fit on any core count (the loss differs in
-its last digits between one and two threads, so the fits' L-BFGS-B paths part: two threads gave
-B-GPDM 7.30), and on the 2 shared, loaded cores of the development machine one loss + gradient at
-N = 431 costs 58–98 ms on one thread against 410–550 ms on two.
+its last digits between one and two threads, so the fits' L-BFGS-B paths part).
 
 Wang et al. report 49.31 (B-GPDM), 73.87 (MAP, i.e. the GPDM), 55.62 (KNN-15) and 93.34 (spline)
 as the average RMS per frame; their units (and data scaling) differ from ours (degrees), so only
 the ordering compares.
 
-What we measure (seed 0, 431 training frames; per walk 35_29 / 07_10 / 07_11): B-GPDM 7.36
-(5.91 / 6.24 / 9.95), GPDM 10.68 (7.91 / 10.69 / 13.43), KNN-15 4.63 (4.36 / 4.03 / 5.51),
-spline 17.36 (11.26 / 21.00 / 19.83); floors B-GPDM 4.85 (4.47 / 3.83 / 6.26), GPDM 5.99.
-B-GPDM < GPDM < spline as in the paper, but KNN-15 beats the B-GPDM, and overall even its floor.
-Checked, all on this protocol:
-
-- the fit: both models converge by the ``FTOL`` test (1095 and 2162 iterations); μ_Y is not
-  over-smoothed (training frames reconstructed to 0.85° / 0.54° per frame against a fitted noise
-  std of 0.61° / 0.43° per channel, median of √(1/β3)/w_k); whitened-PCA start, ∏θ⁻¹ priors and
-  closed-form W as in the paper; the training set is walks only; 07 and 35 share one channel
-  layout, their clip means differ by style only (largest ≈ 50° on hand and thumb channels, no 2π).
-- why: held-out poses lie 2.7 / 3.2 / 4.5° from the nearest training pose, far beyond the fitted
-  noise. μ_Y's manifold passes close to them (latents fitted to each test-walk frame by unweighted
-  least squares: 2.6 / 2.8 / 4.2°), but eq. 18 divides the residual by σ²(x) and so explains such
-  poses by latents where σ²(x) is large (mean σ² 0.13 / 0.09 / 0.23 against 0.01 on the training
-  latents), where μ_Y is poor: the floors above. Inside the gap the path drifts there too (mean
-  σ² up to 1 on the worst windows).
-- the objective, not the optimiser: keeping the lower-energy of the found optimum and one started
-  from the all-frames-observed MAP path gives 5.0 / 5.6 / 9.6: lower energy, no better fill.
-- a homoscedastic variant (σ²(x) in eq. 18 replaced by the noise 1/β3; not the model's predictive
-  likelihood, so not adopted): B-GPDM 4.80 (3.53 / 4.13 / 6.74) at 200 iterations, 5.83 at 50;
-  GPDM 10.39 at 50. It beats KNN-15 on 35_29 only.
-- learning with the window included (the PAMI paper's missing-data learning: the window's
-  observed frames join the training set, its missing frames' latents are held by the dynamics
-  alone, i.e. their rows are marginalised out of the reconstruction GP; warm-started from the
-  fitted model and the MAP path, 200 L-BFGS-B iterations; a scratch prototype, not kept):
-  B-GPDM 5.62 / 5.77 / 8.30 with the window and the whole model (W included) refitted per window
-  (07_11 8.32 with the window's latents only), against 5.98 / 6.37 / 9.40 here and KNN-15's
-  4.36 / 4.03 / 5.51: mean 6.56 against 4.63. Better, but far from KNN-15.
-- the dynamics noise floor (``GPDM.fit(dynamics_noise_floor=…)``, 10⁻⁴ here), raised as for the
-  ``map-gpdm`` tracker: B-GPDM 7.92 at 10⁻³ (35_29 4.76, 07_11 12.12) and 8.25 at 10⁻², GPDM
-  9.96 / 9.62; no help.
-- dynamics: the model's are first order; a second-order GPDM (as some of the PAMI paper's
-  walking models) needs another state and kernel in the model and was not tried.
-- training data: with the first 3 subject-35 walks (538 frames, ~1.5× the run time) the B-GPDM
-  reached 6.31 (3.40 / 4.36 / 11.16) against KNN-15's 4.70; 1 walk (329 frames) 8.17 against
-  4.68. More subject-35 walks cannot help on 07_10 and 07_11, whose 15 nearest windows all come
-  from subject 07's three training walks (KNN-15 there is the same with 1 to 22 subject-35 walks).
-- latent start (538 frames, to tolerance): rollout alone 6.41, straight line alone 8.80, a rollout
-  time-warped to end after the gap 7.58, the lower-energy of three 6.26.
-- dynamics weight (annealing) on 07_11: 0.1 → 9.5–9.8, 0.5 → 10.1–10.6, 1 → 10.4–11.1,
-  D/d → 10.5; over all walks D/d is worse than 1 (7.02 vs 6.41).
-- latent dimension: 07_11's floor is 7.0° at d = 3, 5.6° at d = 4, 4.8° at d = 5 (538 frames);
-  d = 5 fills 35_29 worse (5.84 vs 3.40) and fits 2.5× slower.
-  Chosen on validation instead (trained on 35_01, 07_01, 07_02; windows of 35_02 and 07_09):
-  B-GPDM 2.89 / 6.43 at d = 3 and 3.17 / 5.87 at d = 4 against KNN-15's 3.74 / 4.61 (floors
-  3.04 / 6.11 and 2.63 / 4.21): neither beats KNN-15, which wins on subject 07 at either d.
+What we measured, and the attempts to close the gap to KNN-15: ``docs/results/2026-11-24-fill-in.md``.
 """
 
 from __future__ import annotations
