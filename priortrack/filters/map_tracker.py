@@ -14,7 +14,7 @@ older state is frozen. The tracker minimises eq. 21 over the window,
 
 with j over the window's frames; the history terms reach back to the frozen states before the
 window (G_{t−τ−2}, G_{t−τ−1}, x_{t−τ−1}), which condition the window on the past. Missing
-joints (NaN in the (15, 2) observation) drop out of the image term; a frame with nothing seen
+joints (NaN in the observation) drop out of the image term; a frame with nothing seen
 has no image term, so the dynamics, the reconstruction and the global model carry its state
 (through a total occlusion the prediction carries the track).
 
@@ -249,7 +249,7 @@ class MapTracker(SequentialFilter):
 
     # ---- the filter interface ----------------------------------------------------------------
     def step(self, z) -> Snapshot:
-        """Consume the observation z of the next frame ((15, 2) pixels, NaN where missing).
+        """Consume the observation z of the next frame (``model.observation_shape``, NaN where missing).
 
         Returns a :class:`Snapshot` whose ``particles`` are the window's free states as
         tracking-model rows [x_j, g_j, g_{j−1}] (n ≤ τ + 1, oldest first, the newest last),

@@ -102,7 +102,7 @@ class ParticleFilter(SequentialFilter):
         self.frame = frame
 
     def step(self, z) -> Snapshot:
-        """Consume the observation z of the next frame ((15, 2) pixels, NaN where missing)."""
+        """Consume the observation z of the next frame (``model.observation_shape``, NaN where missing)."""
         if self.states is None:
             raise PriortrackError("the filter is not initialised: call initialise(motion) first")
         z = torch.as_tensor(z, dtype=self.states.dtype, device=self.states.device)

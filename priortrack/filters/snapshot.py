@@ -28,10 +28,10 @@ class Snapshot:
         weights: (P,) normalised weights of ``particles``.
         ess: effective sample size 1 / Σ w².
         ancestors: (P,) indices into ``particles`` of the resampled set, None if not resampled.
-        estimate: (15, 3) eval15 joints of the filter's estimate (of its weighted mean
+        estimate: (J, 3) joints (eval15: J = 15) of the filter's estimate (of its weighted mean
             state), metres, world.
-        best: (15, 3) joints of the highest-weight particle.
-        joints: (P, 15, 3) joints of every particle (for clouds coloured by weight).
+        best: (J, 3) joints of the highest-weight particle.
+        joints: (P, J, 3) joints of every particle (for clouds coloured by weight).
         (For a model other than a tracking model: what its ``observe`` returns.)
         flags: what was unusual: "no-observation" (nothing seen, prediction stands),
             "weights-underflow" (every likelihood −inf: weights reset), "covariance-repaired".
