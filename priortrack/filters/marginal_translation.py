@@ -81,7 +81,7 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
     seen = torch.isfinite(z).all(dim=-1).nonzero()[:, 0]
     joints, z = joints.index_select(1, seen), z[seen]
     inv_var = 1.0 / likelihood.sigma_px ** 2
-    if cpu_kernel_applies(joints, C):
+    if cpu_kernel_applies(joints, C) and not likelihood.camera.distorted:      # the kernel: an ideal pinhole
         from priortrack.filters.kalman_kernel import update
 
         P, p = likelihood.camera.projection(joints.device, joints.dtype)

@@ -10,6 +10,13 @@ A world point X (3,) maps to camera coordinates and pixels as
 
 With K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]] this is the familiar
 u = fx X_c/Z_c + s Y_c/Z_c + cx, v = fy Y_c/Z_c + cy, and w' = Z_c (the depth).
+
+A camera with lens distortion (OpenCV's model, coefficients (k1, k2, p1, p2, k3)) distorts the
+normalised point (x, y) = (X_c/Z_c, Y_c/Z_c) before K, with r² = x² + y²:
+
+    x_d = x (1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2 x²)
+    y_d = y (1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2 y²) + 2 p2 x y
+    u = fx x_d + s y_d + cx,  v = fy y_d + cy          (as cv2.projectPoints).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import torch
 
+from priortrack.data.calibration import CameraCalibration
 from priortrack.errors import PriortrackError
 
 __all__ = ["PinholeCamera", "MIN_DEPTH"]
@@ -86,9 +94,13 @@ class PinholeCamera:
             or an R that is not a rotation to 1e-6 (||R R^T - I||_max, |det R - 1|).
     """
 
-    __slots__ = ("K", "R", "t", "width", "height", "_P", "_p", "_cache")
+    __slots__ = ("K", "R", "t", "width", "height", "dist", "_P", "_p", "_cache")
 
-    def __init__(self, K: Any, R: Any, t: Any, width: int = 1000, height: int = 1000) -> None:
+    def __init__(self, K: Any, R: Any, t: Any, width: int = 1000, height: int = 1000, dist: Any = None) -> None:
+        dist_np = np.zeros(5) if dist is None else np.asarray(dist, dtype=np.float64).reshape(-1)
+        if len(dist_np) not in (4, 5):
+            raise PriortrackError(f"dist: expected (k1, k2, p1, p2) or (k1, k2, p1, p2, k3), got {len(dist_np)} values")
+        dist_np = _to_float64_numpy(np.concatenate([dist_np, np.zeros(5 - len(dist_np))]), "dist", (5,))
         K_np = _to_float64_numpy(K, "K", (3, 3))
         R_np = _to_float64_numpy(R, "R", (3, 3))
         t_np = _to_float64_numpy(t, "t", (3,))
@@ -115,14 +127,18 @@ class PinholeCamera:
             torch.from_numpy(t_np),
             _positive_int(width, "width"),
             _positive_int(height, "height"),
+            torch.from_numpy(dist_np),
         )
 
-    def _set(self, K: torch.Tensor, R: torch.Tensor, t: torch.Tensor, width: int, height: int) -> None:
+    def _set(self, K: torch.Tensor, R: torch.Tensor, t: torch.Tensor, width: int, height: int,
+             dist: torch.Tensor) -> None:
         self.K = K
         self.R = R
         self.t = t
         self.width = width
         self.height = height
+        #: (5,) OpenCV distortion (k1, k2, p1, p2, k3), float64; zeros for an ideal pinhole.
+        self.dist = dist.double().cpu()
         # Full projection P = K R (3, 3) and p = K t (3,): homogeneous pixels = P X + p.
         # Computed in float64 whatever the storage dtype.
         K64, R64, t64 = K.double(), R.double(), t.double()
@@ -190,7 +206,8 @@ class PinholeCamera:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "PinholeCamera":
-        """Inverse of :meth:`to_dict`: keys K (3x3 lists), R (3x3), t (3), width, height.
+        """Inverse of :meth:`to_dict`: keys K (3x3 lists), R (3x3), t (3), width, height, and
+        optionally dist (k1, k2, p1, p2[, k3]).
 
         Raises:
             PriortrackError: ``data`` is not a mapping, a key is missing, or a value is invalid.
@@ -204,14 +221,19 @@ class PinholeCamera:
                 raise PriortrackError(
                     f"data: camera dictionary is missing key {key!r} (expected K, R, t, width, height)"
                 )
-        return cls(data["K"], data["R"], data["t"], data["width"], data["height"])
+        return cls(data["K"], data["R"], data["t"], data["width"], data["height"], data.get("dist"))
+
+    @classmethod
+    def from_calibration(cls, camera: "CameraCalibration") -> "PinholeCamera":
+        """The camera of a calibration file (:mod:`priortrack.data.calibration`), distortion included."""
+        return cls(camera.K, camera.R, camera.t, camera.size[0], camera.size[1], camera.dist)
 
     # ------------------------------------------------------------------ conversions
     def to_dict(self) -> dict[str, Any]:
         """Plain-Python form for JSON / npz metadata: lists of floats and ints.
 
-        Returns ``{"K": 3x3 list, "R": 3x3 list, "t": 3-list, "width": int, "height": int}``;
-        values are exact float64 (``json`` round-trips them bit for bit).
+        Returns ``{"K": 3x3 list, "R": 3x3 list, "t": 3-list, "width": int, "height": int,
+        "dist": 5-list}``; values are exact float64 (``json`` round-trips them bit for bit).
         """
         return {
             "K": self.K.detach().double().cpu().tolist(),
@@ -219,6 +241,7 @@ class PinholeCamera:
             "t": self.t.detach().double().cpu().tolist(),
             "width": int(self.width),
             "height": int(self.height),
+            "dist": self.dist.tolist(),
         }
 
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> "PinholeCamera":
@@ -234,6 +257,7 @@ class PinholeCamera:
             self.t.to(device=device, dtype=dtype),
             self.width,
             self.height,
+            self.dist,
         )
         # Keep the float64 projection of the original (more precise than re-deriving it).
         new._P, new._p = self._P, self._p
@@ -264,6 +288,11 @@ class PinholeCamera:
     def cy(self) -> float:
         """Principal point v coordinate K[1, 2] in pixels."""
         return float(self.K[1, 2])
+
+    @property
+    def distorted(self) -> bool:
+        """Whether the camera has lens distortion (any coefficient non-zero)."""
+        return bool(self.dist.any())
 
     # ------------------------------------------------------------------ projection
     def projection(self, device: torch.device, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
@@ -306,6 +335,9 @@ class PinholeCamera:
         self._check_points_shape(arr.shape)
         out_dtype = np.float32 if arr.dtype == np.float32 else np.float64
         x = arr.astype(np.float64, copy=False)
+        if self.distorted:
+            uv, in_front, _ = self._project_torch(torch.from_numpy(np.ascontiguousarray(x)))
+            return uv.numpy().astype(out_dtype, copy=False), in_front.numpy()
         P = self._P.numpy()
         p = self._p.numpy()
         h = x @ P.T + p  # (..., J, 3) homogeneous pixels
@@ -321,6 +353,9 @@ class PinholeCamera:
         self._check_points_shape(tuple(points.shape))
         if not points.is_floating_point():
             points = points.to(torch.float64)
+        if self.distorted:
+            uv, in_front, z_safe, _ = self._project_distorted(points)
+            return uv, in_front, z_safe
         P, p = self.projection(points.device, points.dtype)
         h = torch.addmm(p, points.reshape(-1, 3), P.transpose(0, 1)).view(points.shape)
         z = h[..., 2]
@@ -329,6 +364,36 @@ class PinholeCamera:
         uv = h[..., :2] / z_safe.unsqueeze(-1)
         uv = torch.where(in_front.unsqueeze(-1), uv, float("nan"))
         return uv, in_front, z_safe
+
+    def _project_distorted(self, points: torch.Tensor):
+        """Pixels through the distortion model (module docstring), with the depth and the Jacobian
+        ∂uv/∂X (..., J, 2, 3) = K₂ · ∂(x_d, y_d)/∂(x, y) · ∂(x, y)/∂X_c · R, K₂ = K[:2, :2]."""
+        dtype, device = points.dtype, points.device
+        R, t = self.R.to(device=device, dtype=dtype), self.t.to(device=device, dtype=dtype)
+        K = self.K.to(device=device, dtype=dtype)
+        k1, k2, p1, p2, k3 = self.dist.to(dtype).tolist()
+        Xc = points @ R.T + t
+        z = Xc[..., 2]
+        in_front = z > MIN_DEPTH
+        z_safe = torch.where(in_front, z, 1.0)
+        x, y = Xc[..., 0] / z_safe, Xc[..., 1] / z_safe
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        uv = torch.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], dim=-1)
+        uv = torch.where(in_front.unsqueeze(-1), uv, float("nan"))
+        g = k1 + r2 * (2 * k2 + 3 * k3 * r2)                                   # d radial / d r²
+        D = torch.stack([torch.stack([radial + 2 * x * x * g + 2 * p1 * y + 6 * p2 * x,
+                                      2 * x * y * g + 2 * p1 * x + 2 * p2 * y], -1),
+                         torch.stack([2 * x * y * g + 2 * p1 * x + 2 * p2 * y,
+                                      radial + 2 * y * y * g + 6 * p1 * y + 2 * p2 * x], -1)], -2)   # (..., 2, 2)
+        zero = torch.zeros_like(x)
+        inv_z = 1 / z_safe
+        N = torch.stack([torch.stack([inv_z, zero, -x * inv_z], -1),
+                         torch.stack([zero, inv_z, -y * inv_z], -1)], -2)                           # (..., 2, 3)
+        jacobian = K[:2, :2] @ D @ N @ R
+        return uv, in_front, z_safe, jacobian
 
     def project_jacobian(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Pixels and their Jacobian with respect to the world point.
@@ -348,7 +413,13 @@ class PinholeCamera:
         Raises:
             PriortrackError: ``points`` does not have shape (..., J, 3).
         """
-        uv, in_front, depth = self._project_torch(torch.as_tensor(points))
+        points = torch.as_tensor(points)
+        if self.distorted:
+            self._check_points_shape(tuple(points.shape))
+            uv, in_front, _, jacobian = self._project_distorted(
+                points if points.is_floating_point() else points.to(torch.float64))
+            return uv, jacobian, in_front
+        uv, in_front, depth = self._project_torch(points)
         P, _ = self.projection(uv.device, uv.dtype)
         jacobian = (P[:2] - uv[..., :, None] * P[2]) / depth[..., None, None]
         return uv, jacobian, in_front
@@ -368,7 +439,7 @@ class PinholeCamera:
             and self.height == other.height
             and all(
                 torch.equal(a.detach().double().cpu(), b.detach().double().cpu())
-                for a, b in ((self.K, other.K), (self.R, other.R), (self.t, other.t))
+                for a, b in ((self.K, other.K), (self.R, other.R), (self.t, other.t), (self.dist, other.dist))
             )
         )
 
