@@ -10,18 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from priortrack.data.eval15 import EVAL15_NAMES, EVAL15_PARENTS
 from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
-
-EVAL15_NAMES = (
-    "pelvis", "neck", "head",
-    "lshoulder", "lelbow", "lwrist",
-    "rshoulder", "relbow", "rwrist",
-    "lhip", "lknee", "lankle",
-    "rhip", "rknee", "rankle",
-)
-#: (15,) parent of each eval15 joint, -1 for the pelvis.
-EVAL15_PARENTS = np.array([-1, 0, 1, 1, 3, 4, 1, 6, 7, 0, 9, 10, 0, 12, 13])
 
 # Skeleton joint names that stand for each eval15 joint, first match wins (lower case,
 # any "prefix:" removed). CMU ASF names a joint after the bone that starts there; CMU's

@@ -1,0 +1,295 @@
+"""2D detections from pose detectors: OpenPose JSON, COCO results, NPZ; one person followed.
+
+:func:`read_detections` takes
+
+- a folder of OpenPose JSON files (one per frame: ``people[i].pose_keypoints_2d`` = x, y,
+  confidence per keypoint), or a folder of such folders, one per camera (sorted by name, as
+  Pose2Sim does); frame numbers come from the file names' last run of digits
+  (``cam01.000012.json``, ``..._000000000012_keypoints.json``). The same JSON layout with 17 or 33
+  keypoints carries COCO-17 (MMPose, RTMPose, ViTPose, YOLO-pose) or MediaPipe output;
+- a COCO results file (``.json``: a list of ``{"image_id", "keypoints", "score"}``), one camera,
+  ``image_id`` the frame number;
+- an ``.npz`` with ``keypoints`` (cameras, frames, keypoints, 3) = x, y, confidence (NaN or
+  confidence 0 = missing), ``keypoint_names`` (a layout's names, :mod:`priortrack.data.keypoints`),
+  and optional ``fps``, ``camera_names`` and ``frames``.
+
+The layout follows from the keypoint count (``keypoints=`` names it; BODY_25 and BODY_25B both
+have 25 and must be named). Confidences must be finite and non-negative (NaN coordinates with
+confidence 0 are OpenPose's "not found" too).
+
+**Several people in a frame.** Per camera, the person followed is the one with the largest summed
+confidence in the first frame where anyone is seen (``person=i`` pins index i of each frame's
+list instead); in each later frame it is the candidate nearest the last position followed (median
+distance over keypoints both have), accepted if within ``SWITCH_GATE`` of the person's size
+(the diagonal of its keypoints' box). A frame whose nearest candidate is further is left missing
+and logged as a possible switch, never taken silently.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from priortrack.data.keypoints import LAYOUTS, layout_for, to_eval15
+from priortrack.errors import PriortrackError
+
+log = logging.getLogger(__name__)
+
+#: A later frame's candidate is the same person if its median keypoint distance to the last one
+#: followed is below this fraction of that person's size (box diagonal).
+SWITCH_GATE = 0.5
+#: Most frames and cameras a reader accepts (a guard against absurd inputs).
+MAX_FRAMES, MAX_CAMERAS = 1_000_000, 64
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Keypoints of one followed person.
+
+    Attributes:
+        keypoints: (C, T, K, 3) float64 x, y (pixels, origin top-left), confidence; NaN where missing.
+        layout: the keypoint layout's name (:data:`priortrack.data.keypoints.LAYOUTS`).
+        camera_names: (C,) names (folder names, or ``camera_names`` of an npz).
+        frames: (T,) int input frame numbers.
+        fps: the frame rate if the input says it, else None.
+        source: the path read.
+        switches: (C,) frames per camera left missing as a possible identity switch.
+    """
+
+    keypoints: np.ndarray
+    layout: str
+    camera_names: tuple[str, ...]
+    frames: np.ndarray
+    fps: float | None
+    source: str
+    switches: tuple[int, ...] = ()
+
+    @property
+    def keypoint_names(self) -> tuple[str, ...]:
+        return LAYOUTS[self.layout]
+
+    def eval15(self, min_confidence: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+        """(C, T, 15, 2) eval15 pixels, NaN where missing or below ``min_confidence``, and their
+        confidences (C, T, 15) (:func:`priortrack.data.keypoints.to_eval15`)."""
+        if not 0 <= min_confidence < 1:
+            raise PriortrackError(f"min_confidence must be in [0, 1), got {min_confidence}")
+        return to_eval15(self.keypoints, self.keypoint_names, min_confidence)
+
+
+def read_detections(path: str | Path, keypoints: str | None = None, person: int | None = None) -> Detections:
+    """Read detections (module docstring): an OpenPose folder, a COCO results ``.json``, or an ``.npz``."""
+    path = Path(path)
+    if person is not None and (isinstance(person, bool) or not isinstance(person, int) or person < 0):
+        raise PriortrackError(f"person must be a non-negative index, got {person!r}")
+    if path.is_dir():
+        return _read_openpose(path, keypoints, person)
+    if not path.is_file():
+        raise PriortrackError(f"detections {path} do not exist")
+    if path.suffix.lower() == ".npz":
+        return _read_npz(path, keypoints)
+    if path.suffix.lower() == ".json":
+        return _read_coco_results(path, keypoints, person)
+    raise PriortrackError(f"{path}: detections are a folder of OpenPose JSON files, a COCO results .json or an .npz")
+
+
+# ---- OpenPose folders --------------------------------------------------------------------------
+
+def _frame_number(path: Path) -> int:
+    runs = re.findall(r"\d+", path.stem)
+    if not runs:
+        raise PriortrackError(f"{path}: no frame number in the file name")
+    return int(runs[-1])
+
+
+def _people(path: Path) -> list[np.ndarray]:
+    """The (K, 3) keypoints of every person in one OpenPose JSON file."""
+    try:
+        data = json.loads(path.read_text(errors="replace"))
+    except json.JSONDecodeError as exc:
+        raise PriortrackError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("people"), list):
+        raise PriortrackError(f"{path}: not OpenPose JSON (no 'people' list)")
+    people = []
+    for i, p in enumerate(data["people"]):
+        values = p.get("pose_keypoints_2d") if isinstance(p, dict) else None
+        if not isinstance(values, list) or len(values) % 3 or not values:
+            raise PriortrackError(f"{path}: people[{i}].pose_keypoints_2d is not a list of x, y, confidence triples")
+        people.append(_triples(values, f"{path}: people[{i}].pose_keypoints_2d"))
+    return people
+
+
+def _triples(values, where: str) -> np.ndarray:
+    """(K, 3) x, y, confidence from a flat list, checked: numbers, confidences finite and ≥ 0."""
+    try:
+        arr = np.asarray(values, dtype=np.float64).reshape(-1, 3)
+    except (TypeError, ValueError):
+        raise PriortrackError(f"{where}: not numbers") from None
+    conf = arr[:, 2]
+    if not np.isfinite(conf).all() or (conf < 0).any():
+        bad = int(np.flatnonzero(~np.isfinite(conf) | (conf < 0))[0])
+        raise PriortrackError(f"{where}: keypoint {bad} has confidence {conf[bad]} (must be finite and ≥ 0)")
+    arr[conf == 0, :2] = np.nan                              # OpenPose writes (0, 0, 0) for "not found"
+    return arr
+
+
+def _camera_folders(path: Path) -> list[Path]:
+    """``path`` itself if it holds JSON files, else its sub-folders that do (sorted)."""
+    if any(path.glob("*.json")):
+        return [path]
+    folders = sorted(p for p in path.iterdir() if p.is_dir() and any(p.glob("*.json")))
+    if not folders:
+        raise PriortrackError(f"{path}: no OpenPose JSON files in it or in its sub-folders")
+    if len(folders) > MAX_CAMERAS:
+        raise PriortrackError(f"{path}: {len(folders)} camera folders (at most {MAX_CAMERAS})")
+    return folders
+
+
+def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Detections:
+    folders = _camera_folders(path)
+    per_camera: list[dict[int, list[np.ndarray]]] = []
+    for folder in folders:
+        files: dict[int, Path] = {}
+        for f in sorted(folder.glob("*.json")):
+            number = _frame_number(f)
+            if number in files:
+                raise PriortrackError(f"{folder}: frame {number} appears twice ({files[number].name}, {f.name})")
+            files[number] = f
+        per_camera.append({n: _people(f) for n, f in files.items()})
+    counts = {len(p) for frames in per_camera for people in frames.values() for p in people}
+    if not counts:
+        raise PriortrackError(f"{path}: nobody is detected in any frame")
+    if len(counts) > 1:
+        raise PriortrackError(f"{path}: people have different keypoint counts ({sorted(counts)})")
+    layout = layout_for(keypoints, counts.pop(), str(path))
+    frames = np.array(sorted(set().union(*(frames.keys() for frames in per_camera))))
+    _check_frames(frames, str(path))
+    K = len(LAYOUTS[layout])
+    out = np.full((len(folders), len(frames), K, 3), np.nan)
+    switches = []
+    for c, by_frame in enumerate(per_camera):
+        people = [by_frame.get(int(n), []) for n in frames]
+        out[c], count = _follow(people, person, f"{folders[c].name}")
+        switches.append(count)
+    return Detections(out, layout, tuple(f.name for f in folders), frames, None, str(path), tuple(switches))
+
+
+def _check_frames(frames: np.ndarray, where: str) -> None:
+    if len(frames) > MAX_FRAMES:
+        raise PriortrackError(f"{where}: {len(frames)} frames (at most {MAX_FRAMES})")
+    if len(frames) < 1:
+        raise PriortrackError(f"{where}: no frames")
+
+
+def _size(p: np.ndarray) -> float:
+    xy = p[np.isfinite(p[:, :2]).all(axis=1), :2]
+    return float(np.linalg.norm(xy.max(axis=0) - xy.min(axis=0))) if len(xy) > 1 else 0.0
+
+
+def _follow(people: list[list[np.ndarray]], person: int | None, camera: str) -> tuple[np.ndarray, int]:
+    """(T, K, 3) keypoints of the person followed through one camera's frames (module docstring),
+    and the number of frames left missing as possible switches."""
+    K = next(len(p) for frame in people for p in frame) if any(people) else 0
+    out = np.full((len(people), K, 3), np.nan)
+    if person is not None:
+        for t, frame in enumerate(people):
+            if person < len(frame):
+                out[t] = frame[person]
+        return out, 0
+    last, switches = None, 0
+    for t, frame in enumerate(people):
+        if not frame:
+            continue
+        if last is None:
+            chosen = max(frame, key=lambda p: np.nansum(p[:, 2]))
+        else:
+            distances = []
+            for p in frame:
+                both = np.isfinite(p[:, :2]).all(axis=1) & np.isfinite(last[:, :2]).all(axis=1)
+                distances.append(np.median(np.linalg.norm(p[both, :2] - last[both, :2], axis=1)) if both.any()
+                                 else np.inf)
+            best = int(np.argmin(distances))
+            if not distances[best] <= SWITCH_GATE * max(_size(last), 1.0):
+                switches += 1
+                log.warning("camera %s, frame index %d: no detection near the person followed (nearest %.0f px); "
+                            "left missing", camera, t, distances[best])
+                continue
+            chosen = frame[best]
+        out[t] = chosen
+        last = chosen
+    return out, switches
+
+
+# ---- COCO results and NPZ ---------------------------------------------------------------------
+
+def _read_coco_results(path: Path, keypoints: str | None, person: int | None) -> Detections:
+    try:
+        data = json.loads(path.read_text(errors="replace"))
+    except json.JSONDecodeError as exc:
+        raise PriortrackError(f"{path}: not valid JSON ({exc})") from None
+    if isinstance(data, dict) and "people" in data:
+        raise PriortrackError(f"{path}: an OpenPose JSON file; give the folder that holds the frames' files")
+    if not isinstance(data, list) or not data:
+        raise PriortrackError(f"{path}: not a COCO results file (a non-empty list of image_id, keypoints, score)")
+    by_frame: dict[int, list[np.ndarray]] = {}
+    for i, entry in enumerate(data):
+        if not isinstance(entry, dict) or "image_id" not in entry or not isinstance(entry.get("keypoints"), list):
+            raise PriortrackError(f"{path}: entry {i} lacks image_id or keypoints")
+        image = entry["image_id"]
+        if isinstance(image, bool) or not isinstance(image, int):
+            raise PriortrackError(f"{path}: entry {i}: image_id {image!r} is not a frame number")
+        by_frame.setdefault(image, []).append(_triples(entry["keypoints"], f"{path}: entry {i} keypoints"))
+    counts = {len(p) for people in by_frame.values() for p in people}
+    if len(counts) > 1:
+        raise PriortrackError(f"{path}: entries have different keypoint counts ({sorted(counts)})")
+    layout = layout_for(keypoints, counts.pop(), str(path))
+    frames = np.array(sorted(by_frame))
+    _check_frames(frames, str(path))
+    followed, switches = _follow([by_frame[int(n)] for n in frames], person, path.stem)
+    return Detections(followed[None], layout, (path.stem,), frames, None, str(path), (switches,))
+
+
+def _read_npz(path: Path, keypoints: str | None) -> Detections:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (ValueError, OSError, EOFError) as exc:
+        raise PriortrackError(f"{path}: not a readable npz ({exc})") from None
+    for key in ("keypoints", "keypoint_names"):
+        if key not in arrays:
+            raise PriortrackError(f"{path}: the array {key!r} is missing")
+    kp = arrays["keypoints"]
+    if kp.ndim != 4 or kp.shape[-1] != 3 or kp.dtype.kind not in "fiu":
+        raise PriortrackError(f"{path}: keypoints has shape {kp.shape} ({kp.dtype}); expected (cameras, frames, "
+                              f"keypoints, 3) numbers")
+    C, T, K, _ = kp.shape
+    if not 1 <= C <= MAX_CAMERAS or T < 1:
+        raise PriortrackError(f"{path}: keypoints has {C} cameras and {T} frames")
+    names = tuple(str(n).lower() for n in arrays["keypoint_names"].reshape(-1))
+    layout = next((k for k, v in LAYOUTS.items() if v == names), None)
+    if layout is None:
+        raise PriortrackError(f"{path}: keypoint_names ({len(names)}: {', '.join(names[:5])}, …) are not the names "
+                              f"of a layout ({', '.join(LAYOUTS)}); see priortrack.data.keypoints")
+    if keypoints is not None:
+        layout_for(keypoints, K, str(path))
+    kp = kp.astype(np.float64)
+    conf = kp[..., 2]
+    bad = np.isfinite(conf) & (conf < 0)
+    if bad.any():
+        raise PriortrackError(f"{path}: keypoints has negative confidences (first at {np.argwhere(bad)[0].tolist()})")
+    kp[np.isnan(conf) | (conf == 0)] = np.nan
+    frames = arrays.get("frames", np.arange(T))
+    if frames.shape != (T,) or frames.dtype.kind not in "iu" or np.any(np.diff(frames) <= 0):
+        raise PriortrackError(f"{path}: frames must be {T} increasing integers")
+    fps = arrays.get("fps")
+    fps = None if fps is None else float(fps)
+    if fps is not None and not 0 < fps < 1e4:
+        raise PriortrackError(f"{path}: fps {fps} is not a frame rate")
+    names_c = tuple(str(n) for n in arrays.get("camera_names", np.array([f"cam{c + 1}" for c in range(C)])))
+    if len(names_c) != C:
+        raise PriortrackError(f"{path}: {len(names_c)} camera_names for {C} cameras")
+    return Detections(kp, layout, names_c, frames.astype(int), fps, str(path), (0,) * C)

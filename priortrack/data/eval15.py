@@ -1,0 +1,19 @@
+"""The 15-joint evaluation layout ``eval15`` (HumanEva's joints): names and tree.
+
+pelvis, neck (the top of the thorax, where the neck and both clavicles meet), head (top of the
+head), shoulders, elbows, wrists, hips, knees, ankles. Its 14 bones (each joint to its parent) are
+the bone directions of the Lie-algebra prior. Mocap skeletons map onto it in
+:mod:`priortrack.body.layout`, detector keypoints in :mod:`priortrack.data.keypoints`.
+"""
+
+import numpy as np
+
+EVAL15_NAMES = (
+    "pelvis", "neck", "head",
+    "lshoulder", "lelbow", "lwrist",
+    "rshoulder", "relbow", "rwrist",
+    "lhip", "lknee", "lankle",
+    "rhip", "rknee", "rankle",
+)
+#: (15,) parent of each eval15 joint, -1 for the pelvis.
+EVAL15_PARENTS = np.array([-1, 0, 1, 1, 3, 4, 1, 6, 7, 0, 9, 10, 0, 12, 13])

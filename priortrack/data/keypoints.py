@@ -1,0 +1,100 @@
+"""2D keypoint layouts of pose detectors, and their map to the 15 ``eval15`` joints.
+
+One table per layout names its keypoints in the detector's order:
+
+- ``body25``: OpenPose BODY_25; ``body25b``: OpenPose's experimental BODY_25B (what Pose2Sim
+  uses); ``coco18``: OpenPose's COCO model; ``coco17``: the COCO keypoints (MMPose, RTMPose,
+  ViTPose, YOLO-pose); ``mediapipe33``: MediaPipe Pose's landmarks, named as its ``PoseLandmark``
+  in lower case.
+
+The eval15 joints are taken from keypoints of the same name (shoulders, elbows, wrists, hips,
+knees, ankles), and the three a detector lacks are derived, the same way for every layout:
+
+    pelvis = mid-hips,   neck = mid-shoulders,   head = the head-top where the layout has one
+    (BODY_25B), else mid-ears (one definition per layout: never mixed from frame to frame).
+
+A derived joint is observed only where all its parts are, with the smallest of their confidences.
+These are the detector's joint definitions, not a mocap skeleton's: a detector's hip sits
+elsewhere than CMU's femur head, and a body fitted to detections uses these definitions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from priortrack.data.eval15 import EVAL15_NAMES
+from priortrack.errors import PriortrackError
+
+_LR = ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")
+
+LAYOUTS: dict[str, tuple[str, ...]] = {
+    "body25": ("nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
+               "left_wrist", "mid_hip", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee",
+               "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear", "left_big_toe", "left_small_toe",
+               "left_heel", "right_big_toe", "right_small_toe", "right_heel"),
+    "body25b": ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+                "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
+                "right_knee", "left_ankle", "right_ankle", "upper_neck", "head_top", "left_big_toe",
+                "left_small_toe", "left_heel", "right_big_toe", "right_small_toe", "right_heel"),
+    "coco18": ("nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
+               "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle",
+               "right_eye", "left_eye", "right_ear", "left_ear"),
+    "coco17": ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+               "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
+               "right_knee", "left_ankle", "right_ankle"),
+    "mediapipe33": ("nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
+                    "right_eye_outer", "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder",
+                    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_pinky",
+                    "right_pinky", "left_index", "right_index", "left_thumb", "right_thumb", "left_hip", "right_hip",
+                    "left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel", "right_heel",
+                    "left_foot_index", "right_foot_index"),
+}
+
+#: eval15 joint → the keypoints it is the mean of (in order of preference for the head).
+EVAL15_PARTS: dict[str, tuple[tuple[str, ...], ...]] = {
+    "pelvis": (("left_hip", "right_hip"),),
+    "neck": (("left_shoulder", "right_shoulder"),),
+    "head": (("head_top",), ("left_ear", "right_ear")),
+    **{f"{side[0]}{part}": ((f"{side}_{part}",),) for side in ("left", "right") for part in _LR},
+}
+
+
+def layout_for(name: str | None, count: int, where: str) -> str:
+    """The layout of keypoints that number ``count``: ``name`` (any case) checked against the count,
+    or the one layout with that many keypoints; BODY_25 and BODY_25B (both 25) need a name."""
+    if name is not None:
+        key = name.lower().replace("_", "").replace("-", "")
+        if key not in LAYOUTS:
+            raise PriortrackError(f"unknown keypoint layout {name!r}; layouts: {', '.join(LAYOUTS)}")
+        if len(LAYOUTS[key]) != count:
+            raise PriortrackError(f"{where}: {count} keypoints per person, but layout {key} has {len(LAYOUTS[key])}")
+        return key
+    matches = [k for k, names in LAYOUTS.items() if len(names) == count]
+    if not matches:
+        raise PriortrackError(f"{where}: {count} keypoints per person fit no layout "
+                              f"({', '.join(f'{k}: {len(v)}' for k, v in LAYOUTS.items())})")
+    if len(matches) > 1:
+        raise PriortrackError(f"{where}: {count} keypoints fit {' and '.join(matches)}; say which with "
+                              f"--keypoints ({', '.join(matches)})")
+    return matches[0]
+
+
+def to_eval15(keypoints: np.ndarray, names: tuple[str, ...], min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    """(..., K, 3) keypoints (x, y, confidence) named ``names`` → eval15 pixels (..., 15, 2), NaN where
+    missing, and confidences (..., 15), 0 where missing. A keypoint is observed when x, y and its
+    confidence are finite and the confidence is at least ``min_confidence`` (and above 0)."""
+    index = {n: i for i, n in enumerate(names)}
+    xy, conf = keypoints[..., :2], keypoints[..., 2]
+    seen = np.isfinite(xy).all(axis=-1) & np.isfinite(conf) & (conf >= min_confidence) & (conf > 0)
+    uv = np.full(keypoints.shape[:-2] + (15, 2), np.nan)
+    confidence = np.zeros(keypoints.shape[:-2] + (15,))
+    for j, joint in enumerate(EVAL15_NAMES):
+        options = [parts for parts in EVAL15_PARTS[joint] if all(p in index for p in parts)]
+        if not options:
+            raise PriortrackError(f"the keypoints ({len(names)}: {', '.join(names[:4])}, …) have nothing for the "
+                                  f"eval15 joint {joint!r} (looked for {EVAL15_PARTS[joint]})")
+        k = [index[p] for p in options[0]]                  # one definition per layout, never mixed
+        ok = seen[..., k].all(axis=-1)
+        uv[..., j, :] = np.where(ok[..., None], xy[..., k, :].mean(axis=-2), np.nan)
+        confidence[..., j] = np.where(ok, conf[..., k].min(axis=-1), 0.0)
+    return uv, confidence

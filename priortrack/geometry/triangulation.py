@@ -1,0 +1,84 @@
+"""Points seen by several calibrated cameras: undistortion and confidence-weighted DLT triangulation.
+
+**Undistortion.** A pixel u = K (x_d, y_d, 1) is taken back to the normalised point (x, y) whose
+distortion (:mod:`priortrack.geometry.camera`) gives (x_d, y_d), by the fixed-point iteration
+OpenCV's ``undistortPoints`` uses,
+
+    x ← (x_d − Δx(x, y)) / ρ(r²),   y ← (y_d − Δy(x, y)) / ρ(r²),
+
+ρ = 1 + k1 r² + k2 r⁴ + k3 r⁶ the radial factor and Δ the tangential terms, from (x_d, y_d).
+
+**DLT.** Each camera c that sees the point, with weight w_c (its detection confidence), adds the
+rows w_c (x P_3 − P_1) and w_c (y P_3 − P_2), P = [R | t] (3 × 4) acting on the homogeneous
+point; the point is the right singular vector of the smallest singular value of the stacked
+(2C × 4) matrix (Hartley & Zisserman, Multiple View Geometry, §12.2). A point seen by fewer than
+two cameras is NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from priortrack.errors import PriortrackError
+from priortrack.geometry.camera import PinholeCamera
+
+#: Fixed-point iterations of the undistortion (the residual falls by about |k1| r² per step).
+UNDISTORT_STEPS = 20
+
+
+def undistort_normalised(camera: PinholeCamera, uv: np.ndarray) -> np.ndarray:
+    """(..., 2) pixels → (..., 2) normalised camera coordinates (x, y) = (X_c/Z_c, Y_c/Z_c), NaN stays NaN."""
+    uv = np.asarray(uv, dtype=np.float64)
+    K = camera.K.double().numpy()
+    yd = (uv[..., 1] - K[1, 2]) / K[1, 1]
+    xd = (uv[..., 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+    if not camera.distorted:
+        return np.stack([xd, yd], axis=-1)
+    k1, k2, p1, p2, k3 = camera.dist.tolist()
+    x, y = xd.copy(), yd.copy()
+    for _ in range(UNDISTORT_STEPS):
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        x = (xd - 2 * p1 * x * y - p2 * (r2 + 2 * x * x)) / radial
+        y = (yd - p1 * (r2 + 2 * y * y) - 2 * p2 * x * y) / radial
+    return np.stack([x, y], axis=-1)
+
+
+def triangulate(cameras: Sequence[PinholeCamera], uv: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Confidence-weighted DLT (module docstring).
+
+    Args:
+        cameras: C calibrated cameras.
+        uv: (C, ..., 2) pixels, NaN where a camera does not see the point.
+        weights: (C, ...) non-negative weights (confidences); None for equal weights.
+
+    Returns:
+        (..., 3) world points, NaN where fewer than two cameras see a point with weight > 0.
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.ndim < 2 or uv.shape[0] != len(cameras) or uv.shape[-1] != 2:
+        raise PriortrackError(f"uv has shape {uv.shape}; expected ({len(cameras)}, ..., 2) for {len(cameras)} cameras")
+    weights = np.ones(uv.shape[:-1]) if weights is None else np.asarray(weights, dtype=np.float64)
+    if weights.shape != uv.shape[:-1] or not np.isfinite(weights).all() or (weights < 0).any():
+        raise PriortrackError(f"weights must be finite, non-negative and of shape {uv.shape[:-1]}")
+    shape = uv.shape[1:-1]
+    xy = np.stack([undistort_normalised(c, uv[i]) for i, c in enumerate(cameras)]).reshape(len(cameras), -1, 2)
+    w = weights.reshape(len(cameras), -1)
+    seen = np.isfinite(xy).all(axis=-1) & (w > 0)                                   # (C, N)
+    w = np.where(seen, w, 0.0)
+    xy = np.where(seen[..., None], xy, 0.0)
+    rows = []
+    for i, c in enumerate(cameras):
+        P = np.concatenate([c.R.double().numpy(), c.t.double().numpy()[:, None]], axis=1)       # (3, 4)
+        rows.append(w[i, :, None] * (xy[i, :, 0:1] * P[2] - P[0]))
+        rows.append(w[i, :, None] * (xy[i, :, 1:2] * P[2] - P[1]))
+    A = np.stack(rows, axis=1)                                                      # (N, 2C, 4)
+    A = A / np.maximum(np.linalg.norm(A, axis=(1, 2), keepdims=True), 1e-300)      # conditioning
+    _, _, Vt = np.linalg.svd(A)
+    h = Vt[:, -1]                                                                   # (N, 4)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        points = h[:, :3] / h[:, 3:4]
+    points[seen.sum(axis=0) < 2] = np.nan
+    return points.reshape(shape + (3,))

@@ -1,0 +1,158 @@
+"""Detections from real OpenPose output (Pose2Sim's demo, BODY_25B, 4 cameras) and from files in the
+documented COCO, MediaPipe and NPZ layouts; the eval15 map; following one person; triangulation."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from priortrack import PriortrackError
+from priortrack.data.calibration import read_calibration
+from priortrack.data.detections import read_detections
+from priortrack.data.keypoints import LAYOUTS
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.geometry.triangulation import triangulate, undistort_normalised
+
+POSE2SIM = Path(__file__).parent / "data" / "pose2sim_static"
+
+
+def _cameras():
+    return [PinholeCamera.from_calibration(c) for c in read_calibration(POSE2SIM / "Calib.toml").cameras]
+
+
+def test_real_openpose_body25b_needs_its_layout_named_and_reads():
+    with pytest.raises(PriortrackError, match="25 keypoints fit body25 and body25b; say which with --keypoints"):
+        read_detections(POSE2SIM / "pose")
+    d = read_detections(POSE2SIM / "pose", keypoints="BODY_25B")
+    assert d.keypoints.shape == (4, 12, 25, 3) and d.layout == "body25b"
+    assert d.camera_names == ("cam01_json", "cam02_json", "cam03_json", "cam04_json")
+    assert d.frames.tolist() == list(range(12)) and d.switches == (0, 0, 0, 0)
+    raw = json.loads((POSE2SIM / "pose" / "cam02_json" / "Static_cam_02.00005.json").read_text())
+    expected = np.array(raw["people"][0]["pose_keypoints_2d"]).reshape(25, 3)
+    expected[expected[:, 2] == 0, :2] = np.nan                            # OpenPose's (0, 0, 0): not found
+    np.testing.assert_array_equal(d.keypoints[1, 5], expected)
+    uv, conf = d.eval15(min_confidence=0.3)
+    k = d.keypoint_names.index
+    body = d.keypoints[2, 7]
+    np.testing.assert_allclose(uv[2, 7, 0], (body[k("left_hip"), :2] + body[k("right_hip"), :2]) / 2)    # pelvis
+    np.testing.assert_allclose(uv[2, 7, 1], (body[k("left_shoulder"), :2] + body[k("right_shoulder"), :2]) / 2)
+    np.testing.assert_allclose(uv[2, 7, 2], body[k("head_top"), :2])                                    # head
+    np.testing.assert_allclose(uv[2, 7, 4], body[k("left_elbow"), :2])                                  # lelbow
+    assert conf[2, 7, 0] == min(body[k("left_hip"), 2], body[k("right_hip"), 2])
+
+
+def test_the_real_trial_triangulates_to_a_standing_person():
+    """DLT through the distortion model: a Z-up world, ankles near the floor, head ~1.7 m, and a
+    median reprojection error near the 13 px the data's SOURCE.md reports."""
+    cameras = _cameras()
+    uv, conf = read_detections(POSE2SIM / "pose", keypoints="body25b").eval15(0.3)
+    X = triangulate(cameras, uv, conf)                                   # (12, 15, 3)
+    assert np.isfinite(X).all()
+    assert np.all(np.abs(X[:, [11, 14], 2]) < 0.2) and np.all(np.abs(X[:, 2, 2] - 1.7) < 0.1)
+    reprojected = np.stack([c.project(X)[0] for c in cameras])
+    median = float(np.nanmedian(np.linalg.norm(reprojected - uv, axis=-1)))
+    assert 8 < median < 16
+
+
+def test_triangulation_and_undistortion_are_exact_on_projected_points():
+    cameras = _cameras()
+    X = np.random.default_rng(0).uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 1.8], size=(40, 15, 3))
+    uv = np.stack([c.project(X)[0] for c in cameras])
+    np.testing.assert_allclose(triangulate(cameras, uv), X, atol=1e-9)
+    Xc = X @ cameras[0].R.numpy().T + cameras[0].t.numpy()
+    np.testing.assert_allclose(undistort_normalised(cameras[0], uv[0]), Xc[..., :2] / Xc[..., 2:], atol=1e-12)
+    uv[1:, 0, 0] = np.nan                                                 # one camera left: not triangulated
+    weights = np.ones(uv.shape[:-1])
+    weights[0, 0, 1] = 0.0
+    uv[2:, 0, 1] = np.nan                                                 # two cameras, one of weight 0
+    X_hat = triangulate(cameras, uv, weights)
+    assert np.isnan(X_hat[0, :2]).all() and np.isfinite(X_hat[0, 2:]).all()
+
+
+def _openpose_frame(folder: Path, number: int, people: list[list[float]]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"clip_{number:012d}_keypoints.json").write_text(
+        json.dumps({"version": 1.3, "people": [{"person_id": [-1], "pose_keypoints_2d": p} for p in people]}))
+
+
+def _person(offset: float, K: int = 17, conf: float = 0.9) -> list[float]:
+    rng = np.random.default_rng(int(offset))
+    xy = offset + rng.uniform(0, 100, size=(K, 2))
+    return np.concatenate([xy, np.full((K, 1), conf)], axis=1).ravel().tolist()
+
+
+def test_several_people_the_same_one_is_followed_and_a_jump_is_not_taken(tmp_path):
+    folder = tmp_path / "cam"
+    _openpose_frame(folder, 0, [_person(500, conf=0.5), _person(100)])       # the more confident: at 100
+    _openpose_frame(folder, 1, [_person(101), _person(502)])
+    _openpose_frame(folder, 2, [_person(499)])                               # only the other person
+    _openpose_frame(folder, 3, [_person(500), _person(102)])
+    d = read_detections(folder)
+    assert d.layout == "coco17" and d.switches == (1,)
+    np.testing.assert_array_equal(d.keypoints[0, 1].ravel(), _person(101))
+    assert np.isnan(d.keypoints[0, 2]).all()
+    np.testing.assert_array_equal(d.keypoints[0, 3].ravel(), _person(102))
+    pinned = read_detections(folder, person=1)
+    np.testing.assert_array_equal(pinned.keypoints[0, 0].ravel(), _person(100))
+    assert np.isnan(pinned.keypoints[0, 2]).all()
+
+
+def test_coco_results_mediapipe_and_npz(tmp_path):
+    coco = tmp_path / "results.json"
+    coco.write_text(json.dumps([{"image_id": 7, "category_id": 1, "keypoints": _person(100), "score": 0.9},
+                                {"image_id": 3, "category_id": 1, "keypoints": _person(200), "score": 0.8}]))
+    d = read_detections(coco)
+    assert d.layout == "coco17" and d.frames.tolist() == [3, 7] and d.keypoints.shape == (1, 2, 17, 3)
+    folder = tmp_path / "mp"
+    _openpose_frame(folder, 0, [_person(100, K=33)])
+    assert read_detections(folder).layout == "mediapipe33"
+    kp = np.random.default_rng(0).uniform(0, 500, size=(2, 5, 17, 3))
+    kp[..., 2] = 0.8
+    kp[0, 1, 3] = [np.nan, np.nan, 0.0]
+    np.savez(tmp_path / "d.npz", keypoints=kp, keypoint_names=np.array(LAYOUTS["coco17"]), fps=np.array(60.0),
+             camera_names=np.array(["left", "right"]))
+    d = read_detections(tmp_path / "d.npz")
+    assert d.fps == 60.0 and d.camera_names == ("left", "right") and np.isnan(d.keypoints[0, 1, 3]).all()
+    uv, conf = d.eval15(0.5)
+    assert uv.shape == (2, 5, 15, 2) and conf[0, 0, 3] == 0.8
+
+
+@pytest.mark.parametrize("files, message", [
+    ({"a_0.json": {"people": [{"pose_keypoints_2d": [1.0] * 60}]}}, "20 keypoints per person fit no layout"),
+    ({"a_0.json": {"persons": []}}, "not OpenPose JSON"),
+    ({"a_0.json": {"people": [{"pose_keypoints_2d": [1.0, 2.0, -0.5] * 17}]}}, "confidence -0.5"),
+    ({"a_0.json": {"people": [{"pose_keypoints_2d": [1.0, 2.0, float("nan")] * 17}]}}, "confidence nan"),
+    ({"a_0.json": {"people": []}}, "nobody is detected"),
+    ({"a_0.json": {"people": [{"pose_keypoints_2d": [1, 2]}]}}, "not a list of x, y, confidence triples"),
+    ({"a_1.json": {"people": []}, "b_01.json": {"people": []}}, "frame 1 appears twice"),
+    ({"nodigits.json": {"people": []}}, "no frame number"),
+])
+def test_bad_detections_name_the_file_and_field(tmp_path, files, message):
+    for name, content in files.items():
+        (tmp_path / name).write_text(json.dumps(content))
+    with pytest.raises(PriortrackError, match=message):
+        read_detections(tmp_path)
+
+
+def test_bad_npz_and_arguments(tmp_path):
+    np.savez(tmp_path / "names.npz", keypoints=np.zeros((1, 2, 17, 3)), keypoint_names=np.array(["a"] * 17))
+    with pytest.raises(PriortrackError, match="are not the names of a layout"):
+        read_detections(tmp_path / "names.npz")
+    kp = np.ones((1, 2, 17, 3))
+    kp[0, 0, 0, 2] = -1
+    np.savez(tmp_path / "neg.npz", keypoints=kp, keypoint_names=np.array(LAYOUTS["coco17"]))
+    with pytest.raises(PriortrackError, match="negative confidences"):
+        read_detections(tmp_path / "neg.npz")
+    np.savez(tmp_path / "order.npz", keypoints=np.ones((1, 2, 17, 3)), keypoint_names=np.array(LAYOUTS["coco17"]),
+             frames=np.array([5, 3]))
+    with pytest.raises(PriortrackError, match="frames must be 2 increasing integers"):
+        read_detections(tmp_path / "order.npz")
+    with pytest.raises(PriortrackError, match="unknown keypoint layout 'body26'"):
+        read_detections(POSE2SIM / "pose", keypoints="body26")
+    with pytest.raises(PriortrackError, match="layout coco17 has 17"):
+        read_detections(POSE2SIM / "pose", keypoints="coco17")
+    with pytest.raises(PriortrackError, match="do not exist"):
+        read_detections(tmp_path / "nothing.json")
+    with pytest.raises(PriortrackError, match="min_confidence"):
+        read_detections(POSE2SIM / "pose", keypoints="body25b").eval15(1.5)
