@@ -226,7 +226,7 @@ def test_bad_options_are_named():
     with pytest.raises(PriortrackError, match="translation must be one of sampled, marginalised"):
         ParticleFilter(pf.model, 10, translation="integrated")
     robust = TrackingModel(pf.model.prior, pf.model.global_motion, JointLikelihood(obs.camera, robust_nu=4.0))
-    with pytest.raises(PriortrackError, match="Gaussian 2D likelihood"):
+    with pytest.raises(PriortrackError, match="linearisable"):
         ParticleFilter(robust, 10, translation="marginalised")
     with pytest.raises(PriortrackError, match="TrackingModel"):
         ParticleFilter(LinearGaussian(np.eye(2), np.eye(2), np.eye(2), np.eye(2)), 10, translation="marginalised")

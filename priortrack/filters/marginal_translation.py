@@ -19,6 +19,9 @@ are linear in t. Linearised at the predicted t̂ = μ⁻[:3], û_j(t) ≈ û_j +
 J_j = ∂û/∂X (2 × 3) at X_j(t̂) and r_j = z_j − û_j over the observed joints, and with P = C⁻[:3, :3],
 
     A = Σ_j J_jᵀ J_j / σ_e²,   b = Σ_j J_jᵀ r_j / σ_e²,   y = (I + A P)⁻¹ b,
+
+(the observation model's ``linearised``: over every camera's joints, each with its own weight, for
+:class:`~priortrack.observation.multiview.MultiViewLikelihood`)
     update    μ⁺ = μ⁻ + C⁻[:, :3] y,   C⁺ = C⁻ − C⁻[:, :3] (I + A P)⁻¹ A C⁻[:3, :],
 
 the Kalman update written with 3 × 3 matrices (Jᵀ (J P Jᵀ + σ_e² I)⁻¹ = (I + A P)⁻¹ Jᵀ / σ_e²).
@@ -58,7 +61,7 @@ def predict_covariance(C: torch.Tensor, sigma: torch.Tensor, velocity: torch.Ten
 
 
 def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, velocity: torch.Tensor, z: torch.Tensor,
-                  likelihood: JointLikelihood) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                  likelihood) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The prediction and update of τ for one observed frame, and the particles' log predictive likelihood.
 
     Args:
@@ -66,8 +69,9 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
         C: (P, 6, 6) the previous frame's covariance of τ (predicted here: C⁻ = F C Fᵀ + Q).
         sigma: (3,) σ_t.
         velocity: (3,) v, the velocity's decay in F (ones: constant velocity).
-        z: (J, 2) pixels, NaN where a joint was not seen (at least one seen).
-        likelihood: a Gaussian :class:`JointLikelihood` (its camera and σ_e).
+        z: one frame's observation (``likelihood.observation_shape``, at least one joint seen).
+        likelihood: an observation model with ``linearised`` (a Gaussian :class:`JointLikelihood`:
+            one camera, z (J, 2); a :class:`MultiViewLikelihood`: z (C, J, 3)).
 
     Returns:
         the shift μ⁺ − μ⁻ (P, 6), the updated covariance C⁺ (P, 6, 6), and
@@ -75,13 +79,17 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
         integrated out (p(z | t̂) as ``likelihood`` scores it: a joint behind the camera counts as
         a miss of the image diagonal there, and does not inform the update).
     """
-    if joints.dim() != 3 or joints.shape[2] != 3 or C.shape != (len(joints), 6, 6) or z.shape != (joints.shape[1], 2):
+    single = isinstance(likelihood, JointLikelihood)
+    frame = "(J, 2)" if single else str(tuple(likelihood.observation_shape))
+    if joints.dim() != 3 or joints.shape[2] != 3 or C.shape != (len(joints), 6, 6) or \
+            (single and tuple(z.shape) != (joints.shape[1], 2)):
         raise PriortrackError(f"joints {tuple(joints.shape)}, covariances {tuple(C.shape)} and observation "
-                              f"{tuple(z.shape)}: expected (P, J, 3), (P, 6, 6) and (J, 2)")
-    seen = torch.isfinite(z).all(dim=-1).nonzero()[:, 0]
-    joints, z = joints.index_select(1, seen), z[seen]
-    inv_var = 1.0 / likelihood.sigma_px ** 2
-    if cpu_kernel_applies(joints, C) and not likelihood.camera.distorted:      # the kernel: an ideal pinhole
+                              f"{tuple(z.shape)}: expected (P, J, 3), (P, 6, 6) and {frame}")
+    if single and cpu_kernel_applies(joints, C) and not likelihood.camera.distorted:
+        # The fused kernel: one ideal pinhole, the Gaussian.
+        seen = torch.isfinite(z).all(dim=-1).nonzero()[:, 0]
+        joints, z = joints.index_select(1, seen), z[seen]
+        inv_var = 1.0 / likelihood.sigma_px ** 2
         from priortrack.filters.kalman_kernel import update
 
         P, p = likelihood.camera.projection(joints.device, joints.dtype)
@@ -96,13 +104,7 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
                                             sigma_sq, v, *(a[r] for a in out)))
         return shift, C_post, likelihood.gaussian(d_sq, len(seen)) + correction
     C = predict_covariance(C, sigma, velocity)
-    uv, J, in_front = likelihood.camera.project_jacobian(joints)                    # (P, n, 2), (P, n, 2, 3)
-    d = torch.where(in_front[..., None], z - uv, 0.0)
-    d_sq = torch.where(in_front, (d * d).sum(dim=-1), likelihood.miss_sq).sum(dim=-1)
-    r = d.reshape(len(joints), -1, 1)                                                # (P, 2n, 1)
-    J = torch.where(in_front[..., None, None], J, 0.0).reshape(len(joints), -1, 3)  # (P, 2n, 3)
-    A = J.transpose(1, 2) @ J * inv_var
-    b = (J.transpose(1, 2) @ r)[..., 0] * inv_var
+    A, b, log_p = likelihood.linearised(joints, z)
     P = C[:, :3, :3]
     lu, pivots = torch.linalg.lu_factor(torch.eye(3, dtype=C.dtype, device=C.device) + A @ P)
     solved = torch.linalg.lu_solve(lu, pivots, torch.cat([b[..., None], A], dim=-1))   # N⁻¹ [b, A]
@@ -112,4 +114,4 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
     C_post = C - gain @ M @ C[:, :3, :]
     log_det = torch.log(torch.diagonal(lu, dim1=-2, dim2=-1).abs()).sum(dim=-1)       # det N > 0
     correction = 0.5 * (b[:, None, :] @ P @ y[..., None])[:, 0, 0] - 0.5 * log_det
-    return shift, C_post, likelihood.gaussian(d_sq, len(seen)) + correction
+    return shift, C_post, log_p + correction

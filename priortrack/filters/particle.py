@@ -74,9 +74,10 @@ class ParticleFilter(SequentialFilter):
             raise PriortrackError(f"dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
         if translation not in TRANSLATIONS:
             raise PriortrackError(f"translation must be one of {', '.join(TRANSLATIONS)}, got {translation!r}")
-        if translation == "marginalised" and not (isinstance(model, TrackingModel) and model.likelihood.robust_nu is None):
-            raise PriortrackError("translation = 'marginalised' integrates a body's translation out under the Gaussian "
-                                  "2D likelihood: it needs a TrackingModel without robust_nu")
+        if translation == "marginalised" and not (isinstance(model, TrackingModel) and model.likelihood.linearisable):
+            raise PriortrackError("translation = 'marginalised' integrates a body's translation out by a Kalman filter "
+                                  "on the linearised likelihood: it needs a TrackingModel whose observation model is "
+                                  "linearisable (a JointLikelihood without robust_nu, or a MultiViewLikelihood)")
         self.marginal = translation == "marginalised"
         self.covariance: torch.Tensor | None = None
         self.model, self.P, self.ess_threshold = model, int(particles), float(ess_threshold)

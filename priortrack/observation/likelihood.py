@@ -46,6 +46,27 @@ class JointLikelihood:
         #: |d_j|² of a predicted joint behind the camera: the squared image diagonal.
         self.miss_sq = float(camera.width ** 2 + camera.height ** 2)
 
+    @property
+    def linearisable(self) -> bool:
+        """Whether the particle filter may integrate the translation out (:meth:`linearised`): the
+        Gaussian only, whose predictive likelihood is then exact up to the linearisation."""
+        return self.robust_nu is None
+
+    def linearised(self, joints: torch.Tensor, z) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """At the (predicted) joints (P, J, 3), z (J, 2): A = Σ_j J_jᵀ J_j / σ² (P, 3, 3),
+        b = Σ_j J_jᵀ r_j / σ² (P, 3) over the observed joints in front of the camera (J_j = ∂u/∂X,
+        r_j = z_j − û_j), and log p(z | joints) (P,) (Gaussian; a joint behind the camera counts
+        as a miss of the image diagonal and adds nothing to A and b)."""
+        z = torch.as_tensor(z, dtype=joints.dtype, device=joints.device)
+        seen = torch.isfinite(z).all(dim=-1).nonzero()[:, 0]
+        uv, J, in_front = self.camera.project_jacobian(joints.index_select(1, seen))   # (P, n, 2), (P, n, 2, 3)
+        d = torch.where(in_front[..., None], z[seen] - uv, 0.0)
+        d_sq = torch.where(in_front, (d * d).sum(dim=-1), self.miss_sq).sum(dim=-1)
+        r = d.reshape(len(joints), -1, 1)                                                # (P, 2n, 1)
+        J = torch.where(in_front[..., None, None], J, 0.0).reshape(len(joints), -1, 3)  # (P, 2n, 3)
+        inv_var = 1.0 / self.sigma_px ** 2
+        return J.transpose(1, 2) @ J * inv_var, (J.transpose(1, 2) @ r)[..., 0] * inv_var, self.gaussian(d_sq, len(seen))
+
     def log_likelihood(self, joints: torch.Tensor, z) -> torch.Tensor:
         """(P, 15, 3) predicted joints (metres, world), z (15, 2) pixels with NaN → (P,)."""
         z = torch.as_tensor(z, dtype=joints.dtype, device=joints.device)
