@@ -147,9 +147,15 @@ def _plot(args: argparse.Namespace) -> None:
 
 
 def _track(args: argparse.Namespace) -> None:
+    if args.detections is not None or args.motion is None:
+        _track_detections(args)
+        return
     from priortrack.experiments.tracking import track
     from priortrack.viz.replay import replay
 
+    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person"):
+        if getattr(args, name):
+            raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
         output_path(args.rrd, "rerun recording")
     progress = _Progress(f"track {args.filter}", "frame {0} of {1}")
@@ -169,6 +175,53 @@ def _track(args: argparse.Namespace) -> None:
           f"{1000 * r['seconds_per_frame']:.0f} ms/frame"
           + (f", mean ESS {r['mean_ess']:.0f}" if r["mean_ess"] is not None else "")
           + (f"; wrote {args.rrd}" if args.rrd else ""))
+
+
+def _track_detections(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    from priortrack.data.calibration import read_calibration
+    from priortrack.data.detections import read_detections
+    from priortrack.experiments.real import RESULT_SUFFIXES, track_detections
+
+    if args.motion is not None:
+        raise PriortrackError("give a motion or --detections, not both")
+    if args.detections is None or args.cameras is None:
+        raise PriortrackError("track needs a MOTION (synthetic observations) or --detections with --cameras")
+    for path in args.out or []:
+        if Path(path).suffix.lower() not in RESULT_SUFFIXES:
+            raise PriortrackError(f"--out {path}: results are written as {', '.join(RESULT_SUFFIXES)}")
+        output_path(path, "result file")
+    if args.rrd:
+        output_path(args.rrd, "rerun recording")
+    camera_map = None
+    if args.camera_map:
+        pairs = [item.split("=", 1) for item in args.camera_map.split(",")]
+        if any(len(p) != 2 or not p[0] or not p[1] for p in pairs):
+            raise PriortrackError(f"--camera-map must be FOLDER=CAMERA,…, got {args.camera_map!r}")
+        camera_map = dict(pairs)
+    detections = read_detections(args.detections, keypoints=args.keypoints, person=args.person)
+    calibration = read_calibration(args.cameras)
+    progress = _Progress(f"track {args.filter}", "frame {0} of {1}")
+    try:
+        result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
+                                  camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
+                                  keep_snapshots=bool(args.rrd), progress=progress)
+    finally:
+        progress.close()
+    written = [str(result.save(path)) for path in args.out or []]
+    if args.rrd:
+        from priortrack.viz.real import record_detections
+
+        written.append(str(record_detections(result, args.rrd)))
+    summary = {**result.summary(), "written": written}
+    if args.json:
+        _print_json(summary)
+        return
+    errors = ", ".join(f"{n} {e:.1f} px" for n, e in summary["reprojection_px"].items())
+    print(f"{result.filter}: {summary['frames']} frames at {result.fps:g} fps in {summary['seconds']:.1f} s; "
+          f"median reprojection {errors}; mismatch {100 * summary['mismatch_fraction']:.0f}% of frames"
+          + (f"; wrote {', '.join(written)}" if written else ""))
 
 
 def _eval_tracking(args: argparse.Namespace) -> None:
@@ -346,9 +399,22 @@ def build_parser() -> argparse.ArgumentParser:
     lie_sample.add_argument("--json", action="store_true", help="(the output is always JSON)")
     lie_sample.set_defaults(run=_bench_lie_sample)
 
-    track = verbs.add_parser("track", help="track a motion's synthetic 2D observations with a filter preset")
-    track.add_argument("motion", help="bundled name (cmu:07_10, walkjog:35_29), .amc or .bvh file")
-    track.add_argument("--filter", required=True, help="a preset name (see filters/) or a .toml file")
+    track = verbs.add_parser("track", help="track detections from calibrated cameras, or a motion's synthetic "
+                                           "2D observations, with a filter preset")
+    track.add_argument("motion", nargs="?", help="bundled name (cmu:07_10, walkjog:35_29), .amc or .bvh file: "
+                                                 "track its synthetic observations")
+    track.add_argument("--detections", help="OpenPose JSON folder (one sub-folder per camera), COCO results "
+                                            ".json or .npz of 2D keypoints")
+    track.add_argument("--cameras", help="calibration: Pose2Sim Calib.toml, OpenCV .json/.yml")
+    track.add_argument("--keypoints", help="the detections' layout: body25, body25b, coco18, coco17, mediapipe33")
+    track.add_argument("--fps", type=float, help="the detections' frame rate (if their files do not say it)")
+    track.add_argument("--up", help="the calibration world's up axis (x, y, z, -x, -y, -z) if the file does "
+                                    "not say it")
+    track.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
+    track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
+    track.add_argument("--person", type=int, help="follow this index of each frame's people list")
+    track.add_argument("--out", action="append", help="write the result (.npz, .csv); may repeat")
+    track.add_argument("--filter", required=True, help="a preset name (priortrack presets) or a .toml file")
     track.add_argument("--scenario", default="clean",
                        help="NAME or NAME:key=value,... (clean, noise, dropout, occlusion, blackout, outliers)")
     track.add_argument("--seed", type=int, default=0, help="seeds the observations and the filter")

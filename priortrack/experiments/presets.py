@@ -171,10 +171,14 @@ class Preset:
         return TrackingModel.fitted(self.prior(cache, progress), self.training_motions, self.likelihood(camera))
 
     def build(self, camera: PinholeCamera, seed: int = 0, cache: Path | None = None, progress=None):
-        """The filter, ready to ``run(observations, motion)``."""
+        """The filter on the synthetic single-camera model, ready to ``run(observations, motion)``."""
+        return self.filter_for(self.model(camera, cache, progress), seed)
+
+    def filter_for(self, model, seed: int = 0):
+        """The preset's filter, with its parameters, on ``model``."""
         cls = filter_class(self.filter_kind)
         seeded = {"seed": seed} if "seed" in inspect.signature(cls.__init__).parameters else {}  # the UKF is deterministic
-        return cls(self.model(camera, cache, progress), **seeded, **self.filter_options)
+        return cls(model, **seeded, **self.filter_options)
 
 
 def cache_dir() -> Path:

@@ -2,13 +2,14 @@
 
 Entity layout of a priortrack recording (timeline ``frame``):
 
-- ``world``: Y-up, right-handed; the ``eval15`` annotation context (joint names and bones);
+- ``world``: right-handed, Y-up (or the calibration's up axis); the ``eval15`` annotation context;
 - ``world/<name>``: a 3D skeleton as keypoints joined by the context's connections;
 - ``world/<name>/cloud``: the joints of every particle or sigma point, coloured by weight;
 - ``world/<name>/translation``: the 1σ ellipsoid of the body's translation over the particle set
   (a particle filter that integrates the translation out: its depth spread is not in the cloud);
-- ``world/camera``: the camera pose; ``world/camera/image`` its pinhole;
-  ``world/camera/image/<name>``: 2D points in pixels (missing joints are simply not logged).
+- ``world/<camera>``: a camera's pose (``camera`` by default); ``world/<camera>/image`` its pinhole;
+  ``world/<camera>/image/<name>``: 2D points in pixels (missing joints are simply not logged);
+- ``metrics/<name>``: per-frame scalars.
 """
 
 from __future__ import annotations
@@ -42,11 +43,14 @@ class Recording:
                 rec.skeleton("truth", pose)
     """
 
-    def __init__(self, path: str | Path, application_id: str = "priortrack"):
+    def __init__(self, path: str | Path, application_id: str = "priortrack", up: str = "y"):
         self.path = output_path(path, "rerun recording")
         self.stream = rr.RecordingStream(application_id)
         self.stream.save(self.path)
-        self.stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
+        views = {"y": rr.ViewCoordinates.RIGHT_HAND_Y_UP, "z": rr.ViewCoordinates.RIGHT_HAND_Z_UP,
+                 "-y": rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, "-z": rr.ViewCoordinates.RIGHT_HAND_Z_DOWN,
+                 "x": rr.ViewCoordinates.RIGHT_HAND_X_UP, "-x": rr.ViewCoordinates.RIGHT_HAND_X_DOWN}
+        self.stream.log("world", views[up], static=True)
         connections = [(int(p), j) for j, p in enumerate(EVAL15_PARENTS) if p >= 0]
         context = rr.AnnotationContext([
             rr.ClassDescription(
@@ -100,18 +104,29 @@ class Recording:
             centers=[np.asarray(center, dtype=float)], half_sizes=[np.sqrt(np.clip(eigenvalues, 0.0, None))],
             quaternions=[rr.Quaternion(xyzw=Rotation.from_matrix(axes).as_quat())], colors=[color]))
 
-    def camera(self, camera: PinholeCamera) -> None:
-        """Log the camera pose and pinhole (static)."""
+    def camera(self, camera: PinholeCamera, name: str = "camera") -> None:
+        """Log the camera pose and pinhole (static) at ``world/<name>``."""
         R = camera.R.cpu().numpy()
-        self.stream.log("world/camera", rr.Transform3D(translation=camera.center.cpu().numpy(), mat3x3=R.T),
+        self.stream.log(f"world/{name}", rr.Transform3D(translation=camera.center.cpu().numpy(), mat3x3=R.T),
                         static=True)
-        self.stream.log("world/camera/image", rr.Pinhole(
+        self.stream.log(f"world/{name}/image", rr.Pinhole(
             image_from_camera=camera.K.cpu().numpy(), resolution=[camera.width, camera.height],
             camera_xyz=rr.ViewCoordinates.RDF), static=True)
 
-    def points_2d(self, name: str, uv, color=(255, 120, 0)) -> None:
-        """Log eval15 2D points, uv (15, 2) pixels with NaN where missing, in the camera image."""
+    def points_2d(self, name: str, uv, color=(255, 120, 0), camera: str = "camera", confidence=None) -> None:
+        """Log eval15 2D points, uv (15, 2) pixels with NaN where missing, in a camera's image; with
+        ``confidence`` (15,) in [0, 1], each point's radius (2–8 px) and brightness follow it."""
         uv = np.asarray(uv)
         seen = np.flatnonzero(np.all(np.isfinite(uv), axis=-1))
-        self.stream.log(f"world/camera/image/{name}", rr.Points2D(
-            uv[seen], class_ids=EVAL15_CLASS, keypoint_ids=seen, colors=[color], radii=4.0))
+        colors, radii = [color], 4.0
+        if confidence is not None:
+            c = np.clip(np.asarray(confidence, dtype=float)[seen], 0.0, 1.0)
+            colors = (np.asarray(color)[None] * (0.35 + 0.65 * c[:, None])).astype(np.uint8)
+            radii = 2.0 + 6.0 * c
+        self.stream.log(f"world/{camera}/image/{name}", rr.Points2D(
+            uv[seen], class_ids=EVAL15_CLASS, keypoint_ids=seen, colors=colors, radii=radii))
+
+    def scalar(self, name: str, value: float) -> None:
+        """Log a per-frame scalar at ``metrics/<name>`` (NaN is skipped)."""
+        if np.isfinite(value):
+            self.stream.log(f"metrics/{name}", rr.Scalars(float(value)))
