@@ -10,10 +10,11 @@ import pytest
 import torch
 
 from priortrack import PriortrackError
+from priortrack.data.bundled import POSE2SIM_DIR
 from priortrack.data.calibration import read_calibration, rodrigues
 from priortrack.geometry.camera import PinholeCamera
 
-POSE2SIM = Path(__file__).parent / "data" / "pose2sim_static"
+POSE2SIM = POSE2SIM_DIR
 
 
 def test_pose2sims_calib_toml():

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from priortrack import PriortrackError
+from priortrack.data.bundled import POSE2SIM_DIR
 from priortrack.data.calibration import read_calibration
 from priortrack.data.detections import read_detections
 from priortrack.data.keypoints import LAYOUTS
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.triangulation import triangulate, undistort_normalised
 
-POSE2SIM = Path(__file__).parent / "data" / "pose2sim_static"
+POSE2SIM = POSE2SIM_DIR
 
 
 def _cameras():

@@ -8,13 +8,14 @@ import pytest
 import torch
 
 from priortrack import PriortrackError
+from priortrack.data.bundled import POSE2SIM_DIR
 from priortrack.data.calibration import read_calibration
 from priortrack.filters.marginal_translation import kalman_update
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.observation.multiview import MultiViewLikelihood
 
-POSE2SIM = Path(__file__).parent / "data" / "pose2sim_static"
+POSE2SIM = POSE2SIM_DIR
 
 
 @pytest.fixture(scope="module")

@@ -1,17 +1,25 @@
 """Inverse kinematics: 3D eval15 joint positions (a triangulation, another tool's output) → a Motion.
 
+**Joint definitions.** The targets may follow a detector's definitions (pelvis = mid-hips, neck =
+mid-shoulders: :func:`priortrack.data.keypoints.detector_map`, M); the body's own eval15 joints X are
+then compared through M X. Without M, the targets are the body's eval15 joints themselves.
+
 **The body.** A template skeleton (CMU subject 35's by default, whose channel layout every bundled
-prior uses) is fitted to the measured bone lengths: each of the 14 eval15 bones (joint j to its
-parent p) is scaled by s = ℓ_measured / ℓ_template, applied to the rest offsets of the skeleton
-joints on the path from p to j (a detector's hips, shoulders and head are not CMU's: scaling the
-chain to the detector's distances makes the fitted body use the detector's joint definitions).
+prior uses) is scaled to the targets: each eval15 bone (joint j to its parent) gets the factor
+s = d_measured / d_template of the distance that measures it in the targets' definitions (medians
+over frames; left and right averaged): upper arm, forearm, thigh and shin for the limbs, the
+shoulder and hip widths for the neck→shoulder and pelvis→hip bones, mid-hips to mid-shoulders for the
+trunk, mid-shoulders to the head for the head. The factor scales the rest offsets of the skeleton
+joints on the bone's path (CMU's clavicles and neck both start at the thorax's end).
 
 **The pose.** The channels θ (T, C) minimise, over the frames at once,
 
-    Σ_t Σ_j m_tj |FK(θ_t)_j − X_tj|² + λ Σ_t |θ_t^rot|²,
+    Σ_t Σ_j m_tj |(M FK(θ_t))_j − X_tj|² + λ Σ_t |θ_t^rot|² + μ Σ_t |θ_t − θ_{t−1}|²,
 
 m_tj = 0 where X_tj is NaN, λ = ``REGULARISATION`` (a small pull to the rest pose that fixes the
-dofs the 15 joints do not see: wrist and foot twists, fingers), by L-BFGS in float64. The start
+dofs the 15 joints do not see: wrist and foot twists, fingers) and μ = ``SMOOTHNESS`` (consecutive
+frames alike: a joint missing in one frame follows its neighbours, and the root does not jump
+where a frame lacks a limb), by L-BFGS in float64. The start
 puts the root at the pelvis and turns it about the vertical to the best of ``HEADINGS`` headings.
 The world is Y-up, as the mocap the priors learned from (turn a Z-up calibration's world first:
 :func:`priortrack.geometry.frames.to_y_up`).
@@ -34,54 +42,73 @@ from priortrack.errors import PriortrackError
 
 #: λ, the weight (m² per rad²) of the pull of the rotation channels to zero.
 REGULARISATION = 1e-4
+#: μ, the weight (m² per unit of channel change) of the difference between consecutive frames.
+SMOOTHNESS = 1e-2
 #: Root headings tried for the start.
 HEADINGS = 12
 #: L-BFGS iterations of the fit.
 ITERATIONS = 200
 
 
-def bone_lengths(X: np.ndarray) -> np.ndarray:
-    """(14,) median length of each eval15 bone (joint j = 1…14 to its parent) over frames X (T, 15, 3),
-    NaN frames left out; left and right bones averaged (a detector's sides differ by noise only)."""
+#: eval15 bone (child joint) → the distance (a pair of joints, or of joint pairs' midpoints) that
+#: measures it, with its mirror; by eval15 index.
+_MEASURES = {
+    1: (((9, 12), (3, 6)), None),                     # trunk: mid-hips to mid-shoulders
+    2: (((3, 6), (2,)), None),                        # head: mid-shoulders to the head
+    3: (((3,), (6,)), None), 6: (((3,), (6,)), None),  # shoulder width
+    9: (((9,), (12,)), None), 12: (((9,), (12,)), None),  # hip width
+    4: (((3,), (4,)), ((6,), (7,))), 7: (((3,), (4,)), ((6,), (7,))),        # upper arms
+    5: (((4,), (5,)), ((7,), (8,))), 8: (((4,), (5,)), ((7,), (8,))),        # forearms
+    10: (((9,), (10,)), ((12,), (13,))), 13: (((9,), (10,)), ((12,), (13,))),  # thighs
+    11: (((10,), (11,)), ((13,), (14,))), 14: (((10,), (11,)), ((13,), (14,))),  # shins
+}
+
+
+def _distance(X: np.ndarray, pair) -> np.ndarray:
+    a, b = (X[..., list(ends), :].mean(axis=-2) for ends in pair)
+    return np.linalg.norm(a - b, axis=-1)
+
+
+def measured_distances(X: np.ndarray) -> np.ndarray:
+    """(14,) the median over frames X (T, 15, 3) of the distance measuring each eval15 bone (left and
+    right averaged), NaN frames left out."""
     X = np.asarray(X, dtype=np.float64)
-    lengths = np.nanmedian(np.linalg.norm(X[:, 1:] - X[:, EVAL15_PARENTS[1:]], axis=-1), axis=0)
-    for left, right in ((3, 6), (4, 7), (5, 8), (9, 12), (10, 13), (11, 14)):
-        both = np.nanmean(lengths[[left - 1, right - 1]])
-        lengths[[left - 1, right - 1]] = both
-    if not np.isfinite(lengths).all():
-        missing = [j for j in range(1, 15) if not np.isfinite(lengths[j - 1])]
-        raise PriortrackError(f"bone lengths: eval15 joints {missing} are never measured with their parents")
-    return lengths
+    out = np.empty(14)
+    for j, (pair, mirror) in _MEASURES.items():
+        values = _distance(X, pair) if mirror is None else np.concatenate([_distance(X, pair), _distance(X, mirror)])
+        out[j - 1] = np.nanmedian(values) if np.isfinite(values).any() else np.nan
+    if not np.isfinite(out).all():
+        missing = [j for j in range(1, 15) if not np.isfinite(out[j - 1])]
+        raise PriortrackError(f"body size: the distances measuring eval15 joints {missing} are never measured")
+    return out
 
 
-def fitted_skeleton(template: Skeleton, lengths: np.ndarray) -> Skeleton:
-    """The template with each eval15 bone's chain of rest offsets scaled to ``lengths`` (14,) metres."""
+def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | None = None) -> Skeleton:
+    """The template scaled so that its distances (module docstring) match those of the targets X
+    (T, 15, 3), both in the targets' definitions (``joint_map`` M applied to the template)."""
     index = eval15_indices(template)
     offsets = template.offsets.copy()
     points = ForwardKinematics(template, dtype=torch.float64)(np.zeros(template.num_channels)).numpy()   # rest pose
     rest = points[index]
+    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+    scale = measured_distances(X) / measured_distances((M @ rest)[None])
     for j in range(1, 15):
         parent = EVAL15_PARENTS[j]
-        measured = float(np.linalg.norm(rest[j] - rest[parent]))
-        if measured < 1e-9:
-            raise PriortrackError(f"skeleton {template.name!r}: eval15 bone {j} has zero length")
-        # The skeleton joints from j up to the parent's point (a sibling chain may start there:
-        # CMU's clavicles and neck both start at the thorax's end).
         chain, k = [], int(index[j])
         while k > 0 and np.linalg.norm(points[k] - rest[parent]) > 1e-9:
             chain.append(k)
             k = int(template.parents[k])
         if np.linalg.norm(points[k] - rest[parent]) > 1e-9:
             raise PriortrackError(f"skeleton {template.name!r}: eval15 joint {j} is not below its parent")
-        offsets[chain] *= lengths[j - 1] / measured
+        offsets[chain] *= scale[j - 1]
     return replace(template, offsets=offsets, name=f"{template.name}-fitted")
 
 
 def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = None, name: str = "ik",
-                       lengths: np.ndarray | None = None) -> Motion:
-    """A Motion whose eval15 joints best match X (T, 15, 3) metres in a Y-up world (NaN = unknown),
-    on the template (default: CMU subject 35) scaled to ``lengths`` (14,) (default: :func:`bone_lengths`
-    of X)."""
+                       joint_map: np.ndarray | None = None, skeleton: Skeleton | None = None) -> Motion:
+    """A Motion whose eval15 joints (through ``joint_map`` M, if given) best match X (T, 15, 3) metres in
+    a Y-up world (NaN = unknown), on ``skeleton``, or else the template (default: CMU subject 35)
+    scaled to X (:func:`fitted_skeleton`)."""
     if template is None:
         from priortrack.data.bundled import cmu_skeleton
 
@@ -95,12 +122,13 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
     if (seen.sum(axis=1) < 6).any():
         raise PriortrackError(f"inverse kinematics: frames {np.flatnonzero(seen.sum(axis=1) < 6).tolist()} have "
                               f"fewer than 6 known joints")
-    skeleton = fitted_skeleton(template, bone_lengths(X) if lengths is None else np.asarray(lengths, dtype=float))
-    channels = _fit(skeleton, X, seen)
+    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+    skeleton = skeleton or fitted_skeleton(template, X, M)
+    channels = _fit(skeleton, X, seen, M)
     return Motion(skeleton, channels, float(fps), name)
 
 
-def _fit(skeleton: Skeleton, X: np.ndarray, seen: np.ndarray) -> np.ndarray:
+def _fit(skeleton: Skeleton, X: np.ndarray, seen: np.ndarray, M: np.ndarray) -> np.ndarray:
     T = len(X)
     fk = ForwardKinematics(skeleton, dtype=torch.float64)
     index = eval15_indices(skeleton)
@@ -112,14 +140,17 @@ def _fit(skeleton: Skeleton, X: np.ndarray, seen: np.ndarray) -> np.ndarray:
     heading_slot = int(np.argmax(np.abs(skeleton.rot_axes[0, :, 1])))           # the root's turn about y
     heading_channel = int(skeleton.rot_channels[0, heading_slot])
 
+    M = torch.as_tensor(M)
+
     def loss(theta: torch.Tensor) -> torch.Tensor:
-        joints = fk(theta, joints=index)
-        return ((joints - target) ** 2 * mask).sum() + REGULARISATION * (theta[:, rotation] ** 2).sum()
+        joints = torch.einsum("ij,tjk->tik", M, fk(theta, joints=index))
+        return (((joints - target) ** 2 * mask).sum() + REGULARISATION * (theta[:, rotation] ** 2).sum()
+                + SMOOTHNESS * ((theta[1:] - theta[:-1]) ** 2).sum())
 
     def start(heading: float) -> torch.Tensor:
         theta = torch.zeros((T, skeleton.num_channels), dtype=torch.float64)
-        pelvis = np.where(seen[:, :1], X[:, :1], np.nanmean(X, axis=1, keepdims=True))[:, 0]
-        rest = fk(torch.zeros(skeleton.num_channels, dtype=torch.float64), joints=index[:1])[0]
+        pelvis = np.where(seen[:, :1, None], X[:, :1], np.nanmean(X, axis=1, keepdims=True))[:, 0]
+        rest = (M @ fk(torch.zeros(skeleton.num_channels, dtype=torch.float64), joints=index))[0]
         theta[:, torch.as_tensor(root_t)] = torch.as_tensor(pelvis) - rest
         if heading_channel >= 0:
             theta[:, heading_channel] = heading

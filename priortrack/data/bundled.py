@@ -24,6 +24,9 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 
 DATA_DIR = Path(__file__).parent / "cmu"
+#: Real OpenPose BODY_25B output of 4 calibrated cameras with their Pose2Sim Calib.toml (its SOURCE.md: the
+#: Pose2Sim demo's static trial, BSD 3-Clause).
+POSE2SIM_DIR = Path(__file__).parent / "pose2sim"
 ASF_AMC_DIR = DATA_DIR / "asf_amc"
 WALKJOG_PATH = DATA_DIR / "subject35_walkjog" / "cmu35_walkjog_30fps.npz"
 CMU_FPS = 120.0

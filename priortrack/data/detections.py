@@ -20,9 +20,11 @@ confidence 0 are OpenPose's "not found" too).
 **Several people in a frame.** Per camera, the person followed is the one with the largest summed
 confidence in the first frame where anyone is seen (``person=i`` pins index i of each frame's
 list instead); in each later frame it is the candidate nearest the last position followed (median
-distance over keypoints both have), accepted if within ``SWITCH_GATE`` of the person's size
-(the diagonal of its keypoints' box). A frame whose nearest candidate is further is left missing
-and logged as a possible switch, never taken silently.
+distance over the keypoints both have, or between the centroids where they share fewer than
+three), accepted if within ``SWITCH_GATE`` of the person's size (the larger diagonal of the two
+keypoint boxes, at least ``MIN_SIZE_PX``). A frame whose nearest candidate is further is left
+missing and logged as a possible switch, never taken silently; after ``REACQUIRE`` such frames in
+a row the most confident person is followed again (logged).
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ log = logging.getLogger(__name__)
 #: A later frame's candidate is the same person if its median keypoint distance to the last one
 #: followed is below this fraction of that person's size (box diagonal).
 SWITCH_GATE = 0.5
+MIN_SIZE_PX = 100.0
+REACQUIRE = 10
 #: Most frames and cameras a reader accepts (a guard against absurd inputs).
 MAX_FRAMES, MAX_CAMERAS = 1_000_000, 64
 
@@ -200,28 +204,36 @@ def _follow(people: list[list[np.ndarray]], person: int | None, camera: str) -> 
             if person < len(frame):
                 out[t] = frame[person]
         return out, 0
-    last, switches = None, 0
+    last, switches, rejected = None, 0, 0
     for t, frame in enumerate(people):
+        frame = [p for p in frame if np.isfinite(p[:, :2]).all(axis=1).any()]
         if not frame:
             continue
-        if last is None:
-            chosen = max(frame, key=lambda p: np.nansum(p[:, 2]))
+        if last is None or rejected >= REACQUIRE:
+            if last is not None:
+                log.warning("camera %s, frame index %d: following the most confident person again", camera, t)
+            chosen, rejected = max(frame, key=lambda p: np.nansum(p[:, 2])), 0
         else:
-            distances = []
-            for p in frame:
-                both = np.isfinite(p[:, :2]).all(axis=1) & np.isfinite(last[:, :2]).all(axis=1)
-                distances.append(np.median(np.linalg.norm(p[both, :2] - last[both, :2], axis=1)) if both.any()
-                                 else np.inf)
+            distances = [_distance(p, last) for p in frame]
             best = int(np.argmin(distances))
-            if not distances[best] <= SWITCH_GATE * max(_size(last), 1.0):
-                switches += 1
+            if not distances[best] <= SWITCH_GATE * max(_size(last), _size(frame[best]), MIN_SIZE_PX):
+                switches, rejected = switches + 1, rejected + 1
                 log.warning("camera %s, frame index %d: no detection near the person followed (nearest %.0f px); "
                             "left missing", camera, t, distances[best])
                 continue
-            chosen = frame[best]
+            chosen, rejected = frame[best], 0
         out[t] = chosen
         last = chosen
     return out, switches
+
+
+def _distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Median distance over the keypoints both (K, 3) have, or between centroids if they share < 3."""
+    seen_a, seen_b = np.isfinite(a[:, :2]).all(axis=1), np.isfinite(b[:, :2]).all(axis=1)
+    both = seen_a & seen_b
+    if both.sum() >= 3:
+        return float(np.median(np.linalg.norm(a[both, :2] - b[both, :2], axis=1)))
+    return float(np.linalg.norm(a[seen_a, :2].mean(axis=0) - b[seen_b, :2].mean(axis=0)))
 
 
 # ---- COCO results and NPZ ---------------------------------------------------------------------

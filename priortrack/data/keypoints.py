@@ -14,8 +14,12 @@ knees, ankles), and the three a detector lacks are derived, the same way for eve
     (BODY_25B), else mid-ears (one definition per layout: never mixed from frame to frame).
 
 A derived joint is observed only where all its parts are, with the smallest of their confidences.
-These are the detector's joint definitions, not a mocap skeleton's: a detector's hip sits
-elsewhere than CMU's femur head, and a body fitted to detections uses these definitions.
+These are the detector's joint definitions, not a mocap skeleton's: the mocap pelvis (CMU's root)
+lies some 10 cm above the mid-hips, its neck (the thorax's top) above the mid-shoulders. A body's
+eval15 joints X (15, 3) are taken to the detector's definitions by the linear map
+:func:`detector_map` (rows summing to one, so a translation of the body moves them alike); the
+head is the body's head top in every layout (for the layouts without one, mid-ears stands for it:
+an approximation, a few centimetres low).
 """
 
 from __future__ import annotations
@@ -57,6 +61,17 @@ EVAL15_PARTS: dict[str, tuple[tuple[str, ...], ...]] = {
     "head": (("head_top",), ("left_ear", "right_ear")),
     **{f"{side[0]}{part}": ((f"{side}_{part}",),) for side in ("left", "right") for part in _LR},
 }
+
+
+def detector_map() -> np.ndarray:
+    """M (15, 15): the detector-defined eval15 joints M X of a body's eval15 joints X (15, 3):
+    pelvis = ½ (lhip + rhip), neck = ½ (lshoulder + rshoulder), every other joint itself."""
+    M = np.eye(15)
+    index = {n: i for i, n in enumerate(EVAL15_NAMES)}
+    for joint, (a, b) in (("pelvis", ("lhip", "rhip")), ("neck", ("lshoulder", "rshoulder"))):
+        M[index[joint]] = 0.0
+        M[index[joint], [index[a], index[b]]] = 0.5
+    return M
 
 
 def layout_for(name: str | None, count: int, where: str) -> str:

@@ -14,9 +14,14 @@
    The motion is therefore played at its true speed whatever the data's rate.
 3. **Start without truth.** Each tick's joints are triangulated (confidence-weighted DLT through the
    lens distortion); the first two consecutive ticks with at least ``START_JOINTS`` joints
-   triangulated start the filter: bone lengths are the medians over the first ``LENGTH_TICKS``
-   ticks, and the body (the prior's skeleton, or CMU subject 35's, scaled to those lengths) is
-   fitted to the two ticks by inverse kinematics (:mod:`priortrack.body.ik`).
+   triangulated start the filter: the body (the prior's skeleton, or CMU subject 35's) is scaled to
+   the distances measured over the first ``LENGTH_TICKS`` ticks and fitted to the two ticks by
+   inverse kinematics over ``START_TICKS`` ticks (:mod:`priortrack.body.ik`), both in the detector's
+   joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
+   its neck the mid-shoulders), which the observation model uses too. The two start frames are
+   steadied (:func:`steady_start`): the root's translation on the least-squares line through the
+   fitted ticks (a velocity from eight noisy frames, not two), its rotation the same in both (no
+   turn), and the particle filters start with ``START_TRANSLATION_STD`` of translation uncertainty.
 4. **Filter.** The preset's filter runs with the multi-camera observation model
    (:class:`~priortrack.observation.multiview.MultiViewLikelihood`: Student-t, ν = 4 unless the
    preset's ``[observation]`` says otherwise, weighted by confidence).
@@ -33,16 +38,19 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from priortrack.body.ik import bone_lengths, inverse_kinematics
+from priortrack.body.ik import fitted_skeleton, inverse_kinematics
+from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import Calibration, CameraCalibration
 from priortrack.data.detections import Detections
+from priortrack.data.motion import Motion
 from priortrack.data.eval15 import EVAL15_NAMES
+from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
 from priortrack.experiments.presets import Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES
@@ -56,9 +64,14 @@ from priortrack.output import output_path
 log = logging.getLogger(__name__)
 
 #: Joints a tick needs triangulated to start the filter there.
-START_JOINTS = 12
-#: Ticks whose triangulations give the bone lengths (their medians).
+START_JOINTS = 14
+#: Ticks whose triangulations give the body's size (medians).
 LENGTH_TICKS = 30
+#: Ticks fitted together by inverse kinematics for the start (the first two start the filter).
+START_TICKS = 8
+#: The start's uncertainty in the body's translation, metres (each of its two frames), for the
+#: particle filters.
+START_TRANSLATION_STD = 0.05
 #: A tick is a mismatch when its mean log-likelihood per detection is this many nats below the
 #: noise model's expectation …
 MISMATCH_NATS = 3.0
@@ -71,7 +84,8 @@ class DetectionTrack:
     """The result of :func:`track_detections`.
 
     Attributes:
-        joints: (T, 15, 3) float64 eval15 joints, metres, in the calibration's world.
+        joints: (T, 15, 3) float64 eval15 joints, metres, in the calibration's world, in the detector's
+            definitions (pelvis = mid-hips, neck = mid-shoulders).
         frames: (T,) the input frame number each tick consumed (−1: none, the prediction stands).
         fps: the ticks' rate (the prior's).
         spread: (T, 15) the posterior's standard deviation per joint, metres (√ of the trace of each
@@ -228,14 +242,17 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     first = int(good[0])
     if len(index) - first < KNOWN_FRAMES + 1:
         raise PriortrackError(f"the detections start too late to track: {len(index) - first} ticks from the start")
-    lengths = bone_lengths(X[first:first + LENGTH_TICKS])
-    template = getattr(prior.space, "skeleton", None)
-    known = inverse_kinematics(X[first:first + KNOWN_FRAMES], prior.fps, template=template, lengths=lengths)
+    M = detector_map()
+    template = getattr(prior.space, "skeleton", None) or cmu_skeleton("35")
+    skeleton = fitted_skeleton(template, X[first:first + LENGTH_TICKS], M)
+    known = steady_start(inverse_kinematics(X[first:first + START_TICKS], prior.fps, joint_map=M, skeleton=skeleton))
     observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": DEFAULT_NU, **preset.observation}
-    model = TrackingModel.fitted(prior, preset.training_motions, MultiViewLikelihood(cameras, **observation))
+    model = TrackingModel.fitted(prior, preset.training_motions,
+                                 MultiViewLikelihood(cameras, **observation, joint_map=M))
     filt = preset.filter_for(model, seed)
     torch.manual_seed(seed)
-    run = filt.run(z[first:], known, keep_snapshots=True, progress=progress)
+    initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
+    run = filt.run(z[first:], known, keep_snapshots=True, progress=progress, **initial)
     T = len(index) - first
     spread, loglik = np.full((T, 15), np.nan), np.full(T, np.nan)
     for s in run.snapshots:
@@ -245,7 +262,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
             loglik[t] = float(model.likelihood.log_likelihood(torch.as_tensor(run.estimates[t])[None],
                                                               torch.as_tensor(z[first + t]))[0])
     mismatch = _mismatch(loglik, z[first:], model.likelihood)
-    joints = run.estimates @ A                                                   # back to the world: Aᵀ X
+    joints = np.einsum("ij,tjk->tik", M, run.estimates) @ A      # the detector's definitions, back in the world
     reprojection = np.array([_median_reprojection(cam, joints, uv[c, index[first:]], confidence[c, index[first:]])
                              for c, cam in enumerate(world_cameras)])
     result = DetectionTrack(joints, np.where(index[first:] >= 0, detections.frames[np.maximum(index[first:], 0)], -1),
@@ -257,6 +274,19 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                     "what the prior learned, try pf-diffusion-local", preset.prior_kind,
                     100 * result.mismatch_fraction)
     return result
+
+
+def steady_start(window: Motion) -> Motion:
+    """The first two frames of a fitted ``window`` with the root's translation channels on their
+    least-squares line over the window and the root's rotation channels of the second frame in both."""
+    skeleton, channels = window.skeleton, window.channels.copy()
+    translation = skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0]
+    rotation = skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0]
+    t = np.arange(len(channels))
+    slope, intercept = np.polyfit(t, channels[:, translation], 1) if len(channels) > 1 else (0.0, channels[0, translation])
+    channels[:, translation] = intercept + np.outer(t, slope)
+    channels[0, rotation] = channels[1, rotation]
+    return replace(window, channels=channels[:KNOWN_FRAMES])
 
 
 def _spread(snapshot) -> np.ndarray:

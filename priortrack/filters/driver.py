@@ -23,7 +23,7 @@ class SequentialFilter:
     """The ``run`` loop over ``initialise`` and ``step``, which subclasses provide."""
 
     def run(self, observations, motion: Motion, keep_snapshots: bool = False,
-            progress: Callable[[int, int], None] | None = None) -> Track:
+            progress: Callable[[int, int], None] | None = None, **initial) -> Track:
         """Initialise on the first two frames of ``motion`` and filter the rest.
 
         Args:
@@ -31,6 +31,8 @@ class SequentialFilter:
             motion: the known motion whose first two frames start the filter.
             keep_snapshots: keep every step's Snapshot in the Track.
             progress: called as progress(t, T) after each frame.
+            initial: further arguments of the filter's ``initialise`` (the particle filter's
+                ``translation_std``, for a start that is itself an estimate).
         """
         observations = np.asarray(observations, dtype=float)
         T = len(observations)
@@ -39,7 +41,7 @@ class SequentialFilter:
             raise PriortrackError(f"observations have shape {observations.shape}; expected (T ≥ 3, "
                                   f"{', '.join(map(str, shape))})")
         start = time.perf_counter()
-        self.initialise(motion)
+        self.initialise(motion, **initial)
         fps = self.model.prior.fps
         known = motion if motion.fps == fps else motion.resample(fps)
         given = joint_positions(known, "eval15")[:KNOWN_FRAMES]

@@ -88,17 +88,28 @@ class ParticleFilter(SequentialFilter):
         self.log_weights: torch.Tensor | None = None
         self.frame = 0
 
-    def initialise(self, motion: Motion, start: int = 1) -> None:
-        """Particles around frame ``start`` of a known motion (its first two frames)."""
-        self.initialise_states(self.model.initial_states(motion, self.P, self.generator, start), start)
+    def initialise(self, motion: Motion, start: int = 1, translation_std: float = 0.0) -> None:
+        """Particles around frame ``start`` of a motion (its first two frames); ``translation_std``
+        (metres) is the start's own uncertainty in each of t_start and t_{start−1} (0: known exactly,
+        as in the papers' experiments; an estimated start, such as a triangulation, has some)."""
+        self.initialise_states(self.model.initial_states(motion, self.P, self.generator, start), start,
+                               translation_std)
 
-    def initialise_states(self, states: torch.Tensor, frame: int = 0) -> None:
-        """Start from given particles (P, dim) (cast to the filter's dtype), equally weighted."""
+    def initialise_states(self, states: torch.Tensor, frame: int = 0, translation_std: float = 0.0) -> None:
+        """Start from given particles (P, dim) (cast to the filter's dtype), equally weighted; with
+        ``translation_std`` σ, the translations t_t, t_{t−1} are N(given, σ² I) each, independent:
+        the Kalman covariance σ² I₆ where the translation is integrated out, else drawn."""
         if states.shape != (self.P, self.model.dim):
             raise PriortrackError(f"initial particles have shape {tuple(states.shape)}; expected ({self.P}, {self.model.dim})")
+        if not 0 <= translation_std < 10:
+            raise PriortrackError(f"translation_std must be in [0, 10) metres, got {translation_std}")
         self.states = states.to(self.dtype)
         if self.marginal:
-            self.covariance = torch.zeros((self.P, 6, 6), dtype=self.dtype, device=states.device)
+            self.covariance = translation_std ** 2 * torch.eye(6, dtype=self.dtype, device=states.device).repeat(
+                self.P, 1, 1)
+        elif translation_std > 0:
+            shift = torch.randn((self.P, 6), generator=self.generator, dtype=self.dtype) * translation_std
+            self.states = self.model.shift_translation(self.states, shift)
         self.log_weights = torch.full((self.P,), -math.log(self.P), dtype=torch.float64, device=states.device)
         self.frame = frame
 

@@ -9,7 +9,9 @@ default on real data, or Gaussian), scale σ:
 
     log p(z | X) = Σ_c Σ_j w_cj ℓ(|d_cj|²).
 
-A joint behind camera c counts as a miss of that image's diagonal.
+A joint behind camera c counts as a miss of that image's diagonal. With a ``joint_map`` M (J × J,
+rows summing to one: :func:`priortrack.data.keypoints.detector_map`), the body's joints X are
+compared in the detector's definitions, M X.
 
 **Linearisation** (for the particle filter's Kalman update of the translation,
 :mod:`priortrack.filters.marginal_translation`): at the predicted joints, with J_cj = ∂u/∂X,
@@ -43,15 +45,20 @@ class MultiViewLikelihood:
         sigma_px: σ in pixels.
         robust_nu: ν of the Student-t; None for a Gaussian.
         joints: J, the joints per camera (15 for eval15).
+        joint_map: M (J, J) taking the body's joints to the observations' definitions; None for the identity.
     """
 
     #: The particle filter may integrate the translation out under this model (:meth:`linearised`).
     linearisable = True
 
     def __init__(self, cameras: Sequence[PinholeCamera], sigma_px: float = DEFAULT_SIGMA_PX,
-                 robust_nu: float | None = DEFAULT_NU, joints: int = 15):
+                 robust_nu: float | None = DEFAULT_NU, joints: int = 15, joint_map=None):
         if not cameras:
             raise PriortrackError("a multi-view likelihood needs at least one camera")
+        self.joint_map = None if joint_map is None else torch.as_tensor(joint_map, dtype=torch.float64)
+        if self.joint_map is not None and (self.joint_map.shape != (joints, joints) or
+                                           not torch.allclose(self.joint_map.sum(dim=1), torch.ones(joints, dtype=torch.float64))):
+            raise PriortrackError(f"joint_map must be ({joints}, {joints}) with rows summing to one")
         self.views = [JointLikelihood(c, sigma_px, robust_nu) for c in cameras]
         self.cameras = list(cameras)
         self.sigma_px, self.robust_nu = float(sigma_px), robust_nu
@@ -67,9 +74,16 @@ class MultiViewLikelihood:
         seen = torch.isfinite(uv).all(dim=-1) & torch.isfinite(w) & (w > 0)
         return torch.where(seen[..., None], uv, 0.0), torch.where(seen, w, 0.0), seen
 
+    def _mapped(self, joints: torch.Tensor) -> torch.Tensor:
+        """M X (P, J, 3): the joints in the observations' definitions."""
+        if self.joint_map is None:
+            return joints
+        return torch.einsum("ij,pjk->pik", self.joint_map.to(joints), joints)
+
     def log_likelihood(self, joints: torch.Tensor, z) -> torch.Tensor:
         """(P, J, 3) world joints, z (C, J, 3) → (P,) log p(z | joints)."""
         uv, w, seen = self._split(joints, z)
+        joints = self._mapped(joints)
         total = torch.zeros(joints.shape[0], dtype=joints.dtype, device=joints.device)
         for c, view in enumerate(self.views):
             index = seen[c].nonzero()[:, 0]
@@ -85,6 +99,7 @@ class MultiViewLikelihood:
         """A (P, 3, 3), b (P, 3) and log p(z | joints) (P,) at the given (predicted) joints (module
         docstring); a joint behind a camera adds nothing to A and b."""
         uv, w, seen = self._split(joints, z)
+        joints = self._mapped(joints)
         P = joints.shape[0]
         A = torch.zeros((P, 3, 3), dtype=joints.dtype, device=joints.device)
         b = torch.zeros((P, 3), dtype=joints.dtype, device=joints.device)
