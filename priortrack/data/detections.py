@@ -20,8 +20,8 @@ confidence 0 are OpenPose's "not found" too).
 **Several people in a frame.** Per camera, the person followed is the one with the largest summed
 confidence in the first frame where anyone is seen (``person=i`` pins index i of each frame's
 list instead); in each later frame it is the candidate nearest the last position followed (median
-distance over the keypoints both have, or between the centroids where they share fewer than
-three), accepted if within ``SWITCH_GATE`` of the person's size (the larger diagonal of the two
+distance over the keypoints both have, or between the centroids where they share none),
+accepted if within ``SWITCH_GATE`` of the person's size (the larger diagonal of the two
 keypoint boxes, at least ``MIN_SIZE_PX``). A frame whose nearest candidate is further is left
 missing and logged as a possible switch, never taken silently; after ``REACQUIRE`` such frames in
 a row the most confident person is followed again (logged).
@@ -228,10 +228,10 @@ def _follow(people: list[list[np.ndarray]], person: int | None, camera: str) -> 
 
 
 def _distance(a: np.ndarray, b: np.ndarray) -> float:
-    """Median distance over the keypoints both (K, 3) have, or between centroids if they share < 3."""
+    """Median distance over the keypoints both (K, 3) have, or between centroids if they share none."""
     seen_a, seen_b = np.isfinite(a[:, :2]).all(axis=1), np.isfinite(b[:, :2]).all(axis=1)
     both = seen_a & seen_b
-    if both.sum() >= 3:
+    if both.any():
         return float(np.median(np.linalg.norm(a[both, :2] - b[both, :2], axis=1)))
     return float(np.linalg.norm(a[seen_a, :2].mean(axis=0) - b[seen_b, :2].mean(axis=0)))
 

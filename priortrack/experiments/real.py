@@ -63,6 +63,9 @@ from priortrack.output import output_path
 
 log = logging.getLogger(__name__)
 
+#: The filters that run on the multi-camera observation model (the unscented filter and the MAP
+#: tracker still measure through one camera).
+MULTIVIEW_FILTERS = ("pf", "apf")
 #: Joints a tick needs triangulated to start the filter there.
 START_JOINTS = 14
 #: Ticks whose triangulations give the body's size (medians).
@@ -192,13 +195,19 @@ def match_cameras(detections: Detections, calibration: Calibration,
 
 def schedule(frames: np.ndarray, data_fps: float, prior_fps: float) -> np.ndarray:
     """(T,) index into ``frames`` of the frame each prior tick consumes, −1 where none lies within
-    half a data frame of the tick (module docstring, step 2)."""
+    half a data frame of the tick (module docstring, step 2). A frame is consumed once, by its
+    nearest tick (25 fps data at 30 fps: one tick in six has none)."""
     times = (frames - frames[0]) / data_fps
     ticks = np.arange(int(math.floor(times[-1] * prior_fps + 1e-9)) + 1) / prior_fps
-    nearest = np.clip(np.searchsorted(times, ticks), 1, max(len(times) - 1, 1))
-    nearest = np.where(np.abs(times[nearest - 1] - ticks) <= np.abs(times[np.minimum(nearest, len(times) - 1)] - ticks),
-                       nearest - 1, np.minimum(nearest, len(times) - 1))
-    return np.where(np.abs(times[nearest] - ticks) <= 0.5 / data_fps + 1e-9, nearest, -1)
+    after = np.clip(np.searchsorted(times, ticks), 0, len(times) - 1)
+    before = np.maximum(after - 1, 0)
+    nearest = np.where(np.abs(times[before] - ticks) <= np.abs(times[after] - ticks), before, after)
+    gap = np.abs(times[nearest] - ticks)
+    index = np.where(gap <= 0.5 / data_fps + 1e-9, nearest, -1)
+    for frame in np.unique(index[index >= 0]):
+        ticks_of = np.flatnonzero(index == frame)
+        index[ticks_of[ticks_of != ticks_of[np.argmin(gap[ticks_of])]]] = -1
+    return index
 
 
 def track_detections(detections: Detections, calibration: Calibration, preset: Preset | str,
@@ -209,6 +218,9 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     (module docstring). ``fps``: the detections' frame rate (if the file does not say it)."""
     start_time = time.perf_counter()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
+    if preset.filter_kind not in MULTIVIEW_FILTERS:
+        raise PriortrackError(f"preset {preset.name!r}: the {preset.filter_kind!r} filter does not run on several "
+                              f"cameras yet; use a particle-filter preset ({', '.join(MULTIVIEW_FILTERS)})")
     data_fps = fps if fps is not None else detections.fps
     if data_fps is None:
         raise PriortrackError(f"{detections.source}: the detections do not say their frame rate; give it (--fps)")
@@ -251,8 +263,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
     filt = preset.filter_for(model, seed)
     torch.manual_seed(seed)
-    initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
-    run = filt.run(z[first:], known, keep_snapshots=True, progress=progress, **initial)
+    run = filt.run(z[first:], known, keep_snapshots=True, progress=progress, translation_std=START_TRANSLATION_STD)
     T = len(index) - first
     spread, loglik = np.full((T, 15), np.nan), np.full(T, np.nan)
     for s in run.snapshots:

@@ -135,3 +135,19 @@ def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibr
             "dlt_mm": 1000 * float(np.linalg.norm(dlt - truth, axis=-1)[has].mean()),
             "dlt_coverage": float(has.mean()), "seconds": seconds,
             "mismatch_fraction": result.mismatch_fraction}
+
+
+def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None = None, cache=None) -> dict:
+    """Every preset × motion × seed of :func:`run_real_format`: {"table": {preset: {"mpjpe_mm", "dlt_mm",
+    "ratio", "seconds"}}, "runs": [...], "cameras": C}, means over motions and seeds."""
+    if seeds < 1:
+        raise PriortrackError(f"seeds must be at least 1, got {seeds}")
+    runs = [run_real_format(p, m, s, cameras=cameras, cache=cache) for p in presets for m in motions
+            for s in range(seeds)]
+    table = {}
+    for p in presets:
+        rows = [r for r in runs if r["preset"] == p]
+        tracker, dlt = np.mean([r["mpjpe_where_dlt_mm"] for r in rows]), np.mean([r["dlt_mm"] for r in rows])
+        table[p] = {"mpjpe_mm": float(np.mean([r["mpjpe_mm"] for r in rows])), "dlt_mm": float(dlt),
+                    "ratio": float(tracker / dlt), "seconds": float(np.mean([r["seconds"] for r in rows]))}
+    return {"table": table, "runs": runs, "cameras": runs[0]["cameras"] if runs else 0}

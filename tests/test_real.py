@@ -1,0 +1,106 @@
+"""Tracking real detections: the Pose2Sim demo's OpenPose output through its 4 calibrated cameras,
+from the command line, with every output read back; the lab bench on a held-out walk; bad input."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import rerun as rr
+
+from priortrack import PriortrackError
+from priortrack.cli.main import main
+from priortrack.data.bundled import POSE2SIM_DIR
+from priortrack.data.calibration import Calibration, read_calibration
+from priortrack.data.detections import read_detections
+from priortrack.data.eval15 import EVAL15_NAMES
+from priortrack.experiments.real import schedule, track_detections
+from priortrack.experiments.real_format import run_real_format
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.geometry.triangulation import triangulate
+
+POSE = str(POSE2SIM_DIR / "pose")
+CALIB = str(POSE2SIM_DIR / "Calib.toml")
+
+
+@pytest.fixture(scope="module")
+def outputs(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("real")
+    argv = ["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
+            "--filter", "pf-lie", "--out", str(folder / "r.npz"), "--out", str(folder / "r.csv"),
+            "--rrd", str(folder / "r.rrd"), "--json"]
+    return folder, argv
+
+
+def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, capsys):
+    folder, argv = outputs
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames"] == 6 and summary["fps"] == 30.0 and set(summary["reprojection_px"]) == {
+        "cam01_json", "cam02_json", "cam03_json", "cam04_json"}
+    assert all(e < 35 for e in summary["reprojection_px"].values()) and summary["mismatch_fraction"] == 0.0
+    with np.load(folder / "r.npz") as z:
+        assert set(z.files) == {"joints", "joint_names", "fps", "frames", "spread", "ess", "loglik", "mismatch"}
+        joints = z["joints"]
+        assert joints.shape == (6, 15, 3) and joints.dtype == np.float64
+        assert tuple(z["joint_names"]) == EVAL15_NAMES and float(z["fps"]) == 30.0
+        assert z["frames"].tolist() == [0, 2, 4, 6, 8, 10]            # 60 fps data, a 30 fps prior
+        assert z["mismatch"].dtype == bool and z["spread"].shape == (6, 15)
+        assert np.isfinite(z["loglik"][2:]).all() and np.isfinite(z["ess"][2:]).all()
+    # The estimate against the triangulation of the same detections, in the calibration's Z-up world.
+    cameras = [PinholeCamera.from_calibration(c) for c in read_calibration(CALIB).cameras]
+    uv, conf = read_detections(POSE, keypoints="body25b").eval15(0.3)
+    X = triangulate(cameras, uv[:, ::2], conf[:, ::2])
+    assert np.nanmean(np.linalg.norm(joints[:, 3:] - X[:, 3:], axis=-1)) < 0.05
+    assert np.all(joints[:, [11, 14], 2] < 0.2) and np.all(joints[:, 2, 2] > 1.5)          # standing, Z up
+    csv = np.loadtxt(folder / "r.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(csv[:, 2:47].reshape(6, 15, 3), joints, atol=1e-6)
+    entities = {str(c.entity_path) for c in rr.chunk.RrdReader(folder / "r.rrd").stream().to_chunks()}
+    assert {"/world/estimate", "/world/cam02_json/image/detections", "/world/cam02_json/image/estimate",
+            "/metrics/ess", "/metrics/reprojection_px/cam03_json", "/metrics/mismatch"} <= entities
+
+
+def test_schedule_steps_at_the_priors_rate():
+    assert schedule(np.arange(9), 60.0, 30.0).tolist() == [0, 2, 4, 6, 8]
+    assert schedule(np.arange(13), 120.0, 30.0).tolist() == [0, 4, 8, 12]
+    twenty_five = schedule(np.arange(26), 25.0, 30.0)                 # some ticks have no frame
+    assert len(twenty_five) == 31 and (twenty_five == -1).sum() == 5 and (np.diff(twenty_five[twenty_five >= 0]) > 0).all()
+
+
+def test_the_lab_bench_tracks_a_held_out_walk_near_the_triangulation():
+    """35_29 written as OpenPose JSON through the 4 cameras with detector errors, tracked without truth."""
+    run = run_real_format("pf-lie", "walkjog:35_29", seed=0)
+    assert run["cameras"] == 4 and run["ticks"] > 30 and run["mismatch_fraction"] == 0.0
+    assert run["mpjpe_mm"] < 40 and run["mpjpe_where_dlt_mm"] < 2.5 * run["dlt_mm"]
+
+
+def test_bad_input_is_named(tmp_path, capsys):
+    detections = read_detections(POSE, keypoints="body25b")
+    calibration = read_calibration(CALIB)
+    three = Calibration(calibration.cameras[:3], "z", "three.toml")
+    with pytest.raises(PriortrackError, match="three.toml has 3 cameras for 4 detection cameras"):
+        track_detections(detections, three, "pf-lie", fps=60)
+    blind = replace(detections, keypoints=detections.keypoints.copy())
+    blind.keypoints[2] = np.nan
+    with pytest.raises(PriortrackError, match="camera cam03_json sees none of the detections"):
+        track_detections(blind, calibration, "pf-lie", fps=60)
+    with pytest.raises(PriortrackError, match="do not say their frame rate; give it"):
+        track_detections(detections, calibration, "pf-lie")
+    with pytest.raises(PriortrackError, match="does not run on several cameras yet"):
+        track_detections(detections, calibration, "ukf-gpdm", fps=60)
+    with pytest.raises(PriortrackError, match="does not say which world axis is up"):
+        track_detections(detections, Calibration(calibration.cameras, None, "c.json"), "pf-lie", fps=60)
+    with pytest.raises(PriortrackError, match="no camera cam_09"):
+        track_detections(detections, calibration, "pf-lie", fps=60,
+                         camera_map={n: "cam_09" for n in detections.camera_names})
+    for argv, message in [
+        (["track", "--detections", POSE, "--filter", "pf-lie"], "--detections with --cameras"),
+        (["track", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie", "--out", str(tmp_path / "x.bvh")],
+         "results are written as .npz, .csv"),
+        (["track", "cmu:07_10", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie"], "not both"),
+        (["track", "cmu:07_10", "--cameras", CALIB, "--filter", "pf-lie"], "--cameras is for tracking --detections"),
+        (["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
+          "--filter", "pf-lie", "--camera-map", "a"], "--camera-map must be FOLDER=CAMERA"),
+    ]:
+        assert main(argv) == 2
+        assert message in capsys.readouterr().err
