@@ -9,7 +9,12 @@ import pytest
 import rerun as rr
 
 from priortrack import PriortrackError
+from priortrack.body.fk import joint_positions
 from priortrack.cli.main import main
+from priortrack.data.bvh import read_bvh
+from priortrack.data.keypoints import detector_map
+from priortrack.data.trc import read_trc
+from priortrack.geometry.frames import to_y_up
 from priortrack.data.bundled import POSE2SIM_DIR
 from priortrack.data.calibration import Calibration, read_calibration
 from priortrack.data.detections import read_detections
@@ -28,6 +33,7 @@ def outputs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("real")
     argv = ["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
             "--filter", "pf-lie", "--out", str(folder / "r.npz"), "--out", str(folder / "r.csv"),
+            "--out", str(folder / "r.trc"), "--out", str(folder / "r.bvh"),
             "--rrd", str(folder / "r.rrd"), "--json"]
     return folder, argv
 
@@ -55,6 +61,19 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
     assert np.all(joints[:, [11, 14], 2] < 0.2) and np.all(joints[:, 2, 2] > 1.5)          # standing, Z up
     csv = np.loadtxt(folder / "r.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(csv[:, 2:47].reshape(6, 15, 3), joints, atol=1e-6)
+    # TRC: Y-up with Pose2Sim's axes for its Z-up world, (X, Y, Z) = (Y, Z, X); read back either way.
+    trc_text = (folder / "r.trc").read_text().splitlines()
+    assert trc_text[0].startswith("PathFileType\t4\t(X/Y/Z)\tr.trc") and trc_text[2].split("\t")[:5] == [
+        "30", "30", "6", "15", "m"]
+    trc, names, fps = read_trc(folder / "r.trc", up="z")
+    assert names == EVAL15_NAMES and fps == 30.0
+    np.testing.assert_allclose(trc, joints, atol=1e-12)
+    np.testing.assert_allclose(read_trc(folder / "r.trc")[0][..., [2, 0, 1]], joints, atol=1e-12)
+    # BVH: the body's motion, Y-up, read back by our reader to the joints the filter tracked (IK: mm).
+    bvh = read_bvh(folder / "r.bvh")
+    Y = np.einsum("ij,tjk->tik", detector_map(), joint_positions(bvh)) @ to_y_up("z")
+    error = np.linalg.norm(Y - joints, axis=-1)
+    assert error.mean() < 0.006 and error.max() < 0.04 and len(bvh) == 6 and bvh.fps == 30.0
     entities = {str(c.entity_path) for c in rr.chunk.RrdReader(folder / "r.rrd").stream().to_chunks()}
     assert {"/world/estimate", "/world/cam02_json/image/detections", "/world/cam02_json/image/estimate",
             "/metrics/ess", "/metrics/reprojection_px/cam03_json", "/metrics/mismatch"} <= entities
@@ -95,8 +114,8 @@ def test_bad_input_is_named(tmp_path, capsys):
                          camera_map={n: "cam_09" for n in detections.camera_names})
     for argv, message in [
         (["track", "--detections", POSE, "--filter", "pf-lie"], "--detections with --cameras"),
-        (["track", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie", "--out", str(tmp_path / "x.bvh")],
-         "results are written as .npz, .csv"),
+        (["track", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie", "--out", str(tmp_path / "x.c3d")],
+         "results are written as .npz, .csv, .trc, .bvh"),
         (["track", "cmu:07_10", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie"], "not both"),
         (["track", "cmu:07_10", "--cameras", CALIB, "--filter", "pf-lie"], "--cameras is for tracking --detections"),
         (["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",

@@ -49,6 +49,7 @@ from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import Calibration, CameraCalibration
 from priortrack.data.detections import Detections
 from priortrack.data.motion import Motion
+from priortrack.data.trc import write_trc
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
@@ -117,6 +118,10 @@ class DetectionTrack:
     #: snapshots' particles are in the Y-up working frame).
     up: str = "y"
     working_to_world: np.ndarray = field(default_factory=lambda: np.eye(3), repr=False)
+    #: The body the filter tracked (the scaled skeleton) and its eval15 joints per tick (T, 15, 3) in the
+    #: Y-up working frame, in the body's own definitions (for the BVH).
+    skeleton: object = field(default=None, repr=False)
+    body_joints: np.ndarray | None = field(default=None, repr=False)
     #: The cameras in the calibration's world, and the observations per tick (T, C, 15, 3).
     cameras: list[PinholeCamera] = field(default_factory=list, repr=False)
     observations: np.ndarray | None = field(default=None, repr=False)
@@ -154,16 +159,36 @@ class DetectionTrack:
         np.savetxt(path, rows, delimiter=",", header=",".join(header), comments="", fmt="%.9g")
         return path
 
+    def save_trc(self, path: str | Path) -> Path:
+        """The joints as a TRC file (:mod:`priortrack.data.trc`: Y-up, Pose2Sim's axes for a Z-up world;
+        a world with another up axis is written in the Y-up working frame)."""
+        if self.up in ("y", "z"):
+            return write_trc(path, self.joints, EVAL15_NAMES, self.fps, self.up, int(max(self.frames[0], 0)))
+        return write_trc(path, self.joints @ self.working_to_world.T, EVAL15_NAMES, self.fps, "y",
+                         int(max(self.frames[0], 0)))
+
+    def save_bvh(self, path: str | Path) -> Path:
+        """The tracked body's motion as a BVH file: the body's channels fitted by inverse kinematics to
+        its tracked joints, in the Y-up working frame (BVH's convention; Blender turns it Z-up on
+        import), root position channels absolute, read back by Blender and by
+        :func:`priortrack.data.bvh.read_bvh` to the same joints."""
+        from priortrack.data.bvh import write_bvh
+
+        path = output_path(path, "BVH file")
+        motion = inverse_kinematics(self.body_joints, self.fps, skeleton=self.skeleton, name=Path(path).stem)
+        write_bvh(motion, path)
+        return path
+
     def save(self, path: str | Path) -> Path:
-        """Write the result by the file's suffix: ``.npz`` or ``.csv``."""
-        writers = {".npz": self.save_npz, ".csv": self.save_csv}
+        """Write the result by the file's suffix: ``.npz``, ``.csv``, ``.trc`` or ``.bvh``."""
+        writers = {".npz": self.save_npz, ".csv": self.save_csv, ".trc": self.save_trc, ".bvh": self.save_bvh}
         suffix = Path(path).suffix.lower()
         if suffix not in writers:
             raise PriortrackError(f"{path}: results are written as {', '.join(writers)}")
         return writers[suffix](path)
 
 
-RESULT_SUFFIXES = (".npz", ".csv")
+RESULT_SUFFIXES = (".npz", ".csv", ".trc", ".bvh")
 
 
 def match_cameras(detections: Detections, calibration: Calibration,
@@ -279,11 +304,12 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     result = DetectionTrack(joints, np.where(index[first:] >= 0, detections.frames[np.maximum(index[first:], 0)], -1),
                             float(prior.fps), spread, np.asarray(run.ess, dtype=float), loglik, mismatch,
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
-                            up, A, world_cameras, z[first:], run.snapshots if keep_snapshots else None)
+                            up, A, skeleton, run.estimates, world_cameras, z[first:],
+                            run.snapshots if keep_snapshots else None)
     if result.mismatch_fraction > 0:
-        log.warning("the %s prior does not explain %.0f%% of the frames (flagged as mismatch); if the motion is not "
-                    "what the prior learned, try pf-diffusion-local", preset.prior_kind,
-                    100 * result.mismatch_fraction)
+        log.warning("the %s prior explains %.0f%% of the frames (the others are flagged as mismatch); if the motion "
+                    "is not what the prior learned, try pf-diffusion-local", preset.prior_kind,
+                    100 * (1 - result.mismatch_fraction))
     return result
 
 

@@ -151,3 +151,34 @@ def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None
         table[p] = {"mpjpe_mm": float(np.mean([r["mpjpe_mm"] for r in rows])), "dlt_mm": float(dlt),
                     "ratio": float(tracker / dlt), "seconds": float(np.mean([r["seconds"] for r in rows]))}
     return {"table": table, "runs": runs, "cameras": runs[0]["cameras"] if runs else 0}
+
+
+def leave_one_camera_out(preset: str, held_out: int, seed: int = 0, cache=None) -> dict:
+    """Real detections (the Pose2Sim demo's trial): track from every camera but ``held_out``, project the
+    estimate into it, and take the median pixel error against its detections (confidence > 0.3,
+    shoulders to ankles); beside it, the same for the DLT triangulation of the other cameras."""
+    from dataclasses import replace
+
+    detections = read_detections(POSE2SIM_DIR / "pose", keypoints="body25b")
+    calibration = read_calibration(DEFAULT_CALIBRATION)
+    kept = [c for c in range(len(calibration.cameras)) if c != held_out]
+    if not 0 <= held_out < len(calibration.cameras):
+        raise PriortrackError(f"held_out must be a camera index in [0, {len(calibration.cameras) - 1}]")
+    three = replace(detections, keypoints=detections.keypoints[kept],
+                    camera_names=tuple(detections.camera_names[c] for c in kept), switches=())
+    result = track_detections(three, Calibration(tuple(calibration.cameras[c] for c in kept), calibration.up,
+                                                 calibration.source), preset, fps=60.0, seed=seed, cache=cache)
+    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    uv, confidence = detections.eval15(0.3)
+    ticks = result.frames >= 0
+    frames = result.frames[ticks]
+    target, seen = uv[held_out, frames][:, SHOULDERS_TO_ANKLES], confidence[held_out, frames][:, SHOULDERS_TO_ANKLES] > 0
+    dlt = triangulate([cameras[c] for c in kept], uv[kept][:, frames], confidence[kept][:, frames])
+
+    def median_px(X: np.ndarray) -> float:
+        projected, _ = cameras[held_out].project(X[:, SHOULDERS_TO_ANKLES])
+        error = np.linalg.norm(projected - target, axis=-1)[seen]
+        return float(np.nanmedian(error))
+
+    return {"preset": preset, "held_out": detections.camera_names[held_out], "tracker_px": median_px(result.joints[ticks]),
+            "dlt_px": median_px(dlt), "ticks": int(ticks.sum())}
