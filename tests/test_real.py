@@ -123,3 +123,17 @@ def test_bad_input_is_named(tmp_path, capsys):
     ]:
         assert main(argv) == 2
         assert message in capsys.readouterr().err
+
+
+def test_one_camera_starts_from_the_height_and_tracks_the_pose():
+    """From one camera: the body scaled to the height, fitted in 2D, its depth from its size; the
+    pose relative to the hips is tracked (35_29 through camera 4 with pf-gpdm)."""
+    run = run_real_format("pf-gpdm", "walkjog:35_29", seed=0, cameras=[3])
+    assert run["cameras"] == 1 and run["relative_mm"] < 80 and run["mpjpe_mm"] < 400
+    detections = read_detections(POSE, keypoints="body25b")
+    one = replace(detections, keypoints=detections.keypoints[1:2], camera_names=detections.camera_names[1:2])
+    calibration = read_calibration(CALIB)
+    result = track_detections(one, Calibration(calibration.cameras[1:2], "z", "one"), "pf-lie", fps=60, height=1.75)
+    assert np.isfinite(result.joints).all() and np.all(result.joints[:, 2, 2] - result.joints[:, [11, 14], 2].min(1) > 1.4)
+    with pytest.raises(PriortrackError, match="standing height"):
+        track_detections(one, Calibration(calibration.cameras[1:2], "z", "one"), "pf-lie", fps=60, height=17.0)

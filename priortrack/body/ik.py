@@ -23,6 +23,12 @@ where a frame lacks a limb), by L-BFGS in float64. The start
 puts the root at the pelvis and turns it about the vertical to the best of ``HEADINGS`` headings.
 The world is Y-up, as the mocap the priors learned from (turn a Z-up calibration's world first:
 :func:`priortrack.geometry.frames.to_y_up`).
+
+**From one camera** (:func:`inverse_kinematics_2d`): the data term is the confidence-weighted
+squared pixel error of the projected joints, scaled by (depth / f)² to metres at the subject; the
+body is the template scaled to a given standing height; the start's root sits on the ray through
+the detected pelvis at the depth where the body's size matches its image (f × neck-to-ankles
+length / its length in pixels).
 """
 
 from __future__ import annotations
@@ -124,16 +130,71 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
                               f"fewer than 6 known joints")
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
     skeleton = skeleton or fitted_skeleton(template, X, M)
-    channels = _fit(skeleton, X, seen, M)
+    target = torch.as_tensor(np.where(seen[..., None], X, 0.0))
+    mask = torch.as_tensor(seen, dtype=torch.float64)[..., None]
+    pelvis = np.where(seen[:, :1, None], X[:, :1], np.nanmean(X, axis=1, keepdims=True))[:, 0]
+    channels = _fit(skeleton, len(X), lambda joints: ((joints - target) ** 2 * mask).sum(), pelvis, M)
     return Motion(skeleton, channels, float(fps), name)
 
 
-def _fit(skeleton: Skeleton, X: np.ndarray, seen: np.ndarray, M: np.ndarray) -> np.ndarray:
-    T = len(X)
+def scaled_to_height(template: Skeleton, height: float) -> Skeleton:
+    """The template scaled uniformly so that its rest pose's head top stands ``height`` metres above its
+    lower ankle (a detector's ankle, not the sole: about 5 cm short of the standing height)."""
+    if not 0.5 < height < 2.6:
+        raise PriortrackError(f"height must be a person's standing height in metres (0.5–2.6), got {height}")
+    rest = ForwardKinematics(template, dtype=torch.float64)(np.zeros(template.num_channels))[
+        eval15_indices(template)].numpy()
+    measured = rest[2, 1] - min(rest[11, 1], rest[14, 1])
+    return replace(template, offsets=template.offsets * (height - ANKLE_HEIGHT) / measured,
+                   name=f"{template.name}-{height:g}m")
+
+
+#: Height of a detector's ankle point above the floor, metres.
+ANKLE_HEIGHT = 0.07
+
+
+def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: float, skeleton: Skeleton,
+                          joint_map: np.ndarray | None = None, name: str = "ik") -> Motion:
+    """A Motion of ``skeleton`` whose eval15 joints (through ``joint_map`` M) project through ``camera``
+    (a Y-up world) onto uv (T, 15, 2) pixels, weighted by ``weights`` (T, 15) (0 = unseen)."""
+    uv, weights = np.asarray(uv, dtype=np.float64), np.asarray(weights, dtype=np.float64)
+    seen = np.isfinite(uv).all(axis=-1) & (weights > 0)
+    if uv.ndim != 3 or uv.shape[1:] != (15, 2) or weights.shape != uv.shape[:2]:
+        raise PriortrackError(f"inverse kinematics: pixels {uv.shape} and weights {weights.shape}; expected "
+                              f"(T, 15, 2) and (T, 15)")
+    if (seen.sum(axis=1) < 8).any():
+        raise PriortrackError(f"inverse kinematics from one camera: frames {np.flatnonzero(seen.sum(axis=1) < 8).tolist()}"
+                              f" have fewer than 8 detected joints")
+    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+    index = eval15_indices(skeleton)
+    rest = M @ ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels))[index].numpy()
+    size_3d = np.linalg.norm(rest[1] - (rest[11] + rest[14]) / 2)                # neck to mid-ankles, metres
+    ankles = np.where(seen[:, [11, 14]].all(axis=1)[:, None], uv[:, [11, 14]].mean(axis=1), np.nan)
+    size_px = np.nanmedian(np.linalg.norm(uv[:, 1] - ankles, axis=-1))
+    if not np.isfinite(size_px) or size_px < 1:
+        raise PriortrackError("inverse kinematics from one camera: the neck and both ankles are never seen together")
+    depth = camera.fx * size_3d / size_px
+    K = camera.K.double().numpy()
+    R, t = camera.R.double().numpy(), camera.t.double().numpy()
+    centre = np.where(seen[:, :1], uv[:, 0], np.nanmean(np.where(seen[..., None], uv, np.nan), axis=1))
+    ray = np.linalg.solve(K, np.concatenate([centre, np.ones((len(uv), 1))], axis=1).T).T          # (T, 3)
+    pelvis = (ray * depth - t) @ R                                                 # R^T (X_c − t), per row
+    target = torch.as_tensor(np.where(seen[..., None], uv, 0.0))
+    w = torch.as_tensor(np.where(seen, weights, 0.0))[..., None] * (depth / camera.fx) ** 2
+
+    def data(joints: torch.Tensor) -> torch.Tensor:
+        projected, _ = camera.project(joints)
+        return (torch.where(torch.isfinite(projected), projected - target, 0.0) ** 2 * w).sum()
+
+    channels = _fit(skeleton, len(uv), data, pelvis, M)
+    return Motion(skeleton, channels, float(fps), name)
+
+
+def _fit(skeleton: Skeleton, T: int, data, pelvis: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Channels (T, C) minimising data(M FK(θ)) + the regularisation and smoothness (module docstring),
+    from the root at ``pelvis`` (T, 3) turned to the best of HEADINGS headings."""
     fk = ForwardKinematics(skeleton, dtype=torch.float64)
     index = eval15_indices(skeleton)
-    target = torch.as_tensor(np.where(seen[..., None], X, 0.0))
-    mask = torch.as_tensor(seen, dtype=torch.float64)[..., None]
     rotation = torch.ones(skeleton.num_channels, dtype=torch.bool)
     rotation[torch.as_tensor(skeleton.trans_channels[skeleton.trans_channels >= 0])] = False
     root_t = skeleton.trans_channels[0]
@@ -144,12 +205,11 @@ def _fit(skeleton: Skeleton, X: np.ndarray, seen: np.ndarray, M: np.ndarray) -> 
 
     def loss(theta: torch.Tensor) -> torch.Tensor:
         joints = torch.einsum("ij,tjk->tik", M, fk(theta, joints=index))
-        return (((joints - target) ** 2 * mask).sum() + REGULARISATION * (theta[:, rotation] ** 2).sum()
+        return (data(joints) + REGULARISATION * (theta[:, rotation] ** 2).sum()
                 + SMOOTHNESS * ((theta[1:] - theta[:-1]) ** 2).sum())
 
     def start(heading: float) -> torch.Tensor:
         theta = torch.zeros((T, skeleton.num_channels), dtype=torch.float64)
-        pelvis = np.where(seen[:, :1, None], X[:, :1], np.nanmean(X, axis=1, keepdims=True))[:, 0]
         rest = (M @ fk(torch.zeros(skeleton.num_channels, dtype=torch.float64), joints=index))[0]
         theta[:, torch.as_tensor(root_t)] = torch.as_tensor(pelvis) - rest
         if heading_channel >= 0:

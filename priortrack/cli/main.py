@@ -153,7 +153,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.experiments.tracking import track
     from priortrack.viz.replay import replay
 
-    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person"):
+    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person"):   # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -206,7 +206,7 @@ def _track_detections(args: argparse.Namespace) -> None:
     try:
         result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
                                   camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
-                                  keep_snapshots=bool(args.rrd), progress=progress)
+                                  keep_snapshots=bool(args.rrd), progress=progress, height=args.height)
     finally:
         progress.close()
     written = [str(result.save(path)) for path in args.out or []]
@@ -449,6 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
     track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
     track.add_argument("--person", type=int, help="follow this index of each frame's people list")
+    track.add_argument("--height", type=float, default=1.7,
+                       help="the person's standing height, metres (one camera: the body's size and depth; 1.7)")
     track.add_argument("--out", action="append", help="write the result (.npz, .csv); may repeat")
     track.add_argument("--filter", required=True, help="a preset name (priortrack presets) or a .toml file")
     track.add_argument("--scenario", default="clean",

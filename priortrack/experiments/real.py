@@ -12,7 +12,9 @@
    if one lies within half a data frame (60 fps data: every other frame; 25 fps data: some ticks have
    no frame and the prediction stands). ``frames`` of the result are the input frame numbers used.
    The motion is therefore played at its true speed whatever the data's rate.
-3. **Start without truth.** Each tick's joints are triangulated (confidence-weighted DLT through the
+3. **Start without truth.** From one camera, the body is the template scaled to the person's
+   ``height`` and fitted to the first ticks' detections in 2D, its depth from its image size
+   (:func:`priortrack.body.ik.inverse_kinematics_2d`). From several, each tick's joints are triangulated (confidence-weighted DLT through the
    lens distortion); the first two consecutive ticks with at least ``START_JOINTS`` joints
    triangulated start the filter: the body (the prior's skeleton, or CMU subject 35's) is scaled to
    the distances measured over the first ``LENGTH_TICKS`` ticks and fitted to the two ticks by
@@ -44,7 +46,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from priortrack.body.ik import fitted_skeleton, inverse_kinematics
+from priortrack.body.ik import fitted_skeleton, inverse_kinematics, inverse_kinematics_2d, scaled_to_height
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -71,8 +73,9 @@ MULTIVIEW_FILTERS = ("pf", "apf")
 START_JOINTS = 14
 #: Ticks whose triangulations give the body's size (medians).
 LENGTH_TICKS = 30
-#: Ticks fitted together by inverse kinematics for the start (the first two start the filter).
-START_TICKS = 8
+#: Ticks fitted together by inverse kinematics for the start (the first two start the filter), as
+#: long as each has MIN_FIT_JOINTS joints.
+START_TICKS, MIN_FIT_JOINTS = 8, 8
 #: The start's uncertainty in the body's translation, metres (each of its two frames), for the
 #: particle filters.
 START_TRANSLATION_STD = 0.05
@@ -238,9 +241,11 @@ def schedule(frames: np.ndarray, data_fps: float, prior_fps: float) -> np.ndarra
 def track_detections(detections: Detections, calibration: Calibration, preset: Preset | str,
                      fps: float | None = None, up: str | None = None, camera_map: dict[str, str] | None = None,
                      min_confidence: float = 0.3, seed: int = 0, cache=None, keep_snapshots: bool = False,
+                     height: float = 1.7,
                      progress: Callable[[int, int], None] | None = None) -> DetectionTrack:
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
-    (module docstring). ``fps``: the detections' frame rate (if the file does not say it)."""
+    (module docstring). ``fps``: the detections' frame rate (if the file does not say it); ``height``:
+    the person's standing height in metres, which sets the body's size and depth from one camera."""
     start_time = time.perf_counter()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     if preset.filter_kind not in MULTIVIEW_FILTERS:
@@ -269,20 +274,34 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     used = index >= 0
     z[used, :, :, :2] = uv[:, index[used]].transpose(1, 0, 2, 3)
     z[used, :, :, 2] = confidence[:, index[used]].transpose(1, 0, 2)
-    X = triangulate(cameras, np.where(np.isfinite(z[..., :2]), z[..., :2], np.nan).transpose(1, 0, 2, 3),
-                    np.nan_to_num(z[..., 2]).transpose(1, 0, 2))                 # (T, 15, 3), working frame
-    counts = np.isfinite(X).all(axis=-1).sum(axis=-1)
+    single = len(cameras) == 1
+    if single:                                     # joints detected per tick; else triangulated per tick
+        counts = ((np.nan_to_num(z[:, 0, :, 2]) > 0) & np.isfinite(z[:, 0, :, 0])).sum(axis=-1)
+    else:
+        X = triangulate(cameras, np.where(np.isfinite(z[..., :2]), z[..., :2], np.nan).transpose(1, 0, 2, 3),
+                        np.nan_to_num(z[..., 2]).transpose(1, 0, 2))             # (T, 15, 3), working frame
+        counts = np.isfinite(X).all(axis=-1).sum(axis=-1)
     good = np.flatnonzero((counts[1:] >= START_JOINTS) & (counts[:-1] >= START_JOINTS))
     if not len(good):
-        raise PriortrackError(f"no two consecutive frames have {START_JOINTS} joints seen by two cameras: cannot "
-                              f"start (triangulated joints per tick: {counts[:10].tolist()}…)")
+        raise PriortrackError(f"no two consecutive frames have {START_JOINTS} joints "
+                              f"{'detected' if single else 'seen by two cameras'}: cannot start (per tick: "
+                              f"{counts[:10].tolist()}…)")
     first = int(good[0])
     if len(index) - first < KNOWN_FRAMES + 1:
         raise PriortrackError(f"the detections start too late to track: {len(index) - first} ticks from the start")
     M = detector_map()
     template = getattr(prior.space, "skeleton", None) or cmu_skeleton("35")
-    skeleton = fitted_skeleton(template, X[first:first + LENGTH_TICKS], M)
-    known = steady_start(inverse_kinematics(X[first:first + START_TICKS], prior.fps, joint_map=M, skeleton=skeleton))
+    window = first + KNOWN_FRAMES
+    while window < min(first + START_TICKS, len(counts)) and counts[window] >= MIN_FIT_JOINTS:
+        window += 1
+    if single:
+        skeleton = scaled_to_height(template, height)
+        ticks = z[first:window, 0]
+        fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M)
+    else:
+        skeleton = fitted_skeleton(template, X[first:first + LENGTH_TICKS], M)
+        fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton)
+    known = steady_start(fitted)
     observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": DEFAULT_NU, **preset.observation}
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
