@@ -16,7 +16,6 @@ class LinearGaussian:
         self.A, self.Q, self.H, self.R = (torch.as_tensor(m, dtype=torch.float64) for m in (A, Q, H, R))
         self.dim, self.observation_shape = self.A.shape[0], (self.H.shape[0],)
         self.tangent_dim = self.dim
-        self.measurement_covariance = self.R
         self.LQ = torch.linalg.cholesky(self.Q)
 
     def predict(self, s, generator):
@@ -41,6 +40,9 @@ class LinearGaussian:
     # the unscented filter's interface
     def measure(self, s):
         return self.observe(s)
+
+    def measurement(self, z):
+        return torch.as_tensor(z, dtype=torch.float64).reshape(-1), self.R
 
     def process_covariance(self, s):
         return self.Q

@@ -105,8 +105,6 @@ def test_bad_input_is_named(tmp_path, capsys):
         track_detections(blind, calibration, "pf-lie", fps=60)
     with pytest.raises(PriortrackError, match="do not say their frame rate; give it"):
         track_detections(detections, calibration, "pf-lie")
-    with pytest.raises(PriortrackError, match="does not run on several cameras yet"):
-        track_detections(detections, calibration, "ukf-gpdm", fps=60)
     with pytest.raises(PriortrackError, match="does not say which world axis is up"):
         track_detections(detections, Calibration(calibration.cameras, None, "c.json"), "pf-lie", fps=60)
     with pytest.raises(PriortrackError, match="no camera cam_09"):
@@ -137,3 +135,9 @@ def test_one_camera_starts_from_the_height_and_tracks_the_pose():
     assert np.isfinite(result.joints).all() and np.all(result.joints[:, 2, 2] - result.joints[:, [11, 14], 2].min(1) > 1.4)
     with pytest.raises(PriortrackError, match="standing height"):
         track_detections(one, Calibration(calibration.cameras[1:2], "z", "one"), "pf-lie", fps=60, height=17.0)
+
+
+@pytest.mark.parametrize("preset", ["ukf-diffusion-local", "map-gpdm"])
+def test_the_unscented_and_map_filters_take_several_cameras(preset):
+    result = track_detections(read_detections(POSE, keypoints="body25b"), read_calibration(CALIB), preset, fps=60)
+    assert np.isfinite(result.joints).all() and all(e < 35 for e in result.reprojection_px)

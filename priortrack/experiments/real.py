@@ -26,7 +26,8 @@
    turn), and the particle filters start with ``START_TRANSLATION_STD`` of translation uncertainty.
 4. **Filter.** The preset's filter runs with the multi-camera observation model
    (:class:`~priortrack.observation.multiview.MultiViewLikelihood`: Student-t, ν = 4 unless the
-   preset's ``[observation]`` says otherwise, weighted by confidence).
+   preset's ``[observation]`` says otherwise, weighted by confidence; for the unscented filter, which
+   needs a measurement covariance, the Gaussian with variances σ² / confidence).
 5. **Mismatch.** A frame is flagged where the prior cannot explain the data: the estimate's mean
    log-likelihood per detection (confidence-weighted) falls more than ``MISMATCH_NATS`` below its
    expectation under the noise model for ``MISMATCH_RUN`` ticks running. The ESS is reported, not
@@ -66,9 +67,6 @@ from priortrack.output import output_path
 
 log = logging.getLogger(__name__)
 
-#: The filters that run on the multi-camera observation model (the unscented filter and the MAP
-#: tracker still measure through one camera).
-MULTIVIEW_FILTERS = ("pf", "apf")
 #: Joints a tick needs triangulated to start the filter there.
 START_JOINTS = 14
 #: Ticks whose triangulations give the body's size (medians).
@@ -248,9 +246,6 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     the person's standing height in metres, which sets the body's size and depth from one camera."""
     start_time = time.perf_counter()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
-    if preset.filter_kind not in MULTIVIEW_FILTERS:
-        raise PriortrackError(f"preset {preset.name!r}: the {preset.filter_kind!r} filter does not run on several "
-                              f"cameras yet; use a particle-filter preset ({', '.join(MULTIVIEW_FILTERS)})")
     data_fps = fps if fps is not None else detections.fps
     if data_fps is None:
         raise PriortrackError(f"{detections.source}: the detections do not say their frame rate; give it (--fps)")
@@ -302,12 +297,15 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         skeleton = fitted_skeleton(template, X[first:first + LENGTH_TICKS], M)
         fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton)
     known = steady_start(fitted)
-    observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": DEFAULT_NU, **preset.observation}
+    # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
+    observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind == "ukf" else DEFAULT_NU,
+                   **preset.observation}
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
     filt = preset.filter_for(model, seed)
     torch.manual_seed(seed)
-    run = filt.run(z[first:], known, keep_snapshots=True, progress=progress, translation_std=START_TRANSLATION_STD)
+    initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
+    run = filt.run(z[first:], known, keep_snapshots=True, progress=progress, **initial)
     T = len(index) - first
     spread, loglik = np.full((T, 15), np.nan), np.full(T, np.nan)
     for s in run.snapshots:

@@ -169,8 +169,7 @@ class MapTracker(SequentialFilter):
         out = {}
         if "image" in terms:
             world = to_world(self.angles.joints(poses), g)                               # (n, 15, 3)
-            # The likelihood is a sum over joints: the window's n frames are scored as one set of n·15.
-            out["image"] = -self.model.log_likelihood(world.reshape(1, -1, 3), torch.cat(self.observations))[0]
+            out["image"] = -sum(self.model.log_likelihood(world[k:k + 1], z)[0] for k, z in enumerate(self.observations))
         if "reconstruction" in terms:
             out["reconstruction"] = self.prior.reconstruction_energy(x, poses).sum()
         if "global" in terms:

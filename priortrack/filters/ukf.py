@@ -92,7 +92,7 @@ EIGEN_FLOOR = 1e-9
 ALPHA, BETA, KAPPA = 0.5, 2.0, 0.0
 #: What the filter needs of a model that is not a TrackingModel (the linear-Gaussian test model keeps it).
 UNSCENTED_INTERFACE = ("dim", "tangent_dim", "observation_shape", "mean_step", "measure", "observe",
-                       "process_covariance", "measurement_covariance", "boxplus", "boxminus", "sigma_mean", "transport")
+                       "process_covariance", "measurement", "boxplus", "boxminus", "sigma_mean", "transport")
 
 
 def _placements(g: torch.Tensor) -> torch.Tensor:
@@ -143,13 +143,11 @@ class UnscentedTracking:
         if likelihood.robust_nu is not None:
             raise PriortrackError(f"the unscented filter needs a Gaussian likelihood (R = σ_px² I); this one is a "
                                   f"Student-t (robust_nu={likelihood.robust_nu:g}), which has no measurement "
-                                  f"covariance: use the particle filter, or a JointLikelihood without robust_nu")
+                                  f"covariance: use the particle filter, or an observation model without robust_nu")
         self.model, self.space = model, prior.space
         self.dim, self.tangent_dim = model.dim, self.space.tangent_dim + 2 * GLOBAL_DIM
         self.observation_shape = model.observation_shape
         self.mean_step, self.observe = model.mean_step, model.observe
-        m = int(np.prod(self.observation_shape))
-        self.measurement_covariance = likelihood.sigma_px ** 2 * torch.eye(m, dtype=torch.float64)
 
     def boxplus(self, s: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         """s (N, A) ⊞ v (N, n) → (N, A)."""
@@ -175,9 +173,13 @@ class UnscentedTracking:
         return torch.block_diag(self.space.coordinate_transport(a[:S], b[:S]), eye)
 
     def measure(self, s: torch.Tensor) -> torch.Tensor:
-        """h: states (N, A) → (N, 30) pixels (u, v of each eval15 joint), NaN where behind the camera."""
-        uv, _ = self.model.likelihood.camera.project(self.model.observe(s))
-        return uv.reshape(s.shape[0], -1)
+        """h: states (N, A) → (N, m) pixels (u, v of each joint, in every camera), NaN where behind a camera."""
+        return self.model.likelihood.pixels(self.model.observe(s))
+
+    def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
+        """One frame's data → the measured pixels (m,) (NaN: not seen) and R (m, m), diagonal."""
+        values, variances = self.model.likelihood.measurement(z)
+        return values, torch.diag(variances)
 
     def process_covariance(self, s: torch.Tensor) -> torch.Tensor:
         """Q (n, n) at the state s (A,): blockdiag(prior noise at x, diag σ_t², the rotation noise at
@@ -398,7 +400,8 @@ class UnscentedFilter(SequentialFilter):
         kf.Q = self.unscented.process_covariance(torch.from_numpy(kf.x)).numpy()
         kf.predict(UT=kf.transform_states)
         t1 = time.perf_counter()
-        self._update(z.reshape(-1), flags)
+        values, R = self.unscented.measurement(torch.as_tensor(z, dtype=torch.float64))
+        self._update(values.numpy(), R.numpy(), flags)
         t2 = time.perf_counter()
         if kf.repairs:
             flags.append("covariance-repaired")
@@ -412,9 +415,9 @@ class UnscentedFilter(SequentialFilter):
                         {"predict": t1 - t0, "weight": t2 - t1, "estimate": t3 - t2},
                         mean=self.mean, covariance=self.covariance)
 
-    def _update(self, z: np.ndarray, flags: list[str]) -> None:
-        """The measurement update with z (m,) on the observed coordinates that every sigma point
-        can predict; then P in the coordinates at the new mean (Γ), repaired if need be."""
+    def _update(self, z: np.ndarray, R: np.ndarray, flags: list[str]) -> None:
+        """The measurement update with z (m,) and R (m, m) on the observed coordinates that every sigma
+        point can predict; then P in the coordinates at the new mean (Γ), repaired if need be."""
         kf = self.kf
         seen = np.isfinite(z)
         if not seen.any():
@@ -429,7 +432,6 @@ class UnscentedFilter(SequentialFilter):
             flags.append("no-observation")
             kf.update(None)
             return
-        R = self.unscented.measurement_covariance.numpy()
         x_prior = kf.x.copy()
         kf.update(z[usable], R=R[np.ix_(usable, usable)], UT=unscented_transform, hx=_Rows(predicted[:, usable]))
         gamma = self.unscented.transport(torch.from_numpy(x_prior), torch.from_numpy(kf.x)).numpy()

@@ -46,6 +46,16 @@ class JointLikelihood:
         #: |d_j|² of a predicted joint behind the camera: the squared image diagonal.
         self.miss_sq = float(camera.width ** 2 + camera.height ** 2)
 
+    def pixels(self, joints: torch.Tensor) -> torch.Tensor:
+        """The measurement a Gaussian filter predicts: (N, J, 3) joints → (N, 2J) pixels (NaN behind the camera)."""
+        uv, _ = self.camera.project(joints)
+        return uv.reshape(joints.shape[0], -1)
+
+    def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
+        """One frame's z (J, 2) → the measured pixels (2J,) (NaN: not seen) and their variances σ² (2J,)."""
+        values = torch.as_tensor(z, dtype=torch.float64).reshape(-1)
+        return values, torch.full_like(values, self.sigma_px ** 2)
+
     @property
     def linearisable(self) -> bool:
         """Whether the particle filter may integrate the translation out (:meth:`linearised`): the

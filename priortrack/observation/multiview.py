@@ -80,6 +80,24 @@ class MultiViewLikelihood:
             return joints
         return torch.einsum("ij,pjk->pik", self.joint_map.to(joints), joints)
 
+    def pixels(self, joints: torch.Tensor) -> torch.Tensor:
+        """The measurement a Gaussian filter predicts: (N, J, 3) body joints → (N, 2CJ) pixels of M X in
+        every camera (NaN behind a camera)."""
+        mapped = self._mapped(joints)
+        return torch.cat([view.camera.project(mapped)[0].reshape(joints.shape[0], -1) for view in self.views], -1)
+
+    def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
+        """One frame's z (C, J, 3) → the measured pixels (2CJ,) (NaN: not seen) and their variances
+        σ² / w_cj (2CJ,): a detection's confidence weighs it as in the log-likelihood."""
+        z = torch.as_tensor(z, dtype=torch.float64)
+        if tuple(z.shape) != self.observation_shape:
+            raise PriortrackError(f"observation {tuple(z.shape)}: expected {self.observation_shape}")
+        w = z[..., 2]
+        seen = torch.isfinite(z[..., :2]).all(dim=-1) & torch.isfinite(w) & (w > 0)
+        values = torch.where(seen[..., None], z[..., :2], float("nan")).reshape(-1)
+        variances = (self.sigma_px ** 2 / torch.where(seen, w, 1.0))[..., None].expand(-1, -1, 2).reshape(-1)
+        return values, variances
+
     def log_likelihood(self, joints: torch.Tensor, z) -> torch.Tensor:
         """(P, J, 3) world joints, z (C, J, 3) → (P,) log p(z | joints)."""
         uv, w, seen = self._split(joints, z)
