@@ -499,7 +499,7 @@ def build_parser() -> argparse.ArgumentParser:
     real = evaluate.add_parser("real-format", help="held-out walks written as OpenPose JSON through the Pose2Sim "
                                                    "cameras, tracked without truth, against the mocap and DLT")
     real.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "apf-diffusion-local", "pf-gpdm", "pf-lie",
-                                                       "ukf-diffusion-local", "ukf-gpdm", "map-gpdm"])
+                                                       "ukf-diffusion-local", "ukf-gpdm", "map-gpdm", "ukf-real"])
     real.add_argument("--motions", nargs="+", default=["walkjog:35_29", "cmu:07_10", "cmu:07_11"])
     real.add_argument("--seeds", type=int, default=1)
     real.add_argument("--cameras", type=int, nargs="+", help="indices of the calibration's cameras to use (all 4)")
@@ -507,7 +507,7 @@ def build_parser() -> argparse.ArgumentParser:
     real.set_defaults(run=_eval_real_format)
     loo = evaluate.add_parser("leave-one-out", help="real detections: track from 3 cameras, reproject into the 4th")
     loo.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "apf-diffusion-local", "pf-gpdm", "pf-lie",
-                                                      "ukf-diffusion-local", "ukf-gpdm", "map-gpdm"])
+                                                      "ukf-diffusion-local", "ukf-gpdm", "map-gpdm", "ukf-real"])
     loo.add_argument("--json", action="store_true")
     loo.set_defaults(run=_eval_leave_one_out)
     tracking = evaluate.add_parser("tracking", help="the accuracy table: every preset x scenario over seeds")
