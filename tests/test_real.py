@@ -141,3 +141,17 @@ def test_one_camera_starts_from_the_height_and_tracks_the_pose():
 def test_the_unscented_and_map_filters_take_several_cameras(preset):
     result = track_detections(read_detections(POSE, keypoints="body25b"), read_calibration(CALIB), preset, fps=60)
     assert np.isfinite(result.joints).all() and all(e < 35 for e in result.reprojection_px)
+
+
+def test_a_camera_following_someone_else_is_left_out_at_those_ticks():
+    """Camera 3's person replaced by another (shifted 400 px) in ticks 2–4: the other three cameras'
+    triangulation disagrees with it there, and only there."""
+    from priortrack.experiments.real import cross_view_check
+
+    cameras = [PinholeCamera.from_calibration(c) for c in read_calibration(CALIB).cameras]
+    uv, conf = read_detections(POSE, keypoints="body25b").eval15(0.3)
+    z = np.concatenate([uv, conf[..., None]], axis=-1).transpose(1, 0, 2, 3).copy()       # (T, C, 15, 3)
+    z[2:5, 2, :, 0] += 400.0
+    assert cross_view_check(cameras, z, ("a", "b", "c", "d")) == 3
+    assert np.isnan(z[2:5, 2]).all() and np.isfinite(z[:, [0, 1, 3], :, 0]).any(axis=-1).all()
+    assert np.isfinite(z[[0, 1, 5, 6], 2, :, 0]).any()

@@ -24,6 +24,10 @@
    steadied (:func:`steady_start`): the root's translation on the least-squares line through the
    fitted ticks (a velocity from eight noisy frames, not two), its rotation the same in both (no
    turn), and the particle filters start with ``START_TRANSLATION_STD`` of translation uncertainty.
+   **Across views**, before that: where three or more cameras see a tick, each camera's person is
+   checked against the triangulation of the others, reprojected into it; a camera whose detections
+   lie a median ``CROSS_VIEW_GATE`` of the image diagonal away follows someone else there, and its
+   detections of that tick are left out (logged, counted in ``cross_view_rejections``).
 4. **Filter.** The preset's filter runs with the multi-camera observation model
    (:class:`~priortrack.observation.multiview.MultiViewLikelihood`: Student-t, ν = 4 unless the
    preset's ``[observation]`` says otherwise, weighted by confidence; for the unscented filter, which
@@ -67,6 +71,9 @@ from priortrack.output import output_path
 
 log = logging.getLogger(__name__)
 
+#: A camera's person at a tick is someone else's if the others' triangulation reprojects this far from
+#: it (median over its joints), as a fraction of the image diagonal.
+CROSS_VIEW_GATE = 0.1
 #: Joints a tick needs triangulated to start the filter there.
 START_JOINTS = 14
 #: Ticks whose triangulations give the body's size (medians).
@@ -127,6 +134,8 @@ class DetectionTrack:
     cameras: list[PinholeCamera] = field(default_factory=list, repr=False)
     observations: np.ndarray | None = field(default=None, repr=False)
     snapshots: list | None = field(default=None, repr=False)
+    #: Camera-ticks whose person disagreed with the other cameras' (left out).
+    cross_view_rejections: int = 0
 
     @property
     def mismatch_fraction(self) -> float:
@@ -136,7 +145,7 @@ class DetectionTrack:
         """The JSON summary: frames, seconds, median reprojection error per camera, mismatch fraction."""
         return {"filter": self.filter, "frames": int(len(self.joints)), "fps": self.fps, "seconds": self.seconds,
                 "reprojection_px": {n: float(e) for n, e in zip(self.camera_names, self.reprojection_px)},
-                "mismatch_fraction": self.mismatch_fraction,
+                "mismatch_fraction": self.mismatch_fraction, "cross_view_rejections": self.cross_view_rejections,
                 "mean_ess": float(np.nanmean(self.ess)) if np.isfinite(self.ess).any() else None}
 
     def save_npz(self, path: str | Path) -> Path:
@@ -269,6 +278,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     used = index >= 0
     z[used, :, :, :2] = uv[:, index[used]].transpose(1, 0, 2, 3)
     z[used, :, :, 2] = confidence[:, index[used]].transpose(1, 0, 2)
+    rejected = cross_view_check(cameras, z, detections.camera_names)
     single = len(cameras) == 1
     if single:                                     # joints detected per tick; else triangulated per tick
         counts = ((np.nan_to_num(z[:, 0, :, 2]) > 0) & np.isfinite(z[:, 0, :, 0])).sum(axis=-1)
@@ -322,12 +332,52 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                             float(prior.fps), spread, np.asarray(run.ess, dtype=float), loglik, mismatch,
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
                             up, A, skeleton, run.estimates, world_cameras, z[first:],
-                            run.snapshots if keep_snapshots else None)
+                            run.snapshots if keep_snapshots else None, rejected)
     if result.mismatch_fraction > 0:
         log.warning("the %s prior explains %.0f%% of the frames (the others are flagged as mismatch); if the motion "
                     "is not what the prior learned, try pf-diffusion-local", preset.prior_kind,
                     100 * (1 - result.mismatch_fraction))
     return result
+
+
+def cross_view_check(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[str, ...]) -> int:
+    """Leave out (NaN, in place) at each tick the camera, if any, that follows someone else: the camera
+    without which the others agree best (the smallest median reprojection error of their own
+    triangulation), if its detections lie a median CROSS_VIEW_GATE of its image diagonal from that
+    triangulation (module docstring). Returns how many camera-ticks were left out. z: (T, C, 15, 3)."""
+    C = len(cameras)
+    if C < 3:
+        return 0
+    seen = np.isfinite(z[..., 0]) & (np.nan_to_num(z[..., 2]) > 0)                # (T, C, 15)
+    agreement = np.full(z.shape[:2], np.inf)                                       # (T, C): the others', px
+    distance = np.zeros(z.shape[:2])                                               # (T, C): c's, in gates
+
+    def median_error(camera: PinholeCamera, X: np.ndarray, c: int) -> np.ndarray:
+        error = np.where(seen[:, c], np.linalg.norm(camera.project(X)[0] - z[:, c, :, :2], axis=-1), np.nan)
+        enough = np.isfinite(error).sum(axis=-1) >= 4
+        out = np.full(len(error), np.nan)
+        out[enough] = np.nanmedian(error[enough], axis=-1)
+        return out
+
+    for c, camera in enumerate(cameras):
+        others = [k for k in range(C) if k != c]
+        pixels, weights = z[:, others, :, :2], z[:, others][..., 2]                  # (T, C−1, 15, 2), (T, C−1, 15)
+        X = triangulate([cameras[k] for k in others],
+                        np.where(seen[:, others, :, None], pixels, np.nan).transpose(1, 0, 2, 3),
+                        np.where(seen[:, others], weights, 0.0).transpose(1, 0, 2))                  # (T, 15, 3)
+        medians = np.stack([median_error(cameras[k], X, k) for k in others])        # the worst of the others'
+        agreement[:, c] = np.where(np.isfinite(medians).any(axis=0), np.nan_to_num(medians, nan=-np.inf).max(axis=0),
+                                   np.inf)
+        gate = CROSS_VIEW_GATE * math.hypot(camera.width, camera.height)
+        distance[:, c] = np.nan_to_num(median_error(camera, X, c) / gate, nan=0.0)
+    suspect = np.argmin(agreement, axis=1)
+    ticks = np.flatnonzero(np.take_along_axis(distance, suspect[:, None], 1)[:, 0] > 1)
+    for c in np.unique(suspect[ticks]):
+        at = ticks[suspect[ticks] == c]
+        log.warning("camera %s: at %d ticks its person is not the one the other cameras see; those detections "
+                    "are left out", names[c], len(at))
+        z[at, c] = np.nan
+    return len(ticks)
 
 
 def steady_start(window: Motion) -> Motion:
