@@ -155,3 +155,16 @@ def test_a_camera_following_someone_else_is_left_out_at_those_ticks():
     assert cross_view_check(cameras, z, ("a", "b", "c", "d")) == 3
     assert np.isnan(z[2:5, 2]).all() and np.isfinite(z[:, [0, 1, 3], :, 0]).any(axis=-1).all()
     assert np.isfinite(z[[0, 1, 5, 6], 2, :, 0]).any()
+
+
+def test_a_given_skeleton_is_the_body(capsys, tmp_path):
+    """--skeleton: the person's own ASF body is used as given (its bone lengths reach the joints)."""
+    asf = POSE2SIM_DIR.parent / "cmu" / "asf_amc" / "07.asf"
+    assert main(["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
+                 "--filter", "pf-lie", "--skeleton", str(asf), "--out", str(tmp_path / "r.bvh"), "--json"]) == 0
+    assert read_bvh(tmp_path / "r.bvh").skeleton.names[:2] == ("root", "lhipjoint")
+    np.testing.assert_allclose(read_bvh(tmp_path / "r.bvh").skeleton.bone_lengths()[1:6],
+                               __import__("priortrack").data.asf.read_asf(asf).bone_lengths()[1:6], rtol=1e-6)
+    assert main(["track", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie",
+                 "--skeleton", str(tmp_path / "r.npz")]) == 2
+    assert "give an .asf or .bvh file" in capsys.readouterr().err

@@ -153,7 +153,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.experiments.tracking import track
     from priortrack.viz.replay import replay
 
-    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person"):   # (--height has a default)
+    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "skeleton"):   # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -175,6 +175,21 @@ def _track(args: argparse.Namespace) -> None:
           f"{1000 * r['seconds_per_frame']:.0f} ms/frame"
           + (f", mean ESS {r['mean_ess']:.0f}" if r["mean_ess"] is not None else "")
           + (f"; wrote {args.rrd}" if args.rrd else ""))
+
+
+def _skeleton(path: str):
+    """The skeleton of an ASF file or of a BVH file's hierarchy."""
+    from pathlib import Path
+
+    from priortrack.data.asf import read_asf
+    from priortrack.data.bvh import read_bvh
+
+    suffix = Path(path).suffix.lower()
+    if suffix == ".asf":
+        return read_asf(path)
+    if suffix == ".bvh":
+        return read_bvh(path).skeleton
+    raise PriortrackError(f"--skeleton {path}: give an .asf or .bvh file")
 
 
 def _track_detections(args: argparse.Namespace) -> None:
@@ -200,13 +215,15 @@ def _track_detections(args: argparse.Namespace) -> None:
         if any(len(p) != 2 or not p[0] or not p[1] for p in pairs):
             raise PriortrackError(f"--camera-map must be FOLDER=CAMERA,…, got {args.camera_map!r}")
         camera_map = dict(pairs)
+    skeleton = _skeleton(args.skeleton) if args.skeleton else None
     detections = read_detections(args.detections, keypoints=args.keypoints, person=args.person)
     calibration = read_calibration(args.cameras)
     progress = _Progress(f"track {args.filter}", "frame {0} of {1}")
     try:
         result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
                                   camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
-                                  keep_snapshots=bool(args.rrd), progress=progress, height=args.height)
+                                  keep_snapshots=bool(args.rrd), progress=progress, height=args.height,
+                                  skeleton=skeleton)
     finally:
         progress.close()
     written = [str(result.save(path)) for path in args.out or []]
@@ -449,6 +466,8 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
     track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
     track.add_argument("--person", type=int, help="follow this index of each frame's people list")
+    track.add_argument("--skeleton", help="the person's own body (.asf, or a .bvh's hierarchy) instead of the "
+                                         "template scaled to the detections")
     track.add_argument("--height", type=float, default=1.7,
                        help="the person's standing height, metres (one camera: the body's size and depth; 1.7)")
     track.add_argument("--out", action="append", help="write the result (.npz, .csv); may repeat")

@@ -56,6 +56,7 @@ from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import Calibration, CameraCalibration
 from priortrack.data.detections import Detections
 from priortrack.data.motion import Motion
+from priortrack.data.skeleton import Skeleton
 from priortrack.data.trc import write_trc
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
@@ -248,11 +249,12 @@ def schedule(frames: np.ndarray, data_fps: float, prior_fps: float) -> np.ndarra
 def track_detections(detections: Detections, calibration: Calibration, preset: Preset | str,
                      fps: float | None = None, up: str | None = None, camera_map: dict[str, str] | None = None,
                      min_confidence: float = 0.3, seed: int = 0, cache=None, keep_snapshots: bool = False,
-                     height: float = 1.7,
+                     height: float = 1.7, skeleton: Skeleton | None = None,
                      progress: Callable[[int, int], None] | None = None) -> DetectionTrack:
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
     (module docstring). ``fps``: the detections' frame rate (if the file does not say it); ``height``:
-    the person's standing height in metres, which sets the body's size and depth from one camera."""
+    the person's standing height in metres, which sets the body's size and depth from one camera;
+    ``skeleton``: the person's own body (an ASF or BVH skeleton) instead of the scaled template."""
     start_time = time.perf_counter()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     data_fps = fps if fps is not None else detections.fps
@@ -299,10 +301,14 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     window = first + KNOWN_FRAMES
     while window < min(first + START_TICKS, len(counts)) and counts[window] >= MIN_FIT_JOINTS:
         window += 1
-    if single:
+    if skeleton is not None:                       # the user's own body, as given (not scaled)
+        fitted = (inverse_kinematics_2d(z[first:window, 0, :, :2], np.nan_to_num(z[first:window, 0, :, 2]), cameras[0],
+                                        prior.fps, skeleton, M) if single else
+                  inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton))
+    elif single:
         skeleton = scaled_to_height(template, height)
-        ticks = z[first:window, 0]
-        fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M)
+        fitted = inverse_kinematics_2d(z[first:window, 0, :, :2], np.nan_to_num(z[first:window, 0, :, 2]), cameras[0],
+                                       prior.fps, skeleton, M)
     else:
         skeleton = fitted_skeleton(template, X[first:first + LENGTH_TICKS], M)
         fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton)
