@@ -74,9 +74,9 @@ def _amc_frames(path: Path) -> int:
 @lru_cache(maxsize=None)
 def cmu_skeleton(subject: str) -> Skeleton:
     """The bundled ASF skeleton of a CMU subject ("07")."""
+    known = sorted(p.stem for p in ASF_AMC_DIR.glob("*.asf"))
     path = ASF_AMC_DIR / f"{subject}.asf"
-    if not path.exists():
-        known = sorted(p.stem for p in ASF_AMC_DIR.glob("*.asf"))
+    if subject not in known:                  # names, never paths: nothing outside the bundled data
         raise PriortrackError(f"no bundled skeleton for CMU subject {subject!r}; subjects: {', '.join(known)}")
     return read_asf(path)
 
@@ -127,7 +127,7 @@ def load_bundled(name: str) -> Motion:
     kind, _, trial = name.partition(":")
     if kind == "cmu":
         path = ASF_AMC_DIR / f"{trial}.amc"
-        if path.exists():
+        if trial in {p.stem for p in ASF_AMC_DIR.glob("*.amc")}:     # a name, never a path
             subject = trial.split("_")[0]
             skeleton = cmu_skeleton(subject)
             return Motion(skeleton, read_amc(path, skeleton), CMU_FPS, trial, subject)

@@ -306,6 +306,8 @@ def _parse_motion(lines: _Lines, start: int, num_channels: int,
         raise lines.fail(n, f"Frames: {value!r} is not a whole number") from None
     if frames < 0:
         raise lines.fail(n, f"Frames: {frames} is negative")
+    if frames and not num_channels:             # frames of nothing: sized by the header alone, not the file
+        raise lines.fail(n, f"Frames: {frames}, but the hierarchy has no channels to animate")
     frames_line = n
     n, value = _header_value(lines, items, start + 1, "Frame Time:", n)
     try:

@@ -26,6 +26,24 @@ from priortrack.geometry.camera import PinholeCamera
 DEFAULT_SIGMA_PX = 10.0
 
 
+#: The pixel noise scales a likelihood accepts: below, every weight underflows; above, no image informs.
+SIGMA_RANGE_PX = (1e-2, 1e4)
+#: The Student-t degrees of freedom it accepts (above, it is the Gaussian: say robust_nu = None).
+NU_RANGE = (0.1, 1e6)
+
+
+def check_noise(sigma_px, robust_nu) -> None:
+    """Raise a PriortrackError unless σ (pixels) and ν (or None) are numbers in their ranges."""
+    low, high = SIGMA_RANGE_PX
+    if isinstance(sigma_px, bool) or not isinstance(sigma_px, (int, float)) or not low <= sigma_px <= high:
+        raise PriortrackError(f"sigma_px must be a number of pixels in [{low:g}, {high:g}], got {sigma_px!r}")
+    low, high = NU_RANGE
+    if robust_nu is not None and (isinstance(robust_nu, bool) or not isinstance(robust_nu, (int, float))
+                                  or not low <= robust_nu <= high):
+        raise PriortrackError(f"robust_nu must be a number in [{low:g}, {high:g}] (or None for a Gaussian), "
+                              f"got {robust_nu!r}")
+
+
 class JointLikelihood:
     """Batched 2D joint likelihood through a pinhole camera.
 
@@ -36,10 +54,7 @@ class JointLikelihood:
     """
 
     def __init__(self, camera: PinholeCamera, sigma_px: float = DEFAULT_SIGMA_PX, robust_nu: float | None = None):
-        if not sigma_px > 0:
-            raise PriortrackError(f"sigma_px must be positive, got {sigma_px}")
-        if robust_nu is not None and not robust_nu > 0:
-            raise PriortrackError(f"robust_nu must be positive (or None for a Gaussian), got {robust_nu}")
+        check_noise(sigma_px, robust_nu)
         self.camera, self.sigma_px, self.robust_nu = camera, float(sigma_px), robust_nu
         #: One frame's data: (J, 2) pixels of the 15 eval15 joints.
         self.observation_shape = (15, 2)
@@ -52,8 +67,10 @@ class JointLikelihood:
         return uv.reshape(joints.shape[0], -1)
 
     def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
-        """One frame's z (J, 2) → the measured pixels (2J,) (NaN: not seen) and their variances σ² (2J,)."""
-        values = torch.as_tensor(z, dtype=torch.float64).reshape(-1)
+        """One frame's z (J, 2) → the measured pixels (2J,) (NaN: not seen) and their variances σ² (2J,).
+        A joint is observed only if both its coordinates are finite (never half-used)."""
+        z = torch.as_tensor(z, dtype=torch.float64)
+        values = torch.where(torch.isfinite(z).all(dim=-1, keepdim=True), z, float("nan")).reshape(-1)
         return values, torch.full_like(values, self.sigma_px ** 2)
 
     @property

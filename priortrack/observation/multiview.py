@@ -31,7 +31,7 @@ import torch
 
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.observation.likelihood import JointLikelihood
+from priortrack.observation.likelihood import JointLikelihood, check_noise
 
 #: σ (pixels) and ν of the real-data default: a Student-t with heavy tails for detector errors.
 DEFAULT_SIGMA_PX, DEFAULT_NU = 5.0, 4.0
@@ -55,6 +55,7 @@ class MultiViewLikelihood:
                  robust_nu: float | None = DEFAULT_NU, joints: int = 15, joint_map=None):
         if not cameras:
             raise PriortrackError("a multi-view likelihood needs at least one camera")
+        check_noise(sigma_px, robust_nu)
         self.joint_map = None if joint_map is None else torch.as_tensor(joint_map, dtype=torch.float64)
         if self.joint_map is not None and (self.joint_map.shape != (joints, joints) or
                                            not torch.allclose(self.joint_map.sum(dim=1), torch.ones(joints, dtype=torch.float64))):

@@ -1,0 +1,56 @@
+"""Bad input found by fuzzing (issue 21): each case a clear PriortrackError, never a hang or a half-used value."""
+
+import numpy as np
+import pytest
+import torch
+
+from priortrack import PriortrackError
+from priortrack.data.bundled import cmu_skeleton, load_bundled
+from priortrack.data.bvh import read_bvh
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.observation.likelihood import JointLikelihood
+from priortrack.observation.multiview import MultiViewLikelihood
+
+
+def test_a_bvh_that_declares_a_billion_frames_of_nothing_is_refused_at_once(tmp_path):
+    path = tmp_path / "big.bvh"
+    path.write_text("HIERARCHY\nROOT hips\n{\n\tOFFSET 0 0 0\n\tCHANNELS 0\n\tEnd Site\n\t{\n\t\tOFFSET 0 1 0\n\t}\n}\n"
+                    "MOTION\nFrames: 1000000000\nFrame Time: 0.01\n")
+    with pytest.raises(PriortrackError, match="Frames: 1000000000, but the hierarchy has no channels"):
+        read_bvh(path)
+
+
+@pytest.mark.parametrize("name", ["cmu:../asf_amc/07_01", "cmu:../../cmu/asf_amc/07_01", "cmu:/etc/passwd"])
+def test_bundled_names_never_reach_outside_the_bundled_data(name):
+    with pytest.raises(PriortrackError, match="unknown bundled motion"):
+        load_bundled(name)
+
+
+def test_bundled_skeletons_are_names_not_paths():
+    with pytest.raises(PriortrackError, match="no bundled skeleton"):
+        cmu_skeleton("../asf_amc/07")
+    assert cmu_skeleton("07").num_joints == 38                   # 31 bones, the root and 6 end sites
+
+
+def test_a_joint_with_one_coordinate_missing_is_missing_for_the_gaussian_filters():
+    camera = PinholeCamera.look_at([0, 1, 5], [0, 1, 0])
+    z = np.full((15, 2), 100.0)
+    z[3, 0] = np.nan
+    z[4, 1] = np.inf
+    values, variances = JointLikelihood(camera, 5.0).measurement(z)
+    assert np.isnan(values.numpy().reshape(15, 2)[[3, 4]]).all() and np.isfinite(values.numpy().reshape(15, 2)[5:]).all()
+    multi = np.concatenate([z, np.ones((15, 1))], axis=1)[None]
+    values, variances = MultiViewLikelihood([camera], 5.0, robust_nu=None).measurement(multi)
+    assert np.isnan(values.numpy().reshape(15, 2)[[3, 4]]).all() and torch.isfinite(variances).all()
+
+
+@pytest.mark.parametrize("sigma, nu, message", [(1e-7, None, "sigma_px must be a number of pixels"),
+                                                ("10", None, "sigma_px"), (float("nan"), None, "sigma_px"),
+                                                (1e9, None, "sigma_px"), (5.0, True, "robust_nu"),
+                                                (5.0, 0.0, "robust_nu"), (5.0, float("inf"), "robust_nu")])
+def test_noise_scales_out_of_range_are_refused(sigma, nu, message):
+    camera = PinholeCamera.look_at([0, 1, 5], [0, 1, 0])
+    with pytest.raises(PriortrackError, match=message):
+        JointLikelihood(camera, sigma, nu)
+    with pytest.raises(PriortrackError, match=message):
+        MultiViewLikelihood([camera], sigma, nu)
