@@ -54,3 +54,28 @@ def test_noise_scales_out_of_range_are_refused(sigma, nu, message):
         JointLikelihood(camera, sigma, nu)
     with pytest.raises(PriortrackError, match=message):
         MultiViewLikelihood([camera], sigma, nu)
+
+
+def _asf(tmp_path, old: str, new: str):
+    from priortrack.data.bundled import ASF_AMC_DIR
+    from priortrack.data.asf import read_asf
+
+    text = (ASF_AMC_DIR / "07.asf").read_text()
+    assert old in text
+    path = tmp_path / "07.asf"
+    path.write_text(text.replace(old, new, 1))
+    return lambda: read_asf(path)
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("length 6.92462", "length nan", r"length has a non-finite value"),
+    ("length 6.92462", "length inf", r"length has a non-finite value"),
+    ("direction 0.34202 -0.939693 0", "direction nan -0.939693 0", "direction has a non-finite value"),
+    ("axis 0 0 20", "axis 0 0 1e999", "axis has a non-finite value"),
+    ("length 6.92462", "length 2000", "is 113 m long"),
+    ("length 6.92462", "length -3", "is -0.169 m long"),
+    ("direction 0.34202 -0.939693 0", "direction 0 0 0", "has a length but no direction"),
+])
+def test_asf_files_with_non_finite_or_absurd_numbers_are_refused_by_line(tmp_path, old, new, message):
+    with pytest.raises(PriortrackError, match=message):
+        _asf(tmp_path, old, new)()

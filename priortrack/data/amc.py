@@ -37,7 +37,7 @@ def read_amc(path: str | Path, skeleton: Skeleton) -> np.ndarray:
         if text.startswith(":"):
             continue
         words = text.split()
-        if len(words) == 1 and words[0].isdigit():
+        if len(words) == 1 and words[0].isascii() and words[0].isdigit():
             if current is not None:
                 close(n)
             number = int(words[0])

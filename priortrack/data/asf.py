@@ -74,13 +74,20 @@ class _Lines:
         return PriortrackError(f"{self.path}:{line}: {message}")
 
 
+#: The longest bone a body file may declare, metres (CMU's longest is 0.46 m).
+MAX_BONE_M = 3.0
+
+
 def _floats(lines: _Lines, line: int, words: list[str], count: int, what: str) -> np.ndarray:
     if len(words) < count:
         raise lines.fail(line, f"{what} needs {count} numbers, found {len(words)}")
     try:
-        return np.array([float(w) for w in words[:count]])
-    except ValueError:
+        values = np.array([float(w) for w in words[:count]])
+    except (ValueError, OverflowError):
         raise lines.fail(line, f"{what} has a value that is not a number: {' '.join(words)}") from None
+    if not np.isfinite(values).all():
+        raise lines.fail(line, f"{what} has a non-finite value: {' '.join(words[:count])}")
+    return values
 
 
 def read_asf(path: str | Path) -> Skeleton:
@@ -213,6 +220,12 @@ def _build(name, bones, children, root_order, root_axis, root_position, root_ori
             raise lines.fail(bones[bone_name].line, f"bone {bone_name!r} appears twice in the hierarchy")
         visited.add(bone_name)
         bone = bones[bone_name]
+        length = bone.length * length_unit
+        if not 0 <= length <= MAX_BONE_M:
+            raise lines.fail(bone.line, f"bone {bone_name!r} is {length:.3g} m long; a body's bones are 0 to "
+                                        f"{MAX_BONE_M:g} m")
+        if length > 0 and not np.linalg.norm(bone.direction) > 1e-9:
+            raise lines.fail(bone.line, f"bone {bone_name!r} has a length but no direction (0 0 0)")
         C = euler_matrix(bone.axis * angle_scale, bone.order)
         j = add(bone_name, parent, offset, C, bone.order, bone.dofs)
         # As CMU's own joint positions: the file's direction as written, not renormalised.
