@@ -79,3 +79,17 @@ def _asf(tmp_path, old: str, new: str):
 def test_asf_files_with_non_finite_or_absurd_numbers_are_refused_by_line(tmp_path, old, new, message):
     with pytest.raises(PriortrackError, match=message):
         _asf(tmp_path, old, new)()
+
+
+def test_bvh_root_positions_are_absolute_as_blender_reads_them(tmp_path):
+    """A root OFFSET of (10, 90, 0) cm with position channels (1, 95, 2): Blender places the root at
+    the channels, (0.01, 0.95, 0.02) m; the OFFSET is not added (it was: 1.85 m up)."""
+    path = tmp_path / "root.bvh"
+    path.write_text("HIERARCHY\nROOT Hips\n{\n\tOFFSET 10 90 0\n\tCHANNELS 6 Xposition Yposition Zposition "
+                    "Zrotation Xrotation Yrotation\n\tEnd Site\n\t{\n\t\tOFFSET 0 10 0\n\t}\n}\n"
+                    "MOTION\nFrames: 1\nFrame Time: 0.04\n1 95 2 0 0 0\n")
+    from priortrack.body.fk import ForwardKinematics
+
+    motion = read_bvh(path)
+    p = ForwardKinematics(motion.skeleton)(motion.channels).numpy()[0]
+    np.testing.assert_allclose(p, [[0.01, 0.95, 0.02], [0.01, 1.05, 0.02]], atol=1e-12)

@@ -11,7 +11,10 @@ terms (column vectors, G_root's parent = I)
 where o_j is the OFFSET, T_j = (Xposition, Yposition, Zposition) (zero where absent) and
 c_k is the coordinate axis of the k-th rotation channel *in the order the file lists them*:
 "Zrotation Xrotation Yrotation" gives L = Rz·Rx·Ry. Lengths are converted with
-``length_unit`` (metres per BVH unit), angles are degrees.
+``length_unit`` (metres per BVH unit), angles are degrees. **The root's position channels are
+absolute** (Blender's convention, which the converters that write CMU BVH follow): along an axis
+the root has a position channel for, its OFFSET is not added (o_root = 0 there; it only places the
+rest pose).
 
 Reading keeps the file's joints (parents first, depth-first in file order), joins a
 ROOT/JOINT name of several words with "_" (as Blender does), names each ``End Site``
@@ -264,11 +267,13 @@ def _skeleton(name: str, joints: list[_Joint], length_unit: float) -> Skeleton:
                 rot_channels[j, slot] = len(channel_names)
                 slot += 1
             channel_names.append(f"{joint.name}.{suffix}")
+    offsets = np.array([joint.offset for joint in joints]) * length_unit
+    offsets[0, trans_channels[0] >= 0] = 0.0                 # absolute root positions (module docstring)
     return Skeleton(
         name=name,
         names=tuple(joint.name for joint in joints),
         parents=np.array([joint.parent for joint in joints]),
-        offsets=np.array([joint.offset for joint in joints]) * length_unit,
+        offsets=offsets,
         rot_axes=rot_axes,
         rot_channels=rot_channels,
         trans_channels=trans_channels,
