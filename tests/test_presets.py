@@ -162,3 +162,18 @@ def test_the_registry_is_the_one_list_of_kinds():
     assert set(prior_kind("bgpdm").options()) == {"d", "seed", "dynamics_noise_floor"}
     with pytest.raises(PriortrackError, match="unknown prior kind 'hmm'; kinds: diffusion-global"):
         prior_kind("hmm")
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"filter__particles": True}, r"particles = True must be a whole number"),
+    ({"filter__particles": "1000"}, r"particles = '1000' must be a whole number"),
+    ({"filter__particles": 10 ** 12}, r"must be a whole number up to 10,000,000"),
+    ({"filter__ess_threshold": "half"}, r"ess_threshold = 'half' must be a finite number"),
+    ({"filter__ess_threshold": float("nan")}, r"ess_threshold = nan must be a finite number"),
+    ({"filter__dtype": 32}, r"dtype = 32 must be text"),
+    ({"observation__sigma_px": "10"}, r"sigma_px = '10' must be a finite number"),
+    ({"observation__robust_nu": False}, r"robust_nu = False must be a finite number"),
+])
+def test_preset_values_are_checked_for_type_and_range_before_any_fit(changes, message):
+    with pytest.raises(PriortrackError, match=message):
+        parse_preset(table(**changes), "bad")

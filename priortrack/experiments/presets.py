@@ -33,6 +33,7 @@ package data ``priortrack/experiments/preset_files/`` (pyproject.toml maps one o
 from __future__ import annotations
 
 import hashlib
+import math
 import importlib
 import inspect
 import json
@@ -94,6 +95,33 @@ def _check_keys(where: str, given: dict, valid) -> None:
     if unknown:
         raise PriortrackError(f"{where}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}; "
                               f"valid keys: {', '.join(sorted(valid))}")
+
+
+#: The largest count a preset may ask for (particles, layers, iterations, …).
+MAX_COUNT = 10_000_000
+
+
+def _check_types(where: str, given: dict, defaults: dict[str, Any]) -> None:
+    """Each value must have its parameter's type, taken from the default: a whole number where the
+    default is one (not a boolean, at most MAX_COUNT), a number where it is a float, text where it is
+    text, true/false where it is a boolean; a parameter whose default is None takes a number."""
+    for key, value in given.items():
+        default = defaults.get(key)
+        name = f"{where}: {key} = {value!r}"
+        if isinstance(default, bool):
+            ok, expected = isinstance(value, bool), "true or false"
+        elif isinstance(default, int):
+            ok = isinstance(value, int) and not isinstance(value, bool) and -1 <= value <= MAX_COUNT
+            expected = f"a whole number up to {MAX_COUNT:,}"
+        elif isinstance(default, float) or default is None:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            expected = "a finite number"
+        elif isinstance(default, str):
+            ok, expected = isinstance(value, str), "text"
+        else:
+            continue
+        if not ok:
+            raise PriortrackError(f"{name} must be {expected}")
 
 
 @dataclass(frozen=True)
@@ -244,11 +272,13 @@ def parse_preset(table: dict, name: str, where: str = "preset", folder: Path | N
                               f"{', '.join(kinds_with(cls.requires))}")
     valid = _parameters(cls.__init__, ("self", "model", "seed"))
     _check_keys(f"{where} [filter] ({kind})", options, ["kind", *valid])
+    _check_types(f"{where} [filter]", options, valid)
     train = prior.get("train")
     if not isinstance(train, list) or not train or not all(isinstance(s, str) for s in train):
         raise PriortrackError(f"{where}: [prior] train must be a non-empty list of motion names or paths")
     prior_options = dict(prior.get("options", {}))
     check_options(prior_kind, prior_options, PRIOR_KINDS[prior_kind].options(), f"{where} [prior] options")
+    _check_types(f"{where} [prior] options", prior_options, PRIOR_KINDS[prior_kind].options())
 
     annealing = prior.get("annealing", 1.0)
     if "annealing" in prior:
@@ -262,6 +292,7 @@ def parse_preset(table: dict, name: str, where: str = "preset", folder: Path | N
 
     observation = dict(table.get("observation", {}))
     _check_keys(f"{where} [observation]", observation, _parameters(JointLikelihood.__init__, ("self", "camera")))
+    _check_types(f"{where} [observation]", observation, {"sigma_px": 10.0, "robust_nu": 4.0})
     return Preset(name, str(table.get("description", "")), kind, options, prior_kind,
                   tuple(expand_sources(train)), float(fps), prior_options, observation,
                   float(annealing), prior_file)
