@@ -177,3 +177,22 @@ def test_the_registry_is_the_one_list_of_kinds():
 def test_preset_values_are_checked_for_type_and_range_before_any_fit(changes, message):
     with pytest.raises(PriortrackError, match=message):
         parse_preset(table(**changes), "bad")
+
+
+def test_the_cache_verifies_what_it_loads(tmp_path, caplog):
+    """A cached prior is used only if it matches the digest written beside it and is not a link; a
+    corrupted, replaced or linked file is refitted (logged). The key follows the training data's content."""
+    preset = parse_preset(table(), "small")
+    first = preset.prior(cache=tmp_path)
+    (cached,) = tmp_path.glob("diffusion-local-*.npz")
+    assert cached.with_suffix(".sha256").read_text().strip() and not list(tmp_path.glob("*.partial*"))
+    other = parse_preset(table(prior__options={"space": "directions"}), "small").prior(cache=tmp_path)
+    other_file = next(p for p in tmp_path.glob("diffusion-local-*.npz") if p != cached)
+    cached.unlink()
+    cached.write_bytes(other_file.read_bytes())                      # a planted file
+    refit = preset.prior(cache=tmp_path)
+    assert "does not match its digest" in caplog.text and refit.state_dim == first.state_dim != other.state_dim
+    cached.unlink()
+    cached.symlink_to(other_file)
+    caplog.clear()
+    assert preset.prior(cache=tmp_path).state_dim == first.state_dim and "is a link" in caplog.text

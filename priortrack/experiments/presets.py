@@ -46,6 +46,8 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from priortrack.data.bundled import expand_sources
 from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
@@ -153,10 +155,22 @@ class Preset:
 
     @property
     def cache_key(self) -> str:
-        """Hash of everything the fitted prior depends on."""
-        text = json.dumps([self.prior_kind, list(self.train), self.fps, self.prior_options, FORMAT_VERSION],
-                          sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        """Hash of everything the fitted prior depends on: the kind, rate and options, the prior file
+        format and priortrack's version, the training motions' content (names, channels, skeletons),
+        and for the GPDM kinds torch's thread count (their L-BFGS paths part with the last digits of
+        a multi-threaded sum)."""
+        import torch
+
+        from priortrack import __version__
+
+        threads = torch.get_num_threads() if "latent" in PRIOR_KINDS[self.prior_kind].capabilities else None
+        digest = hashlib.sha256(json.dumps([self.prior_kind, self.fps, self.prior_options, FORMAT_VERSION, __version__,
+                                            threads], sort_keys=True).encode())
+        for motion in self.training_motions:
+            digest.update(motion.name.encode())
+            for array in (motion.channels, motion.skeleton.offsets, motion.skeleton.rot_axes):
+                digest.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
+        return digest.hexdigest()[:24]
 
     def prior(self, cache: Path | None = None, progress=None) -> TransitionModel:
         """The prior: the preset's prior file, else the fitted prior from the cache if it is there
@@ -169,20 +183,11 @@ class Preset:
             return prior if self.annealing == 1.0 else prior.annealed(self.annealing)
         cache = cache_dir() if cache is None else Path(cache)
         path = cache / f"{self.prior_kind}-{self.cache_key}.npz"
-        if path.exists():
-            log.info("prior from cache %s", path)
-            prior = load_prior(path)
-        else:
+        prior = _cached(path)
+        if prior is None:
             prior = fit_prior(self.prior_kind, self.training_motions, progress=progress, fps=self.fps,
                               **self.prior_options)
-            try:                          # a cache that cannot be written costs the next run a refit, no more
-                cache.mkdir(parents=True, exist_ok=True)
-                partial = path.with_suffix(".partial.npz")
-                prior.save(partial)
-                partial.replace(path)
-                log.info("fitted %s prior cached at %s", self.prior_kind, path)
-            except (PriortrackError, OSError) as exc:
-                log.warning("fitted %s prior not cached (%s)", self.prior_kind, exc)
+            _cache(prior, path)
         return prior if self.annealing == 1.0 else prior.annealed(self.annealing)
 
     @cached_property
@@ -207,6 +212,47 @@ class Preset:
         cls = filter_class(self.filter_kind)
         seeded = {"seed": seed} if "seed" in inspect.signature(cls.__init__).parameters else {}  # the UKF is deterministic
         return cls(model, **seeded, **self.filter_options)
+
+
+def _digest_path(path: Path) -> Path:
+    return path.with_suffix(".sha256")
+
+
+def _cached(path: Path) -> TransitionModel | None:
+    """The prior cached at ``path`` if it is a regular file (not a link) whose SHA-256 matches the digest
+    written beside it; None (logged) otherwise, for a refit."""
+    if not path.exists() and not path.is_symlink():
+        return None
+    digest = _digest_path(path)
+    if path.is_symlink() or digest.is_symlink() or not path.is_file() or not digest.is_file():
+        log.warning("cached prior %s is a link or lacks its digest: not used, refitting", path)
+        return None
+    try:
+        if hashlib.sha256(path.read_bytes()).hexdigest() != digest.read_text().strip():
+            log.warning("cached prior %s does not match its digest (corrupted or replaced): refitting", path)
+            return None
+        log.info("prior from cache %s", path)
+        return load_prior(path)
+    except (OSError, PriortrackError) as exc:
+        log.warning("cached prior %s cannot be read (%s): refitting", path, exc)
+        return None
+
+
+def _cache(prior: TransitionModel, path: Path) -> None:
+    """Write the prior and its digest to the cache atomically (each to a partial file, then renamed);
+    a cache that cannot be written costs the next run a refit, no more."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_suffix(".partial.npz")
+        prior.save(partial)
+        text = hashlib.sha256(partial.read_bytes()).hexdigest()
+        digest_partial = _digest_path(path).with_suffix(".partial.sha256")
+        digest_partial.write_text(text + "\n")
+        partial.replace(path)
+        digest_partial.replace(_digest_path(path))
+        log.info("fitted %s prior cached at %s", prior.kind, path)
+    except (PriortrackError, OSError) as exc:
+        log.warning("fitted %s prior not cached (%s)", prior.kind, exc)
 
 
 def cache_dir() -> Path:
