@@ -93,3 +93,55 @@ def test_bvh_root_positions_are_absolute_as_blender_reads_them(tmp_path):
     motion = read_bvh(path)
     p = ForwardKinematics(motion.skeleton)(motion.channels).numpy()[0]
     np.testing.assert_allclose(p, [[0.01, 0.95, 0.02], [0.01, 1.05, 0.02]], atol=1e-12)
+
+
+def _prior_file(tmp_path):
+    from priortrack.data.bundled import load_walkjog
+    from priortrack.priors.diffusion import Diffusion
+
+    path = tmp_path / "prior.npz"
+    Diffusion.fit(list(load_walkjog().walks("train"))[:2], local=True).save(path)
+    return path
+
+
+def _rewrite(path, out, **changes):
+    import json
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        members = {i.filename: archive.read(i) for i in archive.infolist()}
+    with np.load(path, allow_pickle=False) as z:
+        header = json.loads(str(z["header"]))
+    header.update(changes.pop("header", {}))
+    members["header.npy"] = _npy(np.array(json.dumps(header)))
+    members.update(changes)
+    with zipfile.ZipFile(out, "w") as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+    return out
+
+
+def _npy(array):
+    import io
+
+    buffer = io.BytesIO()
+    np.save(buffer, array, allow_pickle=False)
+    return buffer.getvalue()
+
+
+def test_prior_files_are_checked_before_anything_is_allocated(tmp_path):
+    from priortrack.priors.base import load_prior
+
+    good = _prior_file(tmp_path)
+    assert load_prior(good).kind == "diffusion-local"
+    # An npy header that declares 10^11 float64 values (800 GB) over 3 values of data.
+    text = "{'descr': '<f8', 'fortran_order': False, 'shape': (100000000000,), }".ljust(117) + "\n"
+    header_only = b"\x93NUMPY\x01\x00" + len(text).to_bytes(2, "little") + text.encode() + np.zeros(3).tobytes()
+    with pytest.raises(PriortrackError, match="declares 800000000000 bytes but holds"):
+        load_prior(_rewrite(good, tmp_path / "huge.npz", **{"sigma.npy": header_only}))
+    with pytest.raises(PriortrackError, match="header field 'local' is 'false', not of its type"):
+        load_prior(_rewrite(good, tmp_path / "flag.npz", header={"local": "false"}))
+    with pytest.raises(PriortrackError, match="header fps -30 is not a frame rate"):
+        load_prior(_rewrite(good, tmp_path / "fps.npz", header={"fps": -30}))
+    with pytest.raises(PriortrackError, match="do not fit together|lacks"):
+        load_prior(_rewrite(good, tmp_path / "shape.npz", **{"sigma.npy": _npy(np.zeros((2, 2, 2)))}))

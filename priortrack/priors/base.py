@@ -130,16 +130,49 @@ class TransitionModel(ABC):
         return path
 
 
+#: The most a prior file's arrays may hold together, bytes (the bundled presets' largest is ~3 MB).
+MAX_PRIOR_BYTES = 1 << 30
+#: The dtypes a prior file's arrays may have: numbers, booleans and text (never objects).
+ARRAY_KINDS = "biufU"
+#: Header fields every kind reads, with their types; the kinds' own are checked in :data:`HEADER_TYPES`.
+HEADER_TYPES = {"fps": (int, float), "local": bool, "balanced": bool, "space": str, "scale": (int, float),
+                "objective": (int, float), "message_length": (int, float), "log_likelihood": (int, float),
+                "train_frames": int, "fit": dict}
+
+
+def _checked_members(path: Path) -> None:
+    """Read every npy member's header (not its data) and refuse a file whose arrays declare objects,
+    an unknown dtype, more bytes than the member holds, or more than MAX_PRIOR_BYTES in all."""
+    total = 0
+    with zipfile.ZipFile(path) as archive:
+        for info in archive.infolist():
+            with archive.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                shape, fortran, dtype = (np.lib.format.read_array_header_1_0(member) if version == (1, 0)
+                                         else np.lib.format.read_array_header_2_0(member))
+                if dtype.kind not in ARRAY_KINDS or dtype.hasobject:
+                    raise PriortrackError(f"{path}: array {info.filename} has dtype {dtype} (numbers and text only)")
+                size = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+                if size > info.file_size:
+                    raise PriortrackError(f"{path}: array {info.filename} declares {size} bytes but holds "
+                                          f"{info.file_size}")
+                total += size
+    if total > MAX_PRIOR_BYTES:
+        raise PriortrackError(f"{path}: its arrays hold {total} bytes, more than a prior file may ({MAX_PRIOR_BYTES})")
+
+
 def load_prior(path: str | Path) -> TransitionModel:
     """Load a prior written by :meth:`TransitionModel.save`; a clear error for a file of
-    another format or version, a truncated file or an unknown kind."""
+    another format or version, a truncated file, an unknown kind, arrays of objects or of absurd
+    sizes (checked from their headers before any is read) and header fields of the wrong type."""
     path = Path(path)
     try:
+        _checked_members(path)
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise PriortrackError(f"prior file {path} does not exist") from None
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError) as exc:
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError, TypeError) as exc:
         raise PriortrackError(f"{path} is not a readable prior file (truncated or not npz: {exc})") from None
     if "header" not in arrays:
         raise PriortrackError(f"{path} is not a priortrack prior (no header)")
@@ -155,13 +188,22 @@ def load_prior(path: str | Path) -> TransitionModel:
     if header.get("version") != FORMAT_VERSION:
         raise PriortrackError(f"{path}: prior format version {header.get('version')!r} is not supported "
                               f"(this priortrack reads version {FORMAT_VERSION})")
+    for field, types in HEADER_TYPES.items():
+        value = header.get(field)
+        if field in header and (not isinstance(value, types) or (types is not bool and isinstance(value, bool))):
+            raise PriortrackError(f"{path}: header field {field!r} is {value!r}, not of its type")
+    if "fps" in header and not 0 < header["fps"] < 1e4:
+        raise PriortrackError(f"{path}: header fps {header['fps']!r} is not a frame rate")
     kind = header.get("kind")
     if kind not in PRIOR_KINDS:
         raise PriortrackError(f"{path}: unknown prior kind {kind!r}; kinds: {', '.join(PRIOR_KINDS)}")
     try:
-        return PRIOR_KINDS[kind].prior_class()._restore(arrays, header)
+        prior = PRIOR_KINDS[kind].prior_class()._restore(arrays, header)
     except KeyError as exc:
         raise PriortrackError(f"{path}: the {kind} prior lacks {exc.args[0]!r}") from None
+    except (ValueError, TypeError, IndexError, RuntimeError, StopIteration) as exc:
+        raise PriortrackError(f"{path}: the {kind} prior's arrays do not fit together ({exc})") from None
+    return prior
 
 
 def prepare_motions(motions: Sequence[Motion], fps: float, min_frames: int = 3) -> list[Motion]:
