@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 # pytorch-kinematics imports matplotlib, which wants a writable config folder.
 export MPLCONFIGDIR := $(CURDIR)/.mplconfig
 
-.PHONY: install demo test
+.PHONY: install demo test fuzz
 
 install: $(VENV)/.installed
 
@@ -22,3 +22,7 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+
+# The long fuzzing profile (tests/test_fuzz.py: thousands of mutated files per reader).
+fuzz: install
+	PRIORTRACK_FUZZ=long $(BIN)/python -m pytest -q -p no:cacheprovider tests/test_fuzz.py

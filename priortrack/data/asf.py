@@ -76,6 +76,8 @@ class _Lines:
 
 #: The longest bone a body file may declare, metres (CMU's longest is 0.46 m).
 MAX_BONE_M = 3.0
+#: The largest magnitude of any number in an ASF file (lengths, directions, angles, positions).
+MAX_VALUE = 1e6
 
 
 def _floats(lines: _Lines, line: int, words: list[str], count: int, what: str) -> np.ndarray:
@@ -87,6 +89,8 @@ def _floats(lines: _Lines, line: int, words: list[str], count: int, what: str) -
         raise lines.fail(line, f"{what} has a value that is not a number: {' '.join(words)}") from None
     if not np.isfinite(values).all():
         raise lines.fail(line, f"{what} has a non-finite value: {' '.join(words[:count])}")
+    if np.abs(values).max(initial=0.0) > MAX_VALUE:
+        raise lines.fail(line, f"{what} is out of range (|value| > {MAX_VALUE:g}): {' '.join(words[:count])}")
     return values
 
 
@@ -115,7 +119,10 @@ def read_asf(path: str | Path) -> Skeleton:
             continue
         if section == "units":
             if key == "length":
-                length_unit = INCH / _floats(lines, n, words[1:], 1, "length unit")[0]
+                value = _floats(lines, n, words[1:], 1, "length unit")[0]
+                if not 1e-6 <= value <= 1e6:
+                    raise lines.fail(n, f"length unit {value:g} must be a positive number of units per inch")
+                length_unit = INCH / value
             elif key == "angle":
                 if words[1:2] not in (["deg"], ["rad"]):
                     raise lines.fail(n, f"unknown angle unit {' '.join(words[1:])!r} (deg or rad)")
@@ -146,6 +153,8 @@ def read_asf(path: str | Path) -> Skeleton:
             elif bone is None:
                 raise lines.fail(n, f"{key!r} outside a begin/end bone block")
             elif key == "name":
+                if len(words) < 2:
+                    raise lines.fail(n, "bone name is missing")
                 bone.name = words[1]
             elif key == "direction":
                 bone.direction = _floats(lines, n, words[1:], 3, "direction")

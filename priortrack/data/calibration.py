@@ -71,6 +71,8 @@ class Calibration:
 def rodrigues(rvec: np.ndarray) -> np.ndarray:
     """(3,) rotation vector ω → (3, 3) rotation exp([ω]ₓ) (Rodrigues' formula, as cv2.Rodrigues)."""
     theta = float(np.linalg.norm(rvec))
+    if not np.isfinite(theta) or theta > 1e6:
+        raise PriortrackError(f"rotation vector {np.asarray(rvec).tolist()} is not an angle-axis rotation")
     if theta < 1e-12:
         return np.eye(3)
     a = rvec / theta
@@ -149,7 +151,7 @@ def _camera(path: Path, name: str, K, dist, R, rvec, t, size, translation_unit: 
     if R is not None and np.size(R) == 3:                   # a rotation vector stored under R (EasyMocap's R_<name>)
         R, rvec = None, R
     R = rodrigues(_array(path, name, "rvec", rvec, (3,))) if R is None else _array(path, name, "R", R, (3, 3))
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-5 or abs(np.linalg.det(R) - 1) > 1e-5:
+    if np.abs(R).max() > 1.0 + 1e-5 or np.abs(R @ R.T - np.eye(3)).max() > 1e-5 or abs(np.linalg.det(R) - 1) > 1e-5:
         raise PriortrackError(f"{path}: camera {name!r}: R is not a rotation matrix")
     t = _array(path, name, "t", t, (3,)) * translation_unit
     if size is None:

@@ -137,6 +137,10 @@ def _triples(values, where: str) -> np.ndarray:
     if not np.isfinite(conf).all() or (conf < 0).any():
         bad = int(np.flatnonzero(~np.isfinite(conf) | (conf < 0))[0])
         raise PriortrackError(f"{where}: keypoint {bad} has confidence {conf[bad]} (must be finite and ≥ 0)")
+    bad = (conf > 0) & ~np.isfinite(arr[:, :2]).all(axis=1)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise PriortrackError(f"{where}: keypoint {k} has confidence {conf[k]} but coordinates {arr[k, :2].tolist()}")
     arr[conf == 0, :2] = np.nan                              # OpenPose writes (0, 0, 0) for "not found"
     return arr
 
@@ -293,7 +297,10 @@ def _read_npz(path: Path, keypoints: str | None) -> Detections:
     bad = np.isfinite(conf) & (conf < 0)
     if bad.any():
         raise PriortrackError(f"{path}: keypoints has negative confidences (first at {np.argwhere(bad)[0].tolist()})")
-    kp[np.isnan(conf) | (conf == 0)] = np.nan
+    if np.isinf(kp).any():
+        raise PriortrackError(f"{path}: keypoints has inf (first at {np.argwhere(np.isinf(kp))[0].tolist()}); "
+                              f"NaN marks a missing keypoint")
+    kp[np.isnan(conf) | (conf == 0) | np.isnan(kp[..., :2]).any(axis=-1)] = np.nan
     frames = arrays.get("frames", np.arange(T))
     if frames.shape != (T,) or frames.dtype.kind not in "iu" or np.any(np.diff(frames) <= 0):
         raise PriortrackError(f"{path}: frames must be {T} increasing integers")

@@ -1,0 +1,176 @@
+"""Property-based fuzzing of every reader (issue 21): from a valid file, random mutations (numbers
+turned into nan, inf, huge, negative or garbage values, lines deleted or repeated, the file cut short)
+must either load with every number finite (NaN only where a format says "missing") or raise a PriortrackError, never another exception, and
+each input is read in well under a second.
+
+The short profile runs in CI; ``make fuzz`` runs the long one (PRIORTRACK_FUZZ=long).
+"""
+
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from priortrack import PriortrackError
+from priortrack.data.bundled import ASF_AMC_DIR, POSE2SIM_DIR
+
+settings.register_profile("ci", max_examples=60, deadline=None, derandomize=True,
+                          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+settings.register_profile("long", max_examples=3000, deadline=None,
+                          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+settings.load_profile("long" if os.environ.get("PRIORTRACK_FUZZ") == "long" else "ci")
+
+WEIRD = ["nan", "NaN", "inf", "-inf", "1e308", "1e999", "-1", "0", "-0", "", "x", "9" * 30, "²", "1,5", "[", "}",
+         "{", "\"", "true", "null", "-9999999999", "0x10", "1e-320"]
+NUMBER = re.compile(r"-?\d+(\.\d+)?(e-?\d+)?")
+
+
+@st.composite
+def mutated(draw, text: str):
+    """``text`` with 1–4 mutations: a number replaced, a line deleted or repeated, the text cut short."""
+    lines = text.split("\n")
+    for _ in range(draw(st.integers(1, 4))):
+        kind = draw(st.sampled_from(["number", "number", "delete", "repeat", "cut"]))
+        i = draw(st.integers(0, len(lines) - 1))
+        if kind == "number":
+            matches = list(NUMBER.finditer(lines[i]))
+            if matches:
+                m = matches[draw(st.integers(0, len(matches) - 1))]
+                lines[i] = lines[i][:m.start()] + draw(st.sampled_from(WEIRD)) + lines[i][m.end():]
+        elif kind == "delete" and len(lines) > 1:
+            del lines[i]
+        elif kind == "repeat":
+            lines.insert(i, lines[i])
+        elif kind == "cut":
+            lines = lines[:i + 1]
+            lines[-1] = lines[-1][:draw(st.integers(0, len(lines[-1])))]
+    return "\n".join(lines)
+
+
+def _only_priortrack_errors(load, path: Path, text: str):
+    path.write_text(text)
+    try:
+        result = load(path)
+    except PriortrackError:
+        return None
+    return result
+
+
+ASF = (ASF_AMC_DIR / "07.asf").read_text()
+AMC = "\n".join((ASF_AMC_DIR / "07_01.amc").read_text().split("\n")[:3 + 3 * 30])   # header and 3 frames
+CALIB = (POSE2SIM_DIR / "Calib.toml").read_text()
+OPENPOSE = (POSE2SIM_DIR / "pose" / "cam01_json" / "Static_cam_01.00000.json").read_text()
+PRESET = (Path(__file__).resolve().parents[1] / "filters" / "pf-lie.toml").read_text()
+
+
+@given(text=mutated(ASF))
+def test_asf(tmp_path, text):
+    from priortrack.data.asf import read_asf
+
+    skeleton = _only_priortrack_errors(read_asf, tmp_path / "07.asf", text)
+    if skeleton is not None:
+        assert np.isfinite(skeleton.offsets).all() and np.isfinite(skeleton.rot_axes).all()
+
+
+@given(text=mutated(AMC))
+def test_amc(tmp_path, text):
+    from priortrack.data.amc import read_amc
+    from priortrack.data.bundled import cmu_skeleton
+
+    channels = _only_priortrack_errors(lambda p: read_amc(p, cmu_skeleton("07")), tmp_path / "07_01.amc", text)
+    if channels is not None:
+        assert np.isfinite(channels).all()
+
+
+@pytest.fixture(scope="module")
+def bvh_text(tmp_path_factory):
+    from priortrack.data.bvh import write_bvh
+    from priortrack.data.load import load_motion
+
+    path = tmp_path_factory.mktemp("bvh") / "walk.bvh"
+    write_bvh(load_motion("cmu:07_01")[:4], path)
+    return path.read_text()
+
+
+@given(data=st.data())
+def test_bvh(tmp_path, bvh_text, data):
+    from priortrack.data.bvh import read_bvh
+
+    motion = _only_priortrack_errors(read_bvh, tmp_path / "walk.bvh", data.draw(mutated(bvh_text)))
+    if motion is not None:
+        assert np.isfinite(motion.channels).all() and np.isfinite(motion.skeleton.offsets).all()
+
+
+@given(text=mutated(CALIB))
+def test_calibration(tmp_path, text):
+    from priortrack.data.calibration import read_calibration
+
+    calibration = _only_priortrack_errors(read_calibration, tmp_path / "Calib.toml", text)
+    if calibration is not None:
+        for camera in calibration.cameras:
+            assert all(np.isfinite(a).all() for a in (camera.K, camera.dist, camera.R, camera.t))
+
+
+@given(text=mutated(OPENPOSE))
+def test_openpose(tmp_path, text):
+    from priortrack.data.detections import read_detections
+
+    folder = tmp_path / "cam"
+    folder.mkdir(exist_ok=True)
+    detections = _only_priortrack_errors(lambda p: read_detections(folder, keypoints="body25b"),
+                                         folder / "clip.000000.json", text)
+    if detections is not None:
+        confidence = detections.keypoints[..., 2]                     # NaN is missing, and data; inf never
+        assert not np.isinf(detections.keypoints).any()
+        assert np.all(np.isnan(confidence) | (confidence >= 0))
+
+
+@given(text=mutated(PRESET))
+def test_preset(tmp_path, text):
+    from priortrack.experiments.presets import load_preset
+
+    _only_priortrack_errors(load_preset, tmp_path / "mine.toml", text)
+
+
+@pytest.fixture(scope="module")
+def prior_bytes(tmp_path_factory):
+    from priortrack.data.bundled import load_walkjog
+    from priortrack.priors.diffusion import Diffusion
+
+    path = tmp_path_factory.mktemp("prior") / "prior.npz"
+    Diffusion.fit(list(load_walkjog().walks("train"))[:2], local=True).save(path)
+    return path.read_bytes()
+
+
+@given(data=st.data())
+def test_prior_file(tmp_path, prior_bytes, data):
+    """Bytes flipped, cut or the JSON header's numbers mutated: a PriortrackError or a finite prior."""
+    from priortrack.priors.base import load_prior
+
+    raw = bytearray(prior_bytes)
+    for _ in range(data.draw(st.integers(1, 3))):
+        kind = data.draw(st.sampled_from(["flip", "cut", "header"]))
+        if kind == "flip" and raw:
+            raw[data.draw(st.integers(0, len(raw) - 1))] = data.draw(st.integers(0, 255))
+        elif kind == "cut":
+            raw = raw[:data.draw(st.integers(0, len(raw)))]
+        else:
+            text = raw.decode("latin-1")
+            match = list(re.finditer(r"\d+\.\d+", text))
+            if match:
+                m = match[data.draw(st.integers(0, len(match) - 1))]
+                value = data.draw(st.sampled_from(["NaN", "Infinity", "1e999", "-1"]))
+                raw = bytearray((text[:m.start()] + value.ljust(m.end() - m.start())[:m.end() - m.start()]
+                                 + text[m.end():]).encode("latin-1"))
+    path = tmp_path / "prior.npz"
+    path.write_bytes(bytes(raw))
+    try:
+        prior = load_prior(path)
+    except PriortrackError:
+        return
+    assert bool(prior.sigma.isfinite().all()) and np.isfinite(prior.fps)
