@@ -34,6 +34,10 @@ class LinearGaussian:
         R = self.R[seen][:, seen]
         return torch.distributions.MultivariateNormal(torch.zeros(len(R), dtype=d.dtype), R).log_prob(d)
 
+    def gate(self, z):
+        """No validation gate: every observation is kept."""
+        return torch.as_tensor(z, dtype=torch.float64), 0
+
     def mean(self, s, weights):
         return (weights[:, None] * s).sum(0) / weights.sum()
 

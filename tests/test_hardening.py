@@ -145,3 +145,20 @@ def test_prior_files_are_checked_before_anything_is_allocated(tmp_path):
         load_prior(_rewrite(good, tmp_path / "fps.npz", header={"fps": -30}))
     with pytest.raises(PriortrackError, match="do not fit together|lacks"):
         load_prior(_rewrite(good, tmp_path / "shape.npz", **{"sigma.npy": _npy(np.zeros((2, 2, 2)))}))
+
+
+@pytest.mark.parametrize("preset", ["pf-diffusion-local", "ukf-diffusion-local"])
+def test_a_detection_a_million_pixels_away_is_gated_and_flagged(preset, tmp_path):
+    """An outlier at 10⁶ px (issue 21, item 6): dropped by the validation gate (flag "outlier-gated"),
+    the estimate stays where the clean run puts it."""
+    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.tracking import track
+
+    clean = track("cmu:07_10", load_preset(preset), "clean:sigma_px=5", seed=0, frames=12, cache=tmp_path)
+    observations = clean.observations.uv.copy()
+    observations[6, 0] = [1e6, -1e6]
+    filt = load_preset(preset).build(clean.observations.camera, seed=0, cache=tmp_path)
+    run = filt.run(observations, clean.motion, keep_snapshots=True)
+    assert "outlier-gated" in run.flags[6]
+    assert np.isfinite(run.estimates).all()
+    assert np.abs(run.estimates - clean.track.estimates).max() < 0.5

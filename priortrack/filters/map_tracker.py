@@ -262,7 +262,8 @@ class MapTracker(SequentialFilter):
         z = torch.as_tensor(np.asarray(z, dtype=np.float64))
         if z.shape != self.model.observation_shape:
             raise PriortrackError(f"observation has shape {tuple(z.shape)}; expected {self.model.observation_shape}")
-        flags = [] if torch.isfinite(z).any() else ["no-observation"]
+        z, gated = self.model.gate(z)
+        flags = ([] if torch.isfinite(z).any() else ["no-observation"]) + (["outlier-gated"] if gated else [])
         # The window holds a few hundred numbers: extra threads only add synchronisation (on 2 busy
         # cores a frame took 4.1 s with torch's default 2 threads and 0.78 s with one).
         with torch_threads(1):

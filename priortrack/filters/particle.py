@@ -121,6 +121,10 @@ class ParticleFilter(SequentialFilter):
         if z.shape != self.model.observation_shape:
             raise PriortrackError(f"observation has shape {tuple(z.shape)}; expected {self.model.observation_shape}")
         timings, flags = {}, []
+        gated, count = self.model.gate(z)
+        if count:
+            flags.append("outlier-gated")
+            z = gated.to(z)
         t0 = time.perf_counter()
         if self.marginal:       # t_t = t̂_t, its covariance predicted in update (or below)
             self.states = self.model.predict(self.states, self.generator, translation=False)

@@ -92,7 +92,7 @@ EIGEN_FLOOR = 1e-9
 ALPHA, BETA, KAPPA = 0.5, 2.0, 0.0
 #: What the filter needs of a model that is not a TrackingModel (the linear-Gaussian test model keeps it).
 UNSCENTED_INTERFACE = ("dim", "tangent_dim", "observation_shape", "mean_step", "measure", "observe",
-                       "process_covariance", "measurement", "boxplus", "boxminus", "sigma_mean", "transport")
+                       "process_covariance", "measurement", "gate", "boxplus", "boxminus", "sigma_mean", "transport")
 
 
 def _placements(g: torch.Tensor) -> torch.Tensor:
@@ -175,6 +175,10 @@ class UnscentedTracking:
     def measure(self, s: torch.Tensor) -> torch.Tensor:
         """h: states (N, A) → (N, m) pixels (u, v of each joint, in every camera), NaN where behind a camera."""
         return self.model.likelihood.pixels(self.model.observe(s))
+
+    def gate(self, z) -> tuple[torch.Tensor, int]:
+        """One frame's data with the gross outliers made missing, and their count (the observation model's)."""
+        return self.model.gate(z)
 
     def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
         """One frame's data → the measured pixels (m,) (NaN: not seen) and R (m, m), diagonal."""
@@ -393,6 +397,10 @@ class UnscentedFilter(SequentialFilter):
         if z.shape != tuple(self.unscented.observation_shape):
             raise PriortrackError(f"observation has shape {z.shape}; expected {tuple(self.unscented.observation_shape)}")
         kf, flags = self.kf, []
+        gated, count = self.unscented.gate(z)
+        if count:
+            flags.append("outlier-gated")
+            z = gated.numpy()
         kf.repairs = 0
         t0 = time.perf_counter()
         kf.P, repaired = repaired_covariance(kf.P)

@@ -101,6 +101,9 @@ class ObservationModel(Protocol):
     def log_likelihood(self, joints: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         """(P, J, 3) world joints, one frame's data z (observation_shape, NaN = missing) → (P,)."""
 
+    def gate(self, z) -> tuple[torch.Tensor, int]:
+        """One frame's data with its gross outliers made missing, and their count."""
+
 
 @runtime_checkable
 class FilterModel(Protocol):
@@ -119,3 +122,6 @@ class FilterModel(Protocol):
 
     def mean(self, s: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
         """(dim,) the weighted mean state, on the state's manifold."""
+
+    def gate(self, z) -> tuple[torch.Tensor, int]:
+        """One frame's data with its gross outliers made missing (validation gate), and their count."""

@@ -87,6 +87,10 @@ class TrackingModel:
         x, g, _ = self.split(s)
         return to_world(self.body.joints(x), g)
 
+    def gate(self, z) -> tuple[torch.Tensor, int]:
+        """One frame's data with the observation model's gross outliers made missing, and their count."""
+        return self.likelihood.gate(z)
+
     def log_likelihood(self, joints: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         """(P, J, 3) world joints, z (observation_shape, NaN = missing) → (P,) log p(z | joints)."""
         return self.likelihood.log_likelihood(joints, z)

@@ -44,6 +44,14 @@ def check_noise(sigma_px, robust_nu) -> None:
                               f"got {robust_nu!r}")
 
 
+def outside(uv: torch.Tensor, camera: PinholeCamera) -> torch.Tensor:
+    """(..., 2) pixels → (...) bool: finite and more than one image diagonal outside the image."""
+    margin = math.hypot(camera.width, camera.height)
+    u, v = uv[..., 0], uv[..., 1]
+    return torch.isfinite(uv).all(dim=-1) & ((u < -margin) | (u > camera.width + margin) | (v < -margin)
+                                             | (v > camera.height + margin))
+
+
 class JointLikelihood:
     """Batched 2D joint likelihood through a pinhole camera.
 
@@ -60,6 +68,14 @@ class JointLikelihood:
         self.observation_shape = (15, 2)
         #: |d_j|² of a predicted joint behind the camera: the squared image diagonal.
         self.miss_sq = float(camera.width ** 2 + camera.height ** 2)
+
+    def gate(self, z) -> tuple[torch.Tensor, int]:
+        """One frame's z (J, 2) with the gross outliers made missing, and their count: a detection more
+        than one image diagonal outside the image is no pixel of this camera (validation gate)."""
+        z = torch.as_tensor(z, dtype=torch.float64).clone()
+        far = outside(z, self.camera)
+        z[far] = float("nan")
+        return z, int(far.sum())
 
     def pixels(self, joints: torch.Tensor) -> torch.Tensor:
         """The measurement a Gaussian filter predicts: (N, J, 3) joints → (N, 2J) pixels (NaN behind the camera)."""

@@ -31,7 +31,7 @@ import torch
 
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.observation.likelihood import JointLikelihood, check_noise
+from priortrack.observation.likelihood import JointLikelihood, check_noise, outside
 
 #: σ (pixels) and ν of the real-data default: a Student-t with heavy tails for detector errors.
 DEFAULT_SIGMA_PX, DEFAULT_NU = 5.0, 4.0
@@ -80,6 +80,19 @@ class MultiViewLikelihood:
         if self.joint_map is None:
             return joints
         return torch.einsum("ij,pjk->pik", self.joint_map.to(joints), joints)
+
+    def gate(self, z) -> tuple[torch.Tensor, int]:
+        """One frame's z (C, J, 3) with the gross outliers made missing (confidence 0), and their count:
+        a detection more than one image diagonal outside its camera's image (validation gate)."""
+        z = torch.as_tensor(z, dtype=torch.float64).clone()
+        if tuple(z.shape) != self.observation_shape:
+            raise PriortrackError(f"observation {tuple(z.shape)}: expected {self.observation_shape}")
+        count = 0
+        for c, view in enumerate(self.views):
+            far = outside(z[c, :, :2], view.camera)
+            z[c, far] = torch.tensor([float("nan"), float("nan"), 0.0], dtype=torch.float64)
+            count += int(far.sum())
+        return z, count
 
     def pixels(self, joints: torch.Tensor) -> torch.Tensor:
         """The measurement a Gaussian filter predicts: (N, J, 3) body joints → (N, 2CJ) pixels of M X in
