@@ -174,3 +174,50 @@ def test_prior_file(tmp_path, prior_bytes, data):
     except PriortrackError:
         return
     assert bool(prior.sigma.isfinite().all()) and np.isfinite(prior.fps)
+
+
+COCO = json.dumps([{"image_id": t, "category_id": 1, "score": 0.9,
+                    "keypoints": [round(v, 2) for k in range(17) for v in (100.0 + 7 * k + t, 200.0 + 5 * k, 0.8)]}
+                   for t in range(3)], indent=0)
+CALIB_JSON = json.dumps({"up": "z", "cameras": [
+    {"name": "a", "K": [[1000.0, 0.0, 500.0], [0.0, 1000.0, 400.0], [0.0, 0.0, 1.0]], "dist": [0.01, -0.02, 0.0, 0.0],
+     "rvec": [0.1, 0.2, 0.3], "t": [0.1, 0.2, 3.0], "size": [1000, 800]}]}, indent=0)
+
+
+@given(text=mutated(COCO))
+def test_coco_results(tmp_path, text):
+    from priortrack.data.detections import read_detections
+
+    detections = _only_priortrack_errors(read_detections, tmp_path / "results.json", text)
+    if detections is not None:
+        assert not np.isinf(detections.keypoints).any()
+
+
+@given(text=mutated(CALIB_JSON))
+def test_calibration_json(tmp_path, text):
+    from priortrack.data.calibration import read_calibration
+
+    calibration = _only_priortrack_errors(read_calibration, tmp_path / "calib.json", text)
+    if calibration is not None:
+        for camera in calibration.cameras:
+            assert all(np.isfinite(a).all() for a in (camera.K, camera.dist, camera.R, camera.t))
+
+
+@given(keypoints=st.lists(st.sampled_from([0.0, 1.0, -1.0, 500.0, float("nan"), float("inf"), 1e300, 0.5]),
+                          min_size=2 * 3 * 17 * 3, max_size=2 * 3 * 17 * 3),
+       fps=st.sampled_from([30.0, 0.0, -5.0, float("nan"), 1e9]),
+       frames=st.sampled_from([[0, 1, 2], [2, 1, 0], [0, 0, 1]]))
+def test_detections_npz(tmp_path, keypoints, fps, frames):
+    from priortrack.data.detections import read_detections
+    from priortrack.data.keypoints import LAYOUTS
+
+    path = tmp_path / "d.npz"
+    np.savez(path, keypoints=np.array(keypoints).reshape(2, 3, 17, 3), keypoint_names=np.array(LAYOUTS["coco17"]),
+             fps=np.array(fps), frames=np.array(frames))
+    try:
+        detections = read_detections(path)
+    except PriortrackError:
+        return
+    assert not np.isinf(detections.keypoints).any() and np.isfinite(detections.fps)
+    confidence = detections.keypoints[..., 2]
+    assert np.all(np.isnan(confidence) | (confidence >= 0))

@@ -12,6 +12,12 @@ observed joints j:
 A predicted joint behind the camera cannot explain a detection: its |d_j|² is taken as
 the squared image diagonal, the largest plausible miss. A frame with no observed joint
 gives log p = 0 for every particle (no update).
+
+**What counts as observed** (every observation model, every filter): a joint is observed only if
+both its coordinates (and, with several cameras, its confidence, > 0) are finite; anything else
+is missing, never half-used. A detection more than one image diagonal outside its image is a gross
+outlier: :meth:`JointLikelihood.gate` makes it missing and the filters flag the frame
+"outlier-gated".
 """
 
 from __future__ import annotations
