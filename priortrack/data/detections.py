@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from priortrack.data.keypoints import LAYOUTS, layout_for, to_eval15
+from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
 
 log = logging.getLogger(__name__)
@@ -49,6 +50,8 @@ MIN_SIZE_PX = 100.0
 REACQUIRE = 10
 #: Most frames and cameras a reader accepts (a guard against absurd inputs).
 MAX_FRAMES, MAX_CAMERAS = 1_000_000, 64
+#: The most an NPZ of detections may hold, bytes.
+MAX_NPZ_BYTES = 4 << 30
 
 
 @dataclass(frozen=True)
@@ -270,11 +273,7 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
 
 
 def _read_npz(path: Path, keypoints: str | None) -> Detections:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (ValueError, OSError, EOFError) as exc:
-        raise PriortrackError(f"{path}: not a readable npz ({exc})") from None
+    arrays = read_npz(path, MAX_NPZ_BYTES, "detections file")
     for key in ("keypoints", "keypoint_names"):
         if key not in arrays:
             raise PriortrackError(f"{path}: the array {key!r} is missing")

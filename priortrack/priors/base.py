@@ -18,7 +18,6 @@ JSON header with the format version, its kind and the preprocessing it used.
 from __future__ import annotations
 
 import json
-import zipfile
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 import torch
 
 from priortrack.data.motion import Motion
+from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
 from priortrack.output import output_path
 from priortrack.priors.registry import PRIOR_KINDS
@@ -132,33 +132,10 @@ class TransitionModel(ABC):
 
 #: The most a prior file's arrays may hold together, bytes (the bundled presets' largest is ~3 MB).
 MAX_PRIOR_BYTES = 1 << 30
-#: The dtypes a prior file's arrays may have: numbers, booleans and text (never objects).
-ARRAY_KINDS = "biufU"
 #: Header fields every kind reads, with their types; the kinds' own are checked in :data:`HEADER_TYPES`.
 HEADER_TYPES = {"fps": (int, float), "local": bool, "balanced": bool, "space": str, "scale": (int, float),
                 "objective": (int, float), "message_length": (int, float), "log_likelihood": (int, float),
                 "train_frames": int, "fit": dict}
-
-
-def _checked_members(path: Path) -> None:
-    """Read every npy member's header (not its data) and refuse a file whose arrays declare objects,
-    an unknown dtype, more bytes than the member holds, or more than MAX_PRIOR_BYTES in all."""
-    total = 0
-    with zipfile.ZipFile(path) as archive:
-        for info in archive.infolist():
-            with archive.open(info) as member:
-                version = np.lib.format.read_magic(member)
-                shape, fortran, dtype = (np.lib.format.read_array_header_1_0(member) if version == (1, 0)
-                                         else np.lib.format.read_array_header_2_0(member))
-                if dtype.kind not in ARRAY_KINDS or dtype.hasobject:
-                    raise PriortrackError(f"{path}: array {info.filename} has dtype {dtype} (numbers and text only)")
-                size = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
-                if size > info.file_size:
-                    raise PriortrackError(f"{path}: array {info.filename} declares {size} bytes but holds "
-                                          f"{info.file_size}")
-                total += size
-    if total > MAX_PRIOR_BYTES:
-        raise PriortrackError(f"{path}: its arrays hold {total} bytes, more than a prior file may ({MAX_PRIOR_BYTES})")
 
 
 def load_prior(path: str | Path) -> TransitionModel:
@@ -166,14 +143,9 @@ def load_prior(path: str | Path) -> TransitionModel:
     another format or version, a truncated file, an unknown kind, arrays of objects or of absurd
     sizes (checked from their headers before any is read) and header fields of the wrong type."""
     path = Path(path)
-    try:
-        _checked_members(path)
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise PriortrackError(f"prior file {path} does not exist") from None
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError, TypeError) as exc:
-        raise PriortrackError(f"{path} is not a readable prior file (truncated or not npz: {exc})") from None
+    if not path.exists():
+        raise PriortrackError(f"prior file {path} does not exist")
+    arrays = read_npz(path, MAX_PRIOR_BYTES, "prior file")
     if "header" not in arrays:
         raise PriortrackError(f"{path} is not a priortrack prior (no header)")
     try:
