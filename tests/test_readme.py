@@ -4,6 +4,8 @@ commands within the first 30)."""
 import re
 from pathlib import Path
 
+import numpy as np
+
 README = (Path(__file__).resolve().parents[1] / "README.md").read_text()
 
 
@@ -14,9 +16,9 @@ def test_the_readme_is_short_and_starts_with_the_two_commands():
     assert "make demo" in first and "make test" in first
 
 
-def test_the_python_block_runs(tmp_path, monkeypatch, capsys):
+def test_the_python_blocks_run(tmp_path, monkeypatch, capsys):
     blocks = re.findall(r"```python\n(.*?)```", README, re.S)
-    assert len(blocks) == 1
+    assert len(blocks) == 2
     monkeypatch.setenv("PRIORTRACK_CACHE", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
@@ -28,3 +30,9 @@ def test_the_python_block_runs(tmp_path, monkeypatch, capsys):
     run = namespace["run"]
     assert run.result["frames"] == 40 and len(run.track.snapshots) == 38
     assert printed[2].startswith("torch.Size([1000, ")
+    capsys.readouterr()
+    exec(compile(blocks[1], "README.md", "exec"), namespace)                 # real detections
+    shape, mismatch = capsys.readouterr().out.split(") ")
+    assert shape == "(6, 15, 3" and float(mismatch) == 0.0
+    with np.load(tmp_path / "person.npz") as z:
+        assert z["joints"].shape == (6, 15, 3)
