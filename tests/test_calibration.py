@@ -2,7 +2,6 @@
 YAML), and lens distortion in the projection against cv2.projectPoints."""
 
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np

@@ -17,7 +17,7 @@ from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import GPDM, Diffusion
-from priortrack.priors.global_motion import GlobalMotion, to_world
+from priortrack.priors.global_motion import to_world
 from priortrack.body.fk import joint_positions
 
 FPS = 15.0

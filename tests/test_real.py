@@ -11,6 +11,7 @@ import rerun as rr
 from priortrack import PriortrackError
 from priortrack.body.fk import joint_positions
 from priortrack.cli.main import main
+from priortrack.data.asf import read_asf
 from priortrack.data.bvh import read_bvh
 from priortrack.data.keypoints import detector_map
 from priortrack.data.trc import read_trc
@@ -164,7 +165,7 @@ def test_a_given_skeleton_is_the_body(capsys, tmp_path):
                  "--filter", "pf-lie", "--skeleton", str(asf), "--out", str(tmp_path / "r.bvh"), "--json"]) == 0
     assert read_bvh(tmp_path / "r.bvh").skeleton.names[:2] == ("root", "lhipjoint")
     np.testing.assert_allclose(read_bvh(tmp_path / "r.bvh").skeleton.bone_lengths()[1:6],
-                               __import__("priortrack").data.asf.read_asf(asf).bone_lengths()[1:6], rtol=1e-6)
+                               read_asf(asf).bone_lengths()[1:6], rtol=1e-6)
     assert main(["track", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie",
                  "--skeleton", str(tmp_path / "r.npz")]) == 2
     assert "give an .asf or .bvh file" in capsys.readouterr().err

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from priortrack.data.eval15 import EVAL15_NAMES, EVAL15_PARENTS
+from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import torch
 
-from priortrack.body.layout import EVAL15_NAMES, EVAL15_PARENTS
+from priortrack.data.eval15 import EVAL15_NAMES, EVAL15_PARENTS
 from priortrack.errors import PriortrackError
 
 PELVIS, NECK, LHIP, RHIP = (EVAL15_NAMES.index(n) for n in ("pelvis", "neck", "lhip", "rhip"))

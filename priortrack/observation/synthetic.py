@@ -37,7 +37,7 @@ from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 import numpy as np
 import torch
 
-from priortrack.body.layout import EVAL15_NAMES
+from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.output import output_path

@@ -21,7 +21,7 @@ import numpy as np
 import rerun as rr
 from scipy.spatial.transform import Rotation
 
-from priortrack.body.layout import EVAL15_NAMES, EVAL15_PARENTS
+from priortrack.data.eval15 import EVAL15_NAMES, EVAL15_PARENTS
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.output import output_path
 

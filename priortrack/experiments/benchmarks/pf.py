@@ -23,7 +23,6 @@ import logging
 import time
 
 import numpy as np
-import torch
 
 from priortrack.data.bundled import load_walkjog
 from priortrack.errors import PriortrackError
