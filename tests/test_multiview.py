@@ -1,7 +1,6 @@
 """The multi-camera observation model: its log-likelihood against per-camera sums, its linearisation
 against autograd and against the one-camera model, and the translation's Kalman update through it."""
 
-
 import numpy as np
 import pytest
 import torch
