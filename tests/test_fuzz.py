@@ -106,16 +106,6 @@ def test_bvh(tmp_path, bvh_text, data):
         assert np.isfinite(motion.channels).all() and np.isfinite(motion.skeleton.offsets).all()
 
 
-@given(text=mutated(CALIB))
-def test_calibration(tmp_path, text):
-    from priortrack.data.calibration import read_calibration
-
-    calibration = _only_priortrack_errors(read_calibration, tmp_path / "Calib.toml", text)
-    if calibration is not None:
-        for camera in calibration.cameras:
-            assert all(np.isfinite(a).all() for a in (camera.K, camera.dist, camera.R, camera.t))
-
-
 @given(text=mutated(OPENPOSE))
 def test_openpose(tmp_path, text):
     from priortrack.data.detections import read_detections
@@ -193,11 +183,13 @@ def test_coco_results(tmp_path, text):
         assert not np.isinf(detections.keypoints).any()
 
 
-@given(text=mutated(CALIB_JSON))
-def test_calibration_json(tmp_path, text):
+@pytest.mark.parametrize("name", ["Calib.toml", "calib.json"])
+@given(data=st.data())
+def test_calibration(tmp_path, name, data):
     from priortrack.data.calibration import read_calibration
 
-    calibration = _only_priortrack_errors(read_calibration, tmp_path / "calib.json", text)
+    text = data.draw(mutated(CALIB if name.endswith(".toml") else CALIB_JSON))
+    calibration = _only_priortrack_errors(read_calibration, tmp_path / name, text)
     if calibration is not None:
         for camera in calibration.cameras:
             assert all(np.isfinite(a).all() for a in (camera.K, camera.dist, camera.R, camera.t))

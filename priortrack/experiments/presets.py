@@ -22,9 +22,9 @@ A preset (the shipped ones: ``priortrack presets``; any path works too)::
 The valid keys of ``[filter]`` are the filter class's constructor parameters (besides the model
 and the seed), those of ``[prior].options`` the kind's option schema
 (:meth:`~priortrack.priors.registry.PriorKind.options`); anything else is a
-:class:`PriortrackError` that lists the valid keys. Fitted priors are cached as prior files
-(no pickle) under :func:`cache_dir`, keyed by a hash of the ``[prior]`` table, the expanded
-training sources and the prior file format, so a second run does not refit.
+:class:`PriortrackError` that lists the valid keys, and every value is checked for type and range.
+Fitted priors are cached as prior files (no pickle) under :func:`cache_dir`, keyed by
+:attr:`Preset.cache_key` and verified against a SHA-256 digest on load, so a second run does not refit.
 
 The shipped presets' source is the repository's top-level ``filters/`` folder, installed as the
 package data ``priortrack/experiments/preset_files/`` (pyproject.toml maps one onto the other).
@@ -33,11 +33,11 @@ package data ``priortrack/experiments/preset_files/`` (pyproject.toml maps one o
 from __future__ import annotations
 
 import hashlib
-import math
 import importlib
 import inspect
 import json
 import logging
+import math
 import os
 import tomllib
 from collections.abc import Callable

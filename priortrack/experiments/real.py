@@ -159,7 +159,6 @@ class DetectionTrack:
                      ess=self.ess, loglik=self.loglik, mismatch=self.mismatch.astype(bool))
         return path
 
-
     def save_csv(self, path: str | Path) -> Path:
         """One row per tick: frame, time (s), each joint's x, y, z (metres), spread, ESS, loglik, mismatch."""
         path = output_path(path, "result file")
@@ -285,7 +284,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     if single:                                     # joints detected per tick; else triangulated per tick
         counts = ((np.nan_to_num(z[:, 0, :, 2]) > 0) & np.isfinite(z[:, 0, :, 0])).sum(axis=-1)
     else:
-        X = triangulate(cameras, np.where(np.isfinite(z[..., :2]), z[..., :2], np.nan).transpose(1, 0, 2, 3),
+        X = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3),
                         np.nan_to_num(z[..., 2]).transpose(1, 0, 2))             # (T, 15, 3), working frame
         counts = np.isfinite(X).all(axis=-1).sum(axis=-1)
     good = np.flatnonzero((counts[1:] >= START_JOINTS) & (counts[:-1] >= START_JOINTS))
@@ -301,16 +300,13 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     window = first + KNOWN_FRAMES
     while window < min(first + START_TICKS, len(counts)) and counts[window] >= MIN_FIT_JOINTS:
         window += 1
-    if skeleton is not None:                       # the user's own body, as given (not scaled)
-        fitted = (inverse_kinematics_2d(z[first:window, 0, :, :2], np.nan_to_num(z[first:window, 0, :, 2]), cameras[0],
-                                        prior.fps, skeleton, M) if single else
-                  inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton))
-    elif single:
-        skeleton = scaled_to_height(template, height)
-        fitted = inverse_kinematics_2d(z[first:window, 0, :, :2], np.nan_to_num(z[first:window, 0, :, 2]), cameras[0],
-                                       prior.fps, skeleton, M)
+    if skeleton is None:                           # else the user's own body, as given (not scaled)
+        skeleton = (scaled_to_height(template, height) if single else
+                    fitted_skeleton(template, X[first:first + LENGTH_TICKS], M))
+    if single:
+        ticks = z[first:window, 0]
+        fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M)
     else:
-        skeleton = fitted_skeleton(template, X[first:first + LENGTH_TICKS], M)
         fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton)
     known = steady_start(fitted)
     # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
@@ -332,7 +328,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                                                               torch.as_tensor(z[first + t]))[0])
     mismatch = _mismatch(loglik, z[first:], model.likelihood)
     joints = np.einsum("ij,tjk->tik", M, run.estimates) @ A      # the detector's definitions, back in the world
-    reprojection = np.array([_median_reprojection(cam, joints, uv[c, index[first:]], confidence[c, index[first:]])
+    reprojection = np.array([median_reprojection(cam, joints, uv[c, index[first:]], confidence[c, index[first:]])
                              for c, cam in enumerate(world_cameras)])
     result = DetectionTrack(joints, np.where(index[first:] >= 0, detections.frames[np.maximum(index[first:], 0)], -1),
                             float(prior.fps), spread, np.asarray(run.ess, dtype=float), loglik, mismatch,
@@ -442,8 +438,9 @@ def _mismatch(loglik: np.ndarray, z: np.ndarray, likelihood: MultiViewLikelihood
     return flagged
 
 
-def _median_reprojection(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> float:
-    """Median pixel distance between the projected joints (T, 15, 3) and the detections (T, 15, 2) seen."""
+def median_reprojection(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> float:
+    """Median pixel distance between the projected joints (T, J, 3) and the detections (T, J, 2) seen
+    (confidence > 0); NaN if none is."""
     projected, _ = camera.project(joints)
     seen = (confidence > 0) & np.isfinite(uv).all(axis=-1)
     errors = np.linalg.norm(projected - uv, axis=-1)[seen]

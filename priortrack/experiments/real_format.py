@@ -34,7 +34,7 @@ from priortrack.data.detections import read_detections
 from priortrack.data.keypoints import LAYOUTS
 from priortrack.data.load import load_motion
 from priortrack.errors import PriortrackError
-from priortrack.experiments.real import track_detections
+from priortrack.experiments.real import median_reprojection, track_detections
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.frames import to_y_up
 from priortrack.geometry.triangulation import triangulate
@@ -177,13 +177,11 @@ def leave_one_camera_out(preset: str, held_out: int, seed: int = 0, cache=None) 
     uv, confidence = detections.eval15(0.3)
     ticks = result.frames >= 0
     frames = result.frames[ticks]
-    target, seen = uv[held_out, frames][:, SHOULDERS_TO_ANKLES], confidence[held_out, frames][:, SHOULDERS_TO_ANKLES] > 0
+    target, weight = uv[held_out, frames][:, SHOULDERS_TO_ANKLES], confidence[held_out, frames][:, SHOULDERS_TO_ANKLES]
     dlt = triangulate([cameras[c] for c in kept], uv[kept][:, frames], confidence[kept][:, frames])
 
     def median_px(X: np.ndarray) -> float:
-        projected, _ = cameras[held_out].project(X[:, SHOULDERS_TO_ANKLES])
-        error = np.linalg.norm(projected - target, axis=-1)[seen]
-        return float(np.nanmedian(error))
+        return median_reprojection(cameras[held_out], X[:, SHOULDERS_TO_ANKLES], target, weight)
 
     return {"preset": preset, "held_out": detections.camera_names[held_out], "tracker_px": median_px(result.joints[ticks]),
             "dlt_px": median_px(dlt), "ticks": int(ticks.sum())}
