@@ -169,3 +169,12 @@ def test_a_given_skeleton_is_the_body(capsys, tmp_path):
     assert main(["track", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie",
                  "--skeleton", str(tmp_path / "r.npz")]) == 2
     assert "give an .asf or .bvh file" in capsys.readouterr().err
+
+
+def test_the_real_track_benchmark_runs_the_whole_command(capsys):
+    """`priortrack bench real-track` (its figures are for the note, not asserted: timing is noisy here)."""
+    assert main(["bench", "real-track", "--frames", "12"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["frames"] == 12 and result["cameras"] == 4 and result["command_seconds"] > 0
+    assert main(["bench", "real-track", "--frames", "1000"]) == 2
+    assert "frames must be in [3, 240]" in capsys.readouterr().err

@@ -357,6 +357,12 @@ def _bench_pf(args: argparse.Namespace) -> None:
                          dtype=args.dtype, translation=args.translation))
 
 
+def _bench_real_track(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.real_track import bench_real_track
+
+    _print_json(bench_real_track(frames=args.frames, preset=args.filter, seed=args.seed))
+
+
 def _bench_fk(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.fk import bench_fk
 
@@ -497,6 +503,14 @@ def build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--seed", type=int, default=0)
     pf.add_argument("--json", action="store_true", help="(the output is always JSON)")
     pf.set_defaults(run=_bench_pf)
+
+    real_track = bench.add_parser("real-track", help="the whole track --detections command on real-format input "
+                                                     "(4 cameras), beside DLT of the same input")
+    real_track.add_argument("--frames", type=int, default=100)
+    real_track.add_argument("--filter", default="pf-lie", help="the preset (its particles: 1000 for pf-lie)")
+    real_track.add_argument("--seed", type=int, default=0)
+    real_track.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    real_track.set_defaults(run=_bench_real_track)
 
     plot = verbs.add_parser("plot", help="a GPDM's latent trajectories over its log reconstruction variance")
     plot.add_argument("prior", help="a gpdm or bgpdm prior file")

@@ -51,13 +51,13 @@ _BODY25B_OF = {2: "head_top", 3: "left_shoulder", 4: "left_elbow", 5: "left_wris
 DEFAULT_CALIBRATION = POSE2SIM_DIR / "Calib.toml"
 
 
-def placed_walk(motion: str, up: str = "z") -> np.ndarray:
-    """(T, 15, 3) eval15 joints of the walk's middle SECONDS at DATA_FPS, in a world whose up axis is
-    ``up``, its ground track centred on the origin."""
-    walk = load_motion(motion).resample(DATA_FPS)
-    T = int(SECONDS * DATA_FPS)
+def placed_walk(motion: str, up: str = "z", fps: float = DATA_FPS, seconds: float = SECONDS) -> np.ndarray:
+    """(T, 15, 3) eval15 joints of the motion's middle ``seconds`` at ``fps``, in a world whose up axis
+    is ``up``, its ground track centred on the origin."""
+    walk = load_motion(motion).resample(fps)
+    T = int(round(seconds * fps))
     if len(walk) < T:
-        raise PriortrackError(f"{motion} is shorter than {SECONDS} s")
+        raise PriortrackError(f"{motion} is shorter than {seconds} s")
     first = (len(walk) - T) // 2
     X = joint_positions(walk[first:first + T]) @ to_y_up(up)                 # world rows = Y-up rows @ A
     up_index = {"x": 0, "y": 1, "z": 2}[up.lstrip("-")]
