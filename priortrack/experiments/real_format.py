@@ -143,8 +143,9 @@ def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibr
 
 
 def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None = None, cache=None) -> dict:
-    """Every preset × motion × seed of :func:`run_real_format`: {"table": {preset: {"mpjpe_mm", "dlt_mm",
-    "ratio", "seconds"}}, "runs": [...], "cameras": C}, means over motions and seeds."""
+    """Every preset × motion × seed of :func:`run_real_format`: {"table": {preset: {"mpjpe_mm",
+    "relative_mm", "dlt_mm", "ratio", "seconds"}}, "runs": [...], "cameras": C}, means over motions and
+    seeds (DLT NaN from one camera)."""
     if seeds < 1:
         raise PriortrackError(f"seeds must be at least 1, got {seeds}")
     runs = [run_real_format(p, m, s, cameras=cameras, cache=cache) for p in presets for m in motions
@@ -153,7 +154,8 @@ def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None
     for p in presets:
         rows = [r for r in runs if r["preset"] == p]
         tracker, dlt = np.mean([r["mpjpe_where_dlt_mm"] for r in rows]), np.mean([r["dlt_mm"] for r in rows])
-        table[p] = {"mpjpe_mm": float(np.mean([r["mpjpe_mm"] for r in rows])), "dlt_mm": float(dlt),
+        table[p] = {"mpjpe_mm": float(np.mean([r["mpjpe_mm"] for r in rows])),
+                    "relative_mm": float(np.mean([r["relative_mm"] for r in rows])), "dlt_mm": float(dlt),
                     "ratio": float(tracker / dlt), "seconds": float(np.mean([r["seconds"] for r in rows]))}
     return {"table": table, "runs": runs, "cameras": runs[0]["cameras"] if runs else 0}
 
