@@ -15,6 +15,7 @@ class LinearGaussian:
     def __init__(self, A, Q, H, R):
         self.A, self.Q, self.H, self.R = (torch.as_tensor(m, dtype=torch.float64) for m in (A, Q, H, R))
         self.dim, self.observation_shape = self.A.shape[0], (self.H.shape[0],)
+        self.measurement_block = 1
         self.tangent_dim = self.dim
         self.LQ = torch.linalg.cholesky(self.Q)
 

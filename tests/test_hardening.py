@@ -162,3 +162,82 @@ def test_a_detection_a_million_pixels_away_is_gated_and_flagged(preset, tmp_path
     assert "outlier-gated" in run.flags[6]
     assert np.isfinite(run.estimates).all()
     assert np.abs(run.estimates - clean.track.estimates).max() < 0.5
+
+
+def _ukf_run(clean, observations, tmp_path, **options):
+    from dataclasses import replace
+
+    from priortrack.experiments.presets import load_preset
+
+    preset = load_preset("ukf-diffusion-local")
+    preset = replace(preset, filter_options={**preset.filter_options, **options})
+    filt = preset.build(clean.observations.camera, seed=0, cache=tmp_path)
+    return filt, filt.run(observations, clean.motion)
+
+
+def test_the_unscented_filter_gates_a_frame_of_gross_detections_and_stays_on_the_body(tmp_path):
+    """One frame whose every detection jumped 400 px (issue 21, item 6): inside the image, so the
+    observation model's gate keeps it, and without a validation gate the update drags the body into
+    a wrong 3D pose it never leaves. The innovation gate leaves the frame out and the run stays
+    with the clean one."""
+    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.tracking import track
+
+    clean = track("cmu:07_10", load_preset("ukf-diffusion-local"), "noise", seed=0, frames=40, cache=tmp_path)
+    jumped = clean.observations.uv.copy()
+    jumped[10] += [400.0, 0.0]
+    off_by = {}
+    for p in (0.0, 1e-4):
+        _, run = _ukf_run(clean, jumped, tmp_path, gate_probability=p)
+        off_by[p] = np.linalg.norm(run.estimates - clean.track.estimates, axis=-1).mean(-1)[11:]
+        assert ("innovation-gated" in run.flags[10]) == (p > 0)
+        assert not any("innovation-gated" in f for t, f in enumerate(run.flags) if t != 10)
+    assert off_by[0.0].mean() > 0.2
+    assert off_by[1e-4].mean() < 0.15 * off_by[0.0].mean() and off_by[1e-4].max() < 0.1
+
+
+def test_the_unscented_gate_reopens_when_no_detection_fits_the_prediction_any_more(tmp_path):
+    """The detections jump 300 px and stay there (the body really is elsewhere, as after a cut in
+    the video): after GATE_PATIENCE gated frames the gate opens and the filter follows the data."""
+    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.tracking import track
+    from priortrack.filters.ukf import GATE_PATIENCE
+
+    clean = track("cmu:07_10", load_preset("ukf-diffusion-local"), "noise", seed=0, frames=40, cache=tmp_path)
+    moved = clean.observations.uv.copy()
+    moved[10:] += [300.0, 0.0]
+    filt, run = _ukf_run(clean, moved, tmp_path)
+    gated = [t for t, f in enumerate(run.flags) if "innovation-gated" in f]
+    assert gated[:GATE_PATIENCE] == list(range(10, 10 + GATE_PATIENCE))
+    assert "gate-reopened" in run.flags[10 + GATE_PATIENCE]
+    uv, _ = filt.model.likelihood.camera.project(torch.as_tensor(run.estimates[-10:]))
+    assert np.nanmean(np.linalg.norm(uv.numpy() - moved[-10:], axis=-1)) < 30
+
+
+def test_the_validation_gate_probability_is_checked():
+    from priortrack.filters.ukf import UnscentedFilter
+    from linear_gaussian import LinearGaussian
+
+    with pytest.raises(PriortrackError, match=r"gate_probability must be in \[0, 1\)"):
+        UnscentedFilter(LinearGaussian(np.eye(2), np.eye(2), np.eye(2), np.eye(2)), gate_probability=1.0)
+
+
+@pytest.mark.parametrize("preset", ["pf-diffusion-local", "apf-diffusion-local", "ukf-diffusion-local", "map-gpdm"])
+@pytest.mark.parametrize("observation", [{"sigma_px": 0.01}, {"sigma_px": 1e4}, {"sigma_px": 0.01, "robust_nu": 0.1},
+                                         {"sigma_px": 1e4, "robust_nu": 1e6}])
+def test_filters_give_finite_estimates_at_the_ends_of_the_noise_range(preset, observation, tmp_path):
+    """Every frame of finite data gets a finite estimate at the smallest and largest σ_px and ν the
+    likelihood accepts (issue 21, item 5), on noisy data with outliers (log-weights underflow at
+    σ = 0.01 px: the filters work in log space and flag it)."""
+    from dataclasses import replace
+
+    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.tracking import track
+
+    chosen = replace(load_preset(preset), observation=observation)
+    try:
+        run = track("cmu:07_10", chosen, "outliers:sigma_px=5", seed=0, frames=8, cache=tmp_path)
+    except PriortrackError as error:   # a filter that needs a Gaussian likelihood says so
+        assert "robust_nu" in observation and "robust_nu" in str(error)
+        return
+    assert np.isfinite(run.track.estimates).all()

@@ -143,7 +143,7 @@ def test_bad_input_is_refused(linear):
         ukf.initialise_states(np.zeros(4), np.eye(3))
     with pytest.raises(PriortrackError, match="NaN"):
         ukf.initialise_states(np.zeros(3), np.full((3, 3), np.nan))
-    with pytest.raises(PriortrackError, match="Bare lacks tangent_dim, observation_shape, mean_step, measure"):
+    with pytest.raises(PriortrackError, match="Bare lacks tangent_dim, observation_shape, measurement_block, mean_step, measure"):
         UnscentedFilter(object.__new__(type("Bare", (), {"dim": 3})))
 
 

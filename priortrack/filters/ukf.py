@@ -59,6 +59,22 @@ at ``EIGEN_FLOOR`` × its largest (flagged "covariance-repaired"); a non-finite 
 never a NaN estimate. An observed joint that some sigma point puts behind the camera (no
 projection) is left out of that frame's update (flagged "behind-camera").
 
+**Validation gate** (Bar-Shalom, Li & Kirubarajan, *Estimation with Applications to Tracking*, §5.7).
+One gross detection, or a few frames of them, pulls a Kalman update far off, and a single
+camera cannot tell afterwards whether the body moved or bent: the filter settles in a wrong 3D
+pose that reprojects well and never comes back (a 400 px jump of one frame left ukf-diffusion-local
+300–500 mm off for 50 frames). So each observed point k (a joint in one camera: its
+``measurement_block`` coordinates) is tested against the predicted measurement before the update:
+
+    d²_k = (z_k − ẑ_k)ᵀ S_kk⁻¹ (z_k − ẑ_k),   S_kk its block of S,
+
+and left out of the update when d²_k > χ²_b(1 − p_gate), the quantile at which a point the model
+predicts correctly is rejected with probability p_gate (flagged "innovation-gated"). Gated
+frames add no information, so P grows by Q each frame and S with it: a filter that lost the
+body widens its own gate. Should every observed point still fail the gate ``GATE_PATIENCE``
+frames in a row, the next frame is taken ungated (flagged "gate-reopened"): the data win over a
+prediction that no longer explains any of them.
+
 Only a Gaussian filter: a robust (Student-t) likelihood has no R, and the Lie prior's transition
 (a mixture) has no single noise covariance; both are refused with a PriortrackError (use the
 particle filter).
@@ -72,6 +88,7 @@ import time
 import numpy as np
 import torch
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
+from scipy.stats import chi2
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
@@ -90,8 +107,12 @@ COPY_JITTER = 1e-10
 EIGEN_FLOOR = 1e-9
 #: Van der Merwe's sigma-point parameters (defaults): spread α, prior knowledge β, κ.
 ALPHA, BETA, KAPPA = 0.5, 2.0, 0.0
+#: Probability that the validation gate rejects a point the model predicts correctly (module docstring).
+GATE_PROBABILITY = 1e-4
+#: Consecutive frames whose every observed point fails the gate before one is taken ungated.
+GATE_PATIENCE = 3
 #: What the filter needs of a model that is not a TrackingModel (the linear-Gaussian test model keeps it).
-UNSCENTED_INTERFACE = ("dim", "tangent_dim", "observation_shape", "mean_step", "measure", "observe",
+UNSCENTED_INTERFACE = ("dim", "tangent_dim", "observation_shape", "measurement_block", "mean_step", "measure", "observe",
                        "process_covariance", "measurement", "gate", "boxplus", "boxminus", "sigma_mean", "transport")
 
 
@@ -131,8 +152,12 @@ class UnscentedTracking:
     tangent coordinates of full states (⊞, ⊟, the change of coordinates between base points), the
     noise-free measurement h and the noise covariances Q and R (module docstring).
 
-    Shapes: states (N, A), A = S + 12; tangent vectors (N, n), n = n_x + 12; measurements (N, 30).
+    Shapes: states (N, A), A = S + 12; tangent vectors (N, n), n = n_x + 12; measurements (N, m),
+    m = 2 · joints · cameras, the (u, v) of one joint in one camera adjacent.
     """
+
+    #: Coordinates of one observed point (a joint's u, v in one camera): what the gate tests together.
+    measurement_block = 2
 
     def __init__(self, model: TrackingModel):
         prior, likelihood = model.prior, model.likelihood
@@ -333,6 +358,7 @@ class UnscentedFilter(SequentialFilter):
             ``UNSCENTED_INTERFACE``.
         alpha, beta, kappa: Van der Merwe's sigma-point parameters (filterpy's).
         batched: f and h on all sigma points as one batch (True) or per point (filterpy's loop).
+        gate_probability: p_gate of the validation gate (module docstring); 0 turns the gate off.
 
     It runs on the CPU in float64 (filterpy works in numpy): the model's tensors must be there.
 
@@ -343,17 +369,21 @@ class UnscentedFilter(SequentialFilter):
     #: What the filter needs of a prior (priortrack.priors.registry): one Gaussian transition.
     requires = "gaussian"
 
-    def __init__(self, model, alpha: float = ALPHA, beta: float = BETA, kappa: float = KAPPA, batched: bool = True):
+    def __init__(self, model, alpha: float = ALPHA, beta: float = BETA, kappa: float = KAPPA, batched: bool = True,
+                 gate_probability: float = GATE_PROBABILITY):
         if not alpha > 0:
             raise PriortrackError(f"alpha must be positive, got {alpha}")
+        if not 0 <= gate_probability < 1:
+            raise PriortrackError(f"gate_probability must be in [0, 1), got {gate_probability}")
         self.model = model
         self.unscented = unscented_form(model)
         n = self.unscented.tangent_dim
         if not n + kappa > 0:
             raise PriortrackError(f"kappa must exceed −n = {-n}, got {kappa}")
         self.kf = BatchedUKF(self.unscented, ManifoldSigmaPoints(self.unscented, alpha, beta, kappa), batched)
+        self.gate_probability = gate_probability
         self.initialised = False
-        self.frame = 0
+        self.frame, self.gated_frames = 0, 0
 
     @property
     def mean(self) -> torch.Tensor:
@@ -381,7 +411,7 @@ class UnscentedFilter(SequentialFilter):
         if not (np.isfinite(mean).all() and np.isfinite(covariance).all()):
             raise PriortrackError("initial mean or covariance contains NaN or inf")
         self.kf.x, self.kf.P = mean, covariance
-        self.initialised, self.frame = True, frame
+        self.initialised, self.frame, self.gated_frames = True, frame, 0
 
     def step(self, z) -> Snapshot:
         """Consume the observation z of the next frame (``observation_shape``, NaN where missing).
@@ -440,8 +470,47 @@ class UnscentedFilter(SequentialFilter):
             flags.append("no-observation")
             kf.update(None)
             return
+        usable = self._validated(z, R, predicted, usable, flags)
+        if not usable.any():
+            kf.update(None)
+            return
         x_prior = kf.x.copy()
         kf.update(z[usable], R=R[np.ix_(usable, usable)], UT=unscented_transform, hx=_Rows(predicted[:, usable]))
         gamma = self.unscented.transport(torch.from_numpy(x_prior), torch.from_numpy(kf.x)).numpy()
         kf.P, repaired = repaired_covariance(gamma @ kf.P @ gamma.T)
         kf.repairs += repaired
+
+    def _validated(self, z: np.ndarray, R: np.ndarray, predicted: np.ndarray, usable: np.ndarray,
+                   flags: list[str]) -> np.ndarray:
+        """The validation gate (module docstring): ``usable`` (m,) without the points whose
+        d²_k = ν_kᵀ S_kk⁻¹ ν_k exceeds χ²_b(1 − p_gate), ν = z − ẑ, S_kk = Σ_i Wc_i (Z_ik − ẑ_k)(Z_ik − ẑ_k)ᵀ
+        + R_kk, from the sigma points' measurements ``predicted`` (2n + 1, m)."""
+        if self.gate_probability == 0:
+            return usable
+        b = self.unscented.measurement_block
+        columns = np.flatnonzero(usable)
+        Z = predicted[:, columns].reshape(len(predicted), -1, b)                    # (2n + 1, K, b)
+        z_hat = np.einsum("i,ikc->kc", self.kf.Wm, Z)
+        r = Z - z_hat
+        R_blocks = R[np.ix_(columns, columns)].reshape(-1, b, len(columns) // b, b).diagonal(axis1=0, axis2=2)
+        S = np.einsum("i,ikc,ikd->kcd", self.kf.Wc, r, r) + R_blocks.transpose(2, 0, 1)
+        nu = z[columns].reshape(-1, b) - z_hat
+        d2 = np.einsum("kc,kc->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+        rejected = d2 > chi2.isf(self.gate_probability, b)
+        if not rejected.any():
+            self.gated_frames = 0
+            return usable
+        if rejected.all():
+            self.gated_frames += 1
+            if self.gated_frames > GATE_PATIENCE:
+                self.gated_frames = 0
+                flags.append("gate-reopened")
+                return usable
+        else:
+            self.gated_frames = 0
+        flags.append("innovation-gated")
+        log.debug("frame %d: %d of %d observed points outside the validation gate", self.frame + 1,
+                  int(rejected.sum()), len(rejected))
+        kept = usable.copy()
+        kept[columns.reshape(-1, b)[rejected].ravel()] = False
+        return kept
