@@ -23,6 +23,10 @@ class LinearGaussian:
         noise = torch.randn(s.shape, generator=generator, dtype=s.dtype) @ self.LQ.T
         return s @ self.A.T + noise
 
+    def log_transition(self, s_next, s):
+        """(B,) log N(s_next; A s, Q) of rows s_next, s (B, n)."""
+        return torch.distributions.MultivariateNormal(s @ self.A.T, self.Q).log_prob(s_next)
+
     def mean_step(self, s):
         return s @ self.A.T
 
@@ -78,3 +82,17 @@ def kalman(model, m0, P0, zs):
             K = np.linalg.solve(S, Hs @ P).T
             m, P = m + K @ (z[seen] - Hs @ m), P - K @ S @ K.T
     return m, P
+
+
+def kalman_rts(model, m0, P0, zs):
+    """The Rauch–Tung–Striebel smoother's (means (T, n), covariances (T, n, n)) of the states after
+    each observation in zs (T, m), NaN = missing, from the Kalman filter's posteriors."""
+    A, Q = model.A.numpy(), model.Q.numpy()
+    filtered = [kalman(model, m0, P0, zs[:t + 1]) for t in range(len(zs))]
+    means, covariances = [filtered[-1][0]], [filtered[-1][1]]
+    for m, P in reversed(filtered[:-1]):
+        P_pred = A @ P @ A.T + Q
+        G = P @ A.T @ np.linalg.inv(P_pred)
+        means.append(m + G @ (means[-1] - A @ m))
+        covariances.append(P + G @ (covariances[-1] - P_pred) @ G.T)
+    return np.array(means[::-1]), np.array(covariances[::-1])

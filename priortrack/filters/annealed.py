@@ -135,3 +135,8 @@ class AnnealedParticleFilter(ParticleFilter):
         scale = shrink ** 0.5
         x = space.boxplus(x, space.tangent_noise(x, scale * std_x, self.generator))
         return torch.cat([x, GlobalMotion.perturb(g, scale * std_g, self.generator), g_prev], -1)
+
+    def smooth_window(self, *_args, **_options):
+        """Refused: the tempered weights p(z | s)^β of a stochastic search are not a posterior to smooth."""
+        raise PriortrackError("the annealed particle filter's weights are tempered (p(z | s)^β), not a posterior: it has "
+                              "no smoother; smooth the particle filter or the unscented filter")

@@ -115,3 +115,53 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
     log_det = torch.log(torch.diagonal(lu, dim1=-2, dim2=-1).abs()).sum(dim=-1)       # det N > 0
     correction = 0.5 * (b[:, None, :] @ P @ y[..., None])[:, 0, 0] - 0.5 * log_det
     return shift, C_post, log_p + correction
+
+
+def transition_matrix(velocity: torch.Tensor) -> torch.Tensor:
+    """F (6, 6) = [[I + V, −V], [I, 0]] of τ = (t_t, t_{t−1}), V = diag v (module docstring)."""
+    V = torch.diag(velocity)
+    eye = torch.eye(3, dtype=velocity.dtype, device=velocity.device)
+    return torch.cat([torch.cat([eye + V, -V], 1), torch.cat([eye, torch.zeros_like(eye)], 1)])
+
+
+def smooth_translation(model, states: torch.Tensor, covariance: torch.Tensor, observations) -> torch.Tensor:
+    """The Rao–Blackwellised translation of drawn trajectories: for each trajectory's poses and
+    rotations, the Kalman filter of τ (module docstring) forward over the frames, then the
+    Rauch–Tung–Striebel smoother backward,
+
+        τ^s_k = μ_k + G_k (τ^s_{k+1} − F μ_k),   G_k = C_k Fᵀ (F C_k Fᵀ + Q)⁺
+
+    (a pseudo-inverse: a start known exactly has C = 0 and no gain).
+
+    Args:
+        model: the TrackingModel.
+        states: (M, W, S + 12) trajectories; their first frame's translations are that frame's
+            Kalman means μ_0, the later frames' are replaced.
+        covariance: (M, 6, 6) C_0 of the first frame.
+        observations: (W, *observation_shape), the frames' data (gated as the filter gates them).
+
+    Returns:
+        (M, W, 6) the smoothed τ_k = (t_k, t_{k−1}).
+    """
+    motion = model.global_motion
+    sigma, velocity = motion.sigma[:3].to(states), motion.velocity.to(states)
+    F = transition_matrix(velocity)
+    mu, C = model.translation(states[:, 0]), covariance.to(states)
+    means, covariances = [mu], [C]
+    for k in range(1, states.shape[1]):
+        mu = mu @ F.T
+        z = torch.as_tensor(observations[k], dtype=states.dtype, device=states.device)
+        z = model.gate(z)[0].to(z)
+        if torch.isfinite(z).any():
+            joints = model.observe(model.with_translation(states[:, k], mu))
+            shift, C, _ = kalman_update(joints, C, sigma, velocity, z, model.likelihood)
+            mu = mu + shift
+        else:
+            C = predict_covariance(C, sigma, velocity)
+        means.append(mu)
+        covariances.append(C)
+    smoothed = [means[-1]]
+    for mu, C in zip(reversed(means[:-1]), reversed(covariances[:-1])):
+        gain = C @ F.T @ torch.linalg.pinv(predict_covariance(C, sigma, velocity), hermitian=True)
+        smoothed.append(mu + (gain @ (smoothed[-1] - mu @ F.T)[..., None])[..., 0])
+    return torch.stack(smoothed[::-1], 1)

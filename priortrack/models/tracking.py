@@ -69,13 +69,31 @@ class TrackingModel:
         g_t = self.global_motion.sample(g, g_prev, generator, translation=translation)
         return torch.cat([self.prior.sample(x, generator), g_t, g], -1)
 
-    def shift_translation(self, s: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
-        """s (P, S + 12) with t_t moved by shift[:, :3] and t_{t-1} by shift[:, 3:] (P, 6)."""
+    def log_transition(self, s_next: torch.Tensor, s: torch.Tensor, translation: bool = True) -> torch.Tensor:
+        """(P,) log p(x_t, g_t | s_{t-1}) of the new parts of s_next = [x_t, g_t, ·] (P, S + 12) given
+        s = s_{t-1} (P, S + 12): prior.log_prob(x_t, x_{t-1}) + GlobalMotion.log_prob(g_t | g_{t-1},
+        g_{t-2}) (without the translation's factor when ``translation=False``). s_next's copy of
+        g_{t-1} is not compared with s's: a backward pass re-joins trajectories by this density."""
+        x_next, g_next, _ = self.split(s_next)
+        x, g, g_prev = self.split(s)
+        return self.prior.log_prob(x_next, x) + self.global_motion.log_prob(g_next, g, g_prev, translation)
+
+    def with_translation(self, s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """s (P, S + 12) with t_t and t_{t-1} replaced by t[:, :3] and t[:, 3:] (P, 6)."""
         S = self.pose_dim
         out = s.clone()
-        out[:, S:S + 3] += shift[:, :3].to(s)
-        out[:, S + GLOBAL_DIM:S + GLOBAL_DIM + 3] += shift[:, 3:].to(s)
+        out[:, S:S + 3] = t[:, :3].to(s)
+        out[:, S + GLOBAL_DIM:S + GLOBAL_DIM + 3] = t[:, 3:].to(s)
         return out
+
+    def translation(self, s: torch.Tensor) -> torch.Tensor:
+        """(P, S + 12) → (t_t, t_{t-1}) (P, 6)."""
+        S = self.pose_dim
+        return torch.cat([s[:, S:S + 3], s[:, S + GLOBAL_DIM:S + GLOBAL_DIM + 3]], -1)
+
+    def shift_translation(self, s: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+        """s (P, S + 12) with t_t moved by shift[:, :3] and t_{t-1} by shift[:, 3:] (P, 6)."""
+        return self.with_translation(s, self.translation(s) + shift.to(s))
 
     def mean_step(self, s: torch.Tensor) -> torch.Tensor:
         """The deterministic mean step (the unscented filter's fx)."""

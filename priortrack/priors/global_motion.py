@@ -174,14 +174,17 @@ class GlobalMotion:
         the heading + η_ψ and the tilt + η_τ."""
         return _perturbed(*_split(g), std, generator)
 
-    def log_prob(self, g: torch.Tensor, g1: torch.Tensor, g2: torch.Tensor) -> torch.Tensor:
-        """(P,) log p(g_t | g_{t-1}, g_{t-2}), the Gaussian density of the residual.
+    def log_prob(self, g: torch.Tensor, g1: torch.Tensor, g2: torch.Tensor, translation: bool = True) -> torch.Tensor:
+        """(P,) log p(g_t | g_{t-1}, g_{t-2}), the Gaussian density of the residual; with
+        ``translation=False`` the rotation's factor only, log p(τ_x, ψ, τ_z | g_{t-1}, g_{t-2}) (for a
+        filter that integrates the translation out).
 
         The density is over (t, τ_x, ψ, τ_z), whose map to (t, ω) is smooth and one to one away
         from an upside-down body, so it ranks placements as the model does."""
         r = self.residual(g, g1, g2)
         var = (self.sigma ** 2).to(r)
-        return (-0.5 * r * r / var - 0.5 * torch.log(2 * math.pi * var)).sum(dim=-1)
+        terms = -0.5 * r * r / var - 0.5 * torch.log(2 * math.pi * var)
+        return (terms if translation else terms[..., 3:]).sum(dim=-1)
 
     def rotation_covariance(self, g: torch.Tensor) -> torch.Tensor:
         """(P, 3, 3) covariance of the rotation noise at placements g (P, 6) as a world-frame

@@ -1,0 +1,55 @@
+"""The unscented Rauch–Tung–Striebel smoother (Särkkä, IEEE TAC 53(3), 2008) on the unscented
+filter's manifold states: the best Gaussian estimate of each frame given every frame.
+
+Input: the filter's posteriors (m_k, P_k), k = 0 … T − 1, P_k in the tangent coordinates at m_k
+(:class:`~priortrack.filters.snapshot.Snapshot`'s ``mean`` and ``covariance``). Backwards from
+(m^s_{T−1}, P^s_{T−1}) = (m_{T−1}, P_{T−1}), with the filter's own sigma points χ_i = m_k ⊞ ξ_i,
+the mean step f and the process noise Q(m_k) (its prediction, repeated):
+
+    m⁻ = mean of f(χ_i),   P⁻ = Σ_i Wc_i (f(χ_i) ⊟ m⁻)(f(χ_i) ⊟ m⁻)ᵀ + Q(m_k),
+    D  = Σ_i Wc_i (χ_i ⊟ m_k)(f(χ_i) ⊟ m⁻)ᵀ,        G = D (P⁻)⁻¹,
+    m^s_k = m_k ⊞ G (m^s_{k+1} ⊟ m⁻),
+    P^s_k = Γ_k (P_k + G (Γ' P^s_{k+1} Γ'ᵀ − P⁻) Gᵀ) Γ_kᵀ,
+
+with Γ' the change of tangent coordinates from m^s_{k+1} to m⁻ and Γ_k from m_k to m^s_k (the
+identity in a Euclidean space; on the spheres the parallel transport of the bases): every
+covariance is combined in one chart, then moved to the point it belongs to. On a linear-Gaussian
+model the unscented transform is exact and this is the Kalman RTS smoother.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from priortrack.errors import PriortrackError
+from priortrack.filters.ukf import ManifoldSigmaPoints, repaired_covariance
+
+
+def unscented_rts(model, points: ManifoldSigmaPoints, means: list[np.ndarray],
+                  covariances: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The smoothed (m^s_k (A,), P^s_k (n, n)) of the filtered ``means`` and ``covariances`` (module
+    docstring), for a model in the unscented filter's form (``UNSCENTED_INTERFACE``) and its sigma points."""
+    if len(means) != len(covariances) or not means:
+        raise PriortrackError(f"{len(means)} means and {len(covariances)} covariances: expected as many, at least one")
+    smoothed_means, smoothed_covariances = [means[-1]], [covariances[-1]]
+    Wm, Wc = torch.from_numpy(points.Wm), points.Wc
+    for m, P in zip(reversed(means[:-1]), reversed(covariances[:-1])):
+        m_t = torch.from_numpy(m)
+        chi = torch.from_numpy(points.sigma_points(m, P))
+        chi_next = model.mean_step(chi)
+        m_pred = model.sigma_mean(chi_next, Wm)
+        r_next = model.boxminus(chi_next, m_pred).numpy()
+        r = model.boxminus(chi, m_t).numpy()
+        P_pred = (r_next.T * Wc) @ r_next + model.process_covariance(m_t).numpy()
+        D = (r.T * Wc) @ r_next
+        G = np.linalg.solve(P_pred.T, D.T).T
+        m_s_next = torch.from_numpy(smoothed_means[-1])
+        into_pred = model.transport(m_s_next, m_pred).numpy()
+        innovation = model.boxminus(m_s_next[None], m_pred)[0].numpy()
+        m_s = model.boxplus(m_t[None], torch.from_numpy(G @ innovation)[None])[0]
+        P_s = P + G @ (into_pred @ smoothed_covariances[-1] @ into_pred.T - P_pred) @ G.T
+        onto = model.transport(m_t, m_s).numpy()
+        smoothed_means.append(m_s.numpy())
+        smoothed_covariances.append(repaired_covariance(onto @ P_s @ onto.T)[0])
+    return smoothed_means[::-1], smoothed_covariances[::-1]
