@@ -161,20 +161,33 @@ def _track(args: argparse.Namespace) -> None:
     progress = _Progress(f"track {args.filter}", "frame {0} of {1}")
     try:
         run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd),
-                    progress=progress, frames=args.frames)
+                    progress=progress, frames=args.frames, **_smoothing(args))
     finally:
         progress.close()
     if args.rrd:
-        replay(run.motion, run.observations, args.rrd, track=run.track)
+        replay(run.motion, run.observations, args.rrd, track=run.track,
+               smoothed=None if run.smoothed is None else run.smoothed.estimates)
     if args.json:
         _print_json(run.result)
         return
     r = run.result
+    lag = "" if r.get("lag") is None else f" (lag {r['lag']})"
+    smoothed = f" smoothed{lag}, filtered {r['filtered_mpjpe_mm']:.1f} mm" if "filtered_mpjpe_mm" in r else ""
     print(f"{r['filter']} on {r['motion']} ({r['frames']} frames, scenario {r['scenario']}, seed {r['seed']}): "
-          f"MPJPE {r['mpjpe_mm']:.1f} mm, root-relative {r['mpjpe_root_rel_mm']:.1f} mm, 2D {r['err2d_px']:.1f} px, "
+          f"MPJPE {r['mpjpe_mm']:.1f} mm{smoothed}, root-relative {r['mpjpe_root_rel_mm']:.1f} mm, 2D {r['err2d_px']:.1f} px, "
           f"{1000 * r['seconds_per_frame']:.0f} ms/frame"
           + (f", mean ESS {r['mean_ess']:.0f}" if r["mean_ess"] is not None else "")
           + (f"; wrote {args.rrd}" if args.rrd else ""))
+
+
+def _smoothing(args: argparse.Namespace) -> dict:
+    """track's smoothing arguments: --smooth, or a --lag (which implies it), and --trajectories."""
+    if args.lag is not None and args.lag < 0:
+        raise PriortrackError(f"--lag must be a whole number of frames ≥ 0, got {args.lag}")
+    if args.trajectories is not None and args.trajectories < 1:
+        raise PriortrackError(f"--trajectories must be positive, got {args.trajectories}")
+    chosen = {"trajectories": args.trajectories} if args.trajectories is not None else {}
+    return {"smooth": args.smooth or args.lag is not None, "lag": args.lag, **chosen}
 
 
 def _skeleton(path: str):
@@ -223,7 +236,7 @@ def _track_detections(args: argparse.Namespace) -> None:
         result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
                                   camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
                                   keep_snapshots=bool(args.rrd), progress=progress, height=args.height,
-                                  skeleton=skeleton)
+                                  skeleton=skeleton, **_smoothing(args))
     finally:
         progress.close()
     written = [str(result.save(path)) for path in args.out or []]
@@ -299,9 +312,19 @@ def _eval_loglik(args: argparse.Namespace) -> None:
 def _eval_real_format(args: argparse.Namespace) -> None:
     from priortrack.experiments.real_format import eval_real_format
 
-    result = eval_real_format(args.presets, args.motions, args.seeds, cameras=args.cameras)
+    result = eval_real_format(args.presets, args.motions, args.seeds, cameras=args.cameras, smooth=args.smooth)
     if args.json:
         _print_json(result)
+        return
+    if args.smooth:
+        print(f"real-format input ({result['cameras']} cameras), smoothed vs filtered, world MPJPE shoulders to ankles "
+              f"(mm) and jitter (mean joint acceleration, mm per tick²), mean over {len(args.motions)} walks × "
+              f"{args.seeds} seeds")
+        print("| preset | smoothed | filtered | ratio | jitter smoothed | filtered | mocap truth |")
+        print("|---|---|---|---|---|---|---|")
+        for name, row in result["table"].items():
+            print(f"| {name} | {row['mpjpe_mm']:.1f} | {row['filtered_mm']:.1f} | {row['mpjpe_mm'] / row['filtered_mm']:.2f} "
+                  f"| {row['jitter_mm']:.2f} | {row['filtered_jitter_mm']:.2f} | {row['truth_jitter_mm']:.2f} |")
         return
     print(f"real-format input ({result['cameras']} of the Pose2Sim demo's cameras, detector errors), world MPJPE "
           f"shoulders to ankles, mm, mean over {len(args.motions)} walks × {args.seeds} seeds")
@@ -362,6 +385,30 @@ def _bench_real_track(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.real_track import bench_real_track
 
     _print_json(bench_real_track(frames=args.frames, preset=args.filter, seed=args.seed))
+
+
+def _bench_smooth(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.smooth import bench_smooth
+
+    _print_json(bench_smooth(args.presets, frames=args.frames, trajectories=args.trajectories, seed=args.seed))
+
+
+def _eval_smoothing(args: argparse.Namespace) -> None:
+    from priortrack.experiments.smoothing import eval_smoothing
+
+    result = eval_smoothing(args.presets, args.motions, args.seeds)
+    if args.json:
+        _print_json(result)
+        return
+    print(f"smoothed vs filtered, {result['scenario']}, world MPJPE (mm), mean over {len(args.motions)} held-out "
+          f"walks × {args.seeds} seeds (ratio = smoothed / filtered; worst = the worst walk's blackout ratio)")
+    print("| preset | blackout filtered | smoothed | ratio | worst | clean filtered | smoothed | ratio | "
+          "s forward | s smoothing |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, r in result["table"].items():
+        print(f"| {name} | {r['filtered_blackout_mm']:.1f} | {r['smoothed_blackout_mm']:.1f} | {r['blackout_ratio']:.2f} "
+              f"| {r['worst_blackout_ratio']:.2f} | {r['filtered_clean_mm']:.1f} | {r['smoothed_clean_mm']:.1f} "
+              f"| {r['clean_ratio']:.2f} | {r['forward_seconds']:.1f} | {r['smoothing_seconds']:.1f} |")
 
 
 def _bench_fk(args: argparse.Namespace) -> None:
@@ -484,6 +531,11 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--seed", type=int, default=0, help="seeds the observations and the filter")
     track.add_argument("--frames", type=int, help="track only the first N frames (at the prior's rate)")
     track.add_argument("--rrd", help="also write a rerun recording: truth, estimate, particle cloud, 2D observations")
+    track.add_argument("--smooth", action="store_true",
+                       help="also smooth the run: each frame's estimate given every frame (outputs the smoothed joints)")
+    track.add_argument("--lag", type=int, help="fixed-lag smoothing: frame t − LAG estimated at frame t (implies --smooth)")
+    track.add_argument("--trajectories", type=int,
+                       help="smoothed trajectories a particle smoother draws (default 100)")
     track.add_argument("--json", action="store_true")
     track.set_defaults(run=_track)
 
@@ -512,6 +564,13 @@ def build_parser() -> argparse.ArgumentParser:
     real_track.add_argument("--seed", type=int, default=0)
     real_track.add_argument("--json", action="store_true", help="(the output is always JSON)")
     real_track.set_defaults(run=_bench_real_track)
+    smooth = bench.add_parser("smooth", help="the smoother's time against the forward pass it smooths")
+    smooth.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-gpdm"])
+    smooth.add_argument("--frames", type=int, default=100)
+    smooth.add_argument("--trajectories", type=int, default=100)
+    smooth.add_argument("--seed", type=int, default=0)
+    smooth.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    smooth.set_defaults(run=_bench_smooth)
 
     plot = verbs.add_parser("plot", help="a GPDM's latent trajectories over its log reconstruction variance")
     plot.add_argument("prior", help="a gpdm or bgpdm prior file")
@@ -537,8 +596,17 @@ def build_parser() -> argparse.ArgumentParser:
     real.add_argument("--motions", nargs="+", default=["walkjog:35_29", "cmu:07_10", "cmu:07_11"])
     real.add_argument("--seeds", type=int, default=1)
     real.add_argument("--cameras", type=int, nargs="+", help="indices of the calibration's cameras to use (all 4)")
+    real.add_argument("--smooth", action="store_true", help="smooth each run: smoothed vs filtered error and jitter "
+                                                            "(the particle and unscented presets)")
     real.add_argument("--json", action="store_true")
     real.set_defaults(run=_eval_real_format)
+    smoothing = evaluate.add_parser("smoothing", help="smoothed vs filtered through a blackout on held-out walks")
+    smoothing.add_argument("--presets", nargs="+",
+                           default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-diffusion-local", "ukf-gpdm"])
+    smoothing.add_argument("--motions", nargs="+", default=["walkjog:35_29", "cmu:07_10", "cmu:07_11"])
+    smoothing.add_argument("--seeds", type=int, default=1)
+    smoothing.add_argument("--json", action="store_true")
+    smoothing.set_defaults(run=_eval_smoothing)
     loo = evaluate.add_parser("leave-one-out", help="real detections: track from 3 cameras, reproject into the 4th")
     loo.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "apf-diffusion-local", "pf-gpdm", "pf-lie",
                                                       "ukf-diffusion-local", "ukf-gpdm", "map-gpdm", "ukf-real"])

@@ -58,6 +58,7 @@ from priortrack.data.detections import Detections
 from priortrack.data.motion import Motion
 from priortrack.data.skeleton import Skeleton
 from priortrack.data.trc import write_trc
+from priortrack.filters.smoothing import TRAJECTORIES, smooth as smooth_run
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
@@ -137,6 +138,10 @@ class DetectionTrack:
     snapshots: list | None = field(default=None, repr=False)
     #: Camera-ticks whose person disagreed with the other cameras' (left out).
     cross_view_rejections: int = 0
+    #: Smoothed runs (``smooth=True``): ``joints``, ``spread`` and the BVH's body joints are the
+    #: smoother's, the filter's own joints (T, 15, 3) are kept here; ``lag`` the fixed lag (None: whole run).
+    filtered_joints: np.ndarray | None = field(default=None, repr=False)
+    lag: int | None = None
 
     @property
     def mismatch_fraction(self) -> float:
@@ -147,16 +152,19 @@ class DetectionTrack:
         return {"filter": self.filter, "frames": int(len(self.joints)), "fps": self.fps, "seconds": self.seconds,
                 "reprojection_px": {n: float(e) for n, e in zip(self.camera_names, self.reprojection_px)},
                 "mismatch_fraction": self.mismatch_fraction, "cross_view_rejections": self.cross_view_rejections,
-                "mean_ess": float(np.nanmean(self.ess)) if np.isfinite(self.ess).any() else None}
+                "mean_ess": float(np.nanmean(self.ess)) if np.isfinite(self.ess).any() else None,
+                "smoothed": self.filtered_joints is not None, "lag": self.lag}
 
     def save_npz(self, path: str | Path) -> Path:
         """``joints`` (T, 15, 3) float64 metres in the calibration's world, ``joint_names``, ``fps``,
-        ``frames`` (T,), ``spread`` (T, 15), ``ess`` (T,), ``loglik`` (T,), ``mismatch`` (T,) bool."""
+        ``frames`` (T,), ``spread`` (T, 15), ``ess`` (T,), ``loglik`` (T,), ``mismatch`` (T,) bool; a smoothed
+        run adds ``filtered_joints`` (T, 15, 3), the filter's own (``joints`` and ``spread`` are the smoother's)."""
         path = output_path(path, "result file")
+        smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints.astype(np.float64)}
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints.astype(np.float64), joint_names=np.array(EVAL15_NAMES),
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,
-                     ess=self.ess, loglik=self.loglik, mismatch=self.mismatch.astype(bool))
+                     ess=self.ess, loglik=self.loglik, mismatch=self.mismatch.astype(bool), **smoothed)
         return path
 
     def save_csv(self, path: str | Path) -> Path:
@@ -249,11 +257,14 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                      fps: float | None = None, up: str | None = None, camera_map: dict[str, str] | None = None,
                      min_confidence: float = 0.3, seed: int = 0, cache=None, keep_snapshots: bool = False,
                      height: float = 1.7, skeleton: Skeleton | None = None,
-                     progress: Callable[[int, int], None] | None = None) -> DetectionTrack:
+                     progress: Callable[[int, int], None] | None = None, smooth: bool = False,
+                     lag: int | None = None, trajectories: int = TRAJECTORIES) -> DetectionTrack:
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
     (module docstring). ``fps``: the detections' frame rate (if the file does not say it); ``height``:
     the person's standing height in metres, which sets the body's size and depth from one camera;
-    ``skeleton``: the person's own body (an ASF or BVH skeleton) instead of the scaled template."""
+    ``skeleton``: the person's own body (an ASF or BVH skeleton) instead of the scaled template;
+    ``smooth``: also smooth the run (with a fixed ``lag``, or over the whole run) and give the smoothed
+    joints (:mod:`priortrack.filters.smoothing`)."""
     start_time = time.perf_counter()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     data_fps = fps if fps is not None else detections.fps
@@ -322,19 +333,27 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     spread, loglik = np.full((T, 15), np.nan), np.full(T, np.nan)
     for s in run.snapshots:
         spread[s.frame] = _spread(s)
+    smoothed = smooth_run(filt, run, z[first:], trajectories, lag, seed) if smooth else None
+    if smoothed is not None:
+        spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
+    estimates = run.estimates if smoothed is None else smoothed.estimates
     for t in range(T):
         if np.isfinite(run.estimates[t]).all() and np.isfinite(z[first + t, ..., :2]).any():
             loglik[t] = float(model.likelihood.log_likelihood(torch.as_tensor(run.estimates[t])[None],
                                                               torch.as_tensor(z[first + t]))[0])
     mismatch = _mismatch(loglik, z[first:], model.likelihood)
-    joints = np.einsum("ij,tjk->tik", M, run.estimates) @ A      # the detector's definitions, back in the world
+    def world(body: np.ndarray) -> np.ndarray:      # the detector's definitions, back in the world
+        return np.einsum("ij,tjk->tik", M, body) @ A
+
+    joints = world(estimates)
     reprojection = np.array([median_reprojection(cam, joints, uv[c, index[first:]], confidence[c, index[first:]])
                              for c, cam in enumerate(world_cameras)])
     result = DetectionTrack(joints, np.where(index[first:] >= 0, detections.frames[np.maximum(index[first:], 0)], -1),
                             float(prior.fps), spread, np.asarray(run.ess, dtype=float), loglik, mismatch,
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
-                            up, A, skeleton, run.estimates, world_cameras, z[first:],
-                            run.snapshots if keep_snapshots else None, rejected)
+                            up, A, skeleton, estimates, world_cameras, z[first:],
+                            run.snapshots if keep_snapshots else None, rejected,
+                            None if smoothed is None else world(run.estimates), lag if smooth else None)
     if result.mismatch_fraction > 0:
         log.warning("the %s prior explains %.0f%% of the frames (the others are flagged as mismatch); if the motion "
                     "is not what the prior learned, try pf-diffusion-local", preset.prior_kind,

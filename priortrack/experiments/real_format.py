@@ -16,6 +16,9 @@ by :func:`~priortrack.data.detections.read_detections` and tracked by
 MPJPE over the 12 joints from shoulders to ankles, at the ticks the tracker consumed, against the
 mocap's joints (and the same relative to the mid-hips: ``relative_mm``); beside it, per-frame DLT
 triangulation of the same detections, over the same joints where it has them (none from one camera).
+With ``smooth`` the run is smoothed too: the error is the smoothed joints', the filter's own beside it
+(``filtered_mm``), and the jitter of each (the mean joint acceleration ‖X_{t+1} − 2 X_t + X_{t−1}‖ over
+the same joints and consecutive ticks, mm per tick²) beside the mocap truth's.
 """
 
 from __future__ import annotations
@@ -106,10 +109,16 @@ def write_openpose(keypoints: np.ndarray, folder: Path, stem: str = "walk") -> P
     return folder
 
 
+def jitter_mm(J: np.ndarray) -> float:
+    """Mean joint acceleration ‖X_{t+1} − 2 X_t + X_{t−1}‖ (mm per tick²) of joints J (T, K, 3), metres."""
+    return 1000 * float(np.nanmean(np.linalg.norm(np.diff(J, 2, axis=0), axis=-1)))
+
+
 def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibration | None = None,
-                    cameras: list[int] | None = None, cache=None) -> dict:
+                    cameras: list[int] | None = None, cache=None, smooth: bool = False) -> dict:
     """One run of the bench (module docstring): the tracker's and the triangulation's world MPJPE (mm)
-    from shoulders to ankles, with the run's time and mismatch fraction."""
+    from shoulders to ankles, with the run's time and mismatch fraction; smoothed, also the filter's
+    own error and the jitter of both and of the truth."""
     calibration = calibration or read_calibration(DEFAULT_CALIBRATION)
     chosen = list(range(len(calibration.cameras))) if cameras is None else cameras
     calibration = Calibration(tuple(calibration.cameras[c] for c in chosen), calibration.up, calibration.source)
@@ -120,7 +129,8 @@ def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibr
         folder = write_openpose(detector_keypoints(X, views, rng), Path(tmp))
         detections = read_detections(folder, keypoints="body25b")
         start = time.perf_counter()
-        result = track_detections(detections, calibration, preset, fps=DATA_FPS, seed=seed, cache=cache)
+        result = track_detections(detections, calibration, preset, fps=DATA_FPS, seed=seed, cache=cache,
+                                  smooth=smooth)
         seconds = time.perf_counter() - start
     ticks = result.frames >= 0
     truth_all, tracked_all = X[result.frames[ticks]], result.joints[ticks]
@@ -134,7 +144,16 @@ def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibr
     dlt = triangulate(views, uv[:, result.frames[ticks]], confidence[:, result.frames[ticks]])[:, SHOULDERS_TO_ANKLES]
     has = np.isfinite(dlt).all(axis=-1)
     error = np.linalg.norm(tracked - truth, axis=-1)
-    return {"preset": preset, "motion": motion, "seed": seed, "cameras": len(views), "ticks": int(ticks.sum()),
+    smoothed = {}
+    if smooth:
+        filtered = result.filtered_joints[ticks][:, SHOULDERS_TO_ANKLES]
+        run = np.flatnonzero(ticks)
+        run = run[:np.argmax(np.diff(run) != 1) + 1] if (np.diff(run) != 1).any() else run   # consecutive ticks
+        smoothed = {"filtered_mm": 1000 * float(np.linalg.norm(filtered - truth, axis=-1).mean()),
+                    "jitter_mm": jitter_mm(result.joints[run][:, SHOULDERS_TO_ANKLES]),
+                    "filtered_jitter_mm": jitter_mm(result.filtered_joints[run][:, SHOULDERS_TO_ANKLES]),
+                    "truth_jitter_mm": jitter_mm(X[result.frames[run]][:, SHOULDERS_TO_ANKLES])}
+    return {**smoothed, "preset": preset, "motion": motion, "seed": seed, "cameras": len(views), "ticks": int(ticks.sum()),
             "mpjpe_mm": 1000 * float(error.mean()), "relative_mm": 1000 * float(relative.mean()),
             "mpjpe_where_dlt_mm": 1000 * float(error[has].mean()) if has.any() else float("nan"),
             "dlt_mm": 1000 * float(np.linalg.norm(dlt - truth, axis=-1)[has].mean()) if has.any() else float("nan"),
@@ -142,13 +161,15 @@ def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibr
             "mismatch_fraction": result.mismatch_fraction}
 
 
-def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None = None, cache=None) -> dict:
+def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None = None, cache=None,
+                     smooth: bool = False) -> dict:
     """Every preset × motion × seed of :func:`run_real_format`: {"table": {preset: {"mpjpe_mm",
     "relative_mm", "dlt_mm", "ratio", "seconds"}}, "runs": [...], "cameras": C}, means over motions and
-    seeds (DLT NaN from one camera)."""
+    seeds (DLT NaN from one camera); smoothed, each row adds the means of "filtered_mm", "jitter_mm",
+    "filtered_jitter_mm" and "truth_jitter_mm"."""
     if seeds < 1:
         raise PriortrackError(f"seeds must be at least 1, got {seeds}")
-    runs = [run_real_format(p, m, s, cameras=cameras, cache=cache) for p in presets for m in motions
+    runs = [run_real_format(p, m, s, cameras=cameras, cache=cache, smooth=smooth) for p in presets for m in motions
             for s in range(seeds)]
     table = {}
     for p in presets:
@@ -156,7 +177,9 @@ def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None
         tracker, dlt = np.mean([r["mpjpe_where_dlt_mm"] for r in rows]), np.mean([r["dlt_mm"] for r in rows])
         table[p] = {"mpjpe_mm": float(np.mean([r["mpjpe_mm"] for r in rows])),
                     "relative_mm": float(np.mean([r["relative_mm"] for r in rows])), "dlt_mm": float(dlt),
-                    "ratio": float(tracker / dlt), "seconds": float(np.mean([r["seconds"] for r in rows]))}
+                    "ratio": float(tracker / dlt), "seconds": float(np.mean([r["seconds"] for r in rows])),
+                    **{key: float(np.mean([r[key] for r in rows])) for key in
+                       ("filtered_mm", "jitter_mm", "filtered_jitter_mm", "truth_jitter_mm") if smooth}}
     return {"table": table, "runs": runs, "cameras": runs[0]["cameras"] if runs else 0}
 
 

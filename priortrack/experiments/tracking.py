@@ -5,7 +5,9 @@ its eval15 joints are drawn for the scenario (``synthesize`` with the default si
 paper's observed joints); the filter starts from the first two ground-truth frames (pose and
 placement, as in the papers' experiments) and filters the rest. Errors are over the filtered frames
 (frame 2 on): MPJPE in world coordinates, root-relative MPJPE, and the 2D error of the estimate's
-projection against the clean projection of the truth, all joints.
+projection against the clean projection of the truth, all joints. With ``smooth`` the run is also
+smoothed (:mod:`priortrack.filters.smoothing`): the errors are the smoothed estimate's, and the
+filter's own are given beside them as ``filtered_…``, from the same run.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import error_2d, mpjpe, mpjpe_root_relative
 from priortrack.experiments.presets import Preset, load_preset
+from priortrack.filters.smoothing import TRAJECTORIES, Smoothed, smooth as smooth_run
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 from priortrack.observation.synthetic import Observations, default_camera, parse_scenario, synthesize
 from priortrack.body.fk import joint_positions
@@ -59,18 +62,33 @@ class TrackingRun:
     motion: Motion
     observations: Observations
     track: Track
+    smoothed: Smoothed | None = None
+
+
+def _errors(estimates: np.ndarray, truth: np.ndarray, camera) -> dict[str, float]:
+    """MPJPE, root-relative MPJPE (mm) and the 2D error (px, against the clean projection) of estimates (T, 15, 3)."""
+    uv_est, _ = camera.project(torch.as_tensor(estimates))
+    uv_true, _ = camera.project(torch.as_tensor(truth))
+    return {"mpjpe_mm": float(mpjpe(estimates, truth).mean()),
+            "mpjpe_root_rel_mm": float(mpjpe_root_relative(estimates, truth).mean()),
+            "err2d_px": float(np.nanmean(error_2d(uv_est.numpy(), uv_true.numpy())))}
 
 
 def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", seed: int = 0,
           keep_snapshots: bool = False, progress: Callable[[int, int], None] | None = None,
-          cache=None, frames: int | None = None) -> TrackingRun:
+          cache=None, frames: int | None = None, smooth: bool = False, lag: int | None = None,
+          trajectories: int = TRAJECTORIES) -> TrackingRun:
     """Track ``motion`` with ``preset`` under ``scenario`` ("NAME" or "NAME:key=value,...").
 
-    ``frames`` keeps only the first frames (at the prior's rate) of the motion.
+    ``frames`` keeps only the first frames (at the prior's rate) of the motion. ``smooth`` also
+    smooths the run (with a fixed ``lag`` in frames, or over the whole run; ``trajectories`` drawn
+    by a particle smoother).
 
     Returns the result {"filter", "motion", "scenario", "frames", "mpjpe_mm", "mpjpe_root_rel_mm",
-    "err2d_px", "seconds_per_frame", "mean_ess"} with the run behind it. The seed drives both the
-    observation noise and the filter.
+    "err2d_px", "seconds_per_frame", "mean_ess"} with the run behind it; smoothed, the errors are
+    the smoothed estimate's, with "filtered_mpjpe_mm", "filtered_mpjpe_root_rel_mm",
+    "filtered_err2d_px", "lag" and "smoothing_seconds" added. The seed drives both the observation
+    noise and the filter.
     """
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     motion = load_motion(motion) if isinstance(motion, str) else motion
@@ -85,21 +103,22 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
     observations = synthesize(X, motion.fps, camera, name, seed=seed, **params)
     torch.manual_seed(seed)
     filt = preset.build(camera, seed=seed, cache=cache)
-    result_track = filt.run(observations.uv, motion, keep_snapshots=keep_snapshots, progress=progress)
-    est, truth = result_track.estimates[KNOWN_FRAMES:], X[KNOWN_FRAMES:]
-    uv_est, _ = camera.project(torch.as_tensor(est))
-    uv_true, _ = camera.project(torch.as_tensor(truth))
+    result_track = filt.run(observations.uv, motion, keep_snapshots=keep_snapshots or smooth, progress=progress)
+    smoothed = smooth_run(filt, result_track, observations.uv, trajectories, lag, seed) if smooth else None
+    truth = X[KNOWN_FRAMES:]
+    filtered = _errors(result_track.estimates[KNOWN_FRAMES:], truth, camera)
     result = {
         "filter": preset.name, "motion": motion.name, "scenario": scenario, "seed": seed,
         "frames": len(motion),
-        "mpjpe_mm": float(mpjpe(est, truth).mean()),
-        "mpjpe_root_rel_mm": float(mpjpe_root_relative(est, truth).mean()),
-        "err2d_px": float(np.nanmean(error_2d(uv_est.numpy(), uv_true.numpy()))),
+        **(filtered if smoothed is None else _errors(smoothed.estimates[KNOWN_FRAMES:], truth, camera)),
         "seconds_per_frame": result_track.seconds_per_frame,
         # The MAP tracker keeps no weighted set: no ESS (null in JSON).
         "mean_ess": float(np.nanmean(result_track.ess)) if np.isfinite(result_track.ess).any() else None,
     }
-    return TrackingRun(result, motion, observations, result_track)
+    if smoothed is not None:
+        result.update({f"filtered_{key}": value for key, value in filtered.items()})
+        result.update(lag=lag, smoothing_seconds=smoothed.seconds)
+    return TrackingRun(result, motion, observations, result_track, smoothed)
 
 
 def _table_run(preset: str, motion: str, scenario: str, seed: int, cache, threads: int) -> dict:

@@ -19,7 +19,6 @@ with t integrated out (:mod:`priortrack.filters.marginal_translation`).
 
 from __future__ import annotations
 
-import logging
 import math
 import time
 from functools import partial
@@ -37,13 +36,9 @@ from priortrack.filters.smoothing import joint_spread
 from priortrack.filters.snapshot import Snapshot
 from priortrack.models.tracking import TrackingModel
 
-log = logging.getLogger(__name__)
 
 #: The particles' dtypes, by name.
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
-
-#: Below this fraction of distinct particles a frame (median), the smoothed trajectories are said to have coalesced.
-COALESCED = 0.1
 
 #: How the body's translation is handled (see ``ParticleFilter``'s ``translation``).
 TRANSLATIONS = ("sampled", "marginalised")
@@ -220,10 +215,11 @@ class ParticleFilter(SequentialFilter):
         return log_weights - total
 
     def smooth_window(self, snapshots: list[Snapshot], observations, generator: torch.Generator,
-                      trajectories: int, moves: int | None) -> tuple[np.ndarray, np.ndarray]:
+                      trajectories: int, moves: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Backward simulation over these steps (:mod:`priortrack.filters.smoothing`): the mean
-        (W, J, 3) of ``trajectories`` smoothed trajectories' joints and their spread (W, J); with
-        ``moves`` K the MCMC backward kernel started on the genealogy, None the exact draw."""
+        (W, J, 3) of ``trajectories`` smoothed trajectories' joints, their spread (W, J) and the
+        number of distinct particles they pass through at each frame (W,); with ``moves`` K the
+        MCMC backward kernel started on the genealogy, None the exact draw."""
         if not isinstance(self.model, TrackingModel):
             raise PriortrackError(f"smoothing decodes joints: it needs a TrackingModel, not {type(self.model).__name__}")
         if not callable(getattr(self.model.prior, "log_prob", None)):
@@ -235,11 +231,6 @@ class ParticleFilter(SequentialFilter):
         indices = backward_indices(partial(self.model.log_transition, translation=not marginal), particles,
                                    log_weights, trajectories, generator,
                                    None if moves is None else [s.ancestors for s in snapshots], moves or 0)
-        counts = distinct(indices)
-        if len(counts) > 1 and float(counts.double().median()) < COALESCED * trajectories:
-            log.warning("the %d smoothed trajectories pass through a median of %d distinct particles a frame: the "
-                        "transition is narrow next to the particle cloud and the smoother follows few paths",
-                        trajectories, int(counts.double().median()))
         states = torch.stack([p[i] for p, i in zip(particles, indices)], 1)               # (M, W, A)
         if marginal:
             tau = smooth_translation(self.model, states, snapshots[0].translation_covariance[indices[0]], observations)
@@ -247,4 +238,5 @@ class ParticleFilter(SequentialFilter):
         joints = self.model.observe(states.flatten(0, 1)).reshape(states.shape[:2] + (-1, 3))
         centre = joints.mean(0)
         weights = torch.full((len(joints),), 1.0 / len(joints), dtype=torch.float64)
-        return centre.detach().cpu().numpy().astype(float), joint_spread(joints, centre, weights)
+        return (centre.detach().cpu().numpy().astype(float), joint_spread(joints, centre, weights),
+                distinct(indices).numpy())

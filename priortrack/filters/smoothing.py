@@ -20,6 +20,7 @@ cost is L + 1 times the whole-run smoother's.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 
@@ -29,6 +30,10 @@ import torch
 from priortrack.errors import PriortrackError
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 
+log = logging.getLogger(__name__)
+
+#: Below this fraction of distinct particles a frame (median), the smoothed trajectories have coalesced.
+COALESCED = 0.1
 #: Smoothed trajectories drawn by default from a particle filter's sets.
 TRAJECTORIES = 100
 #: Metropolis–Hastings moves per frame of the particle smoother's backward kernel, by default.
@@ -45,12 +50,15 @@ class Smoothed:
             estimate (0 on the known frames).
         lag: the fixed lag L, None for the whole run.
         seconds: the smoother's time.
+        distinct: (T,) a particle smoother's distinct particles among its trajectories per frame
+            (of the window that released the frame; 0 on the known frames), None for the unscented one.
     """
 
     estimates: np.ndarray
     spread: np.ndarray
     lag: int | None
     seconds: float
+    distinct: np.ndarray | None = None
 
 
 def joint_spread(joints: torch.Tensor, centre: torch.Tensor, weights: torch.Tensor) -> np.ndarray:
@@ -96,17 +104,23 @@ def smooth(filt, track: Track, observations, trajectories: int = TRAJECTORIES, l
     generator = torch.Generator().manual_seed(seed)
     data = observations[KNOWN_FRAMES:]
 
-    def window(first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
+    def window(first: int, last: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         return filt.smooth_window(snapshots[first:last + 1], data[first:last + 1], generator,
                                   trajectories=trajectories, moves=moves)
 
     n = len(snapshots)
     if lag is None or lag >= n - 1:
-        estimates, spread = window(0, n - 1)
+        estimates, spread, distinct = window(0, n - 1)
     else:
         parts = [window(t - lag, t) for t in range(lag, n)]
-        estimates = np.concatenate([e[:1] for e, _ in parts] + [parts[-1][0][1:]])
-        spread = np.concatenate([s[:1] for _, s in parts] + [parts[-1][1][1:]])
+        estimates, spread, distinct = (
+            None if parts[0][k] is None else np.concatenate([p[k][:1] for p in parts] + [parts[-1][k][1:]])
+            for k in range(3))
+    if distinct is not None and len(distinct) > 1 and np.median(distinct) < COALESCED * trajectories:
+        log.warning("the %d smoothed trajectories pass through a median of %d distinct particles a frame: the "
+                    "transition is narrow next to the particle cloud, the smoother follows few paths and its "
+                    "spread understates the uncertainty", trajectories, int(np.median(distinct)))
     known = track.estimates[:KNOWN_FRAMES]
-    return Smoothed(np.concatenate([known, estimates]),
-                    np.concatenate([np.zeros(known.shape[:2]), spread]), lag, time.perf_counter() - start)
+    return Smoothed(np.concatenate([known, estimates]), np.concatenate([np.zeros(known.shape[:2]), spread]), lag,
+                    time.perf_counter() - start,
+                    None if distinct is None else np.concatenate([np.zeros(KNOWN_FRAMES, int), distinct]))

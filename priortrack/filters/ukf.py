@@ -516,10 +516,11 @@ class UnscentedFilter(SequentialFilter):
         return kept
 
     def smooth_window(self, snapshots: list[Snapshot], observations, generator: torch.Generator,
-                      **_particle_options) -> tuple[np.ndarray, np.ndarray]:
+                      **_particle_options) -> tuple[np.ndarray, np.ndarray, None]:
         """The unscented RTS smoother over these steps (:mod:`priortrack.filters.smoothing`; the
         observations, the generator and the particle smoother's options are not needed): the joints of each smoothed
-        mean (W, J, 3) and their spread over the smoothed Gaussian's sigma points (W, J)."""
+        mean (W, J, 3) and their spread over the smoothed Gaussian's sigma points (W, J) (and no
+        trajectories to count)."""
         from priortrack.filters.smoothing import joint_spread
         from priortrack.filters.unscented_rts import unscented_rts
 
@@ -529,4 +530,4 @@ class UnscentedFilter(SequentialFilter):
         sigmas = torch.from_numpy(np.stack([points.sigma_points(m, P) for m, P in zip(means, covariances)]))
         joints = self.unscented.observe(sigmas.flatten(0, 1)).reshape(sigmas.shape[:2] + (-1, 3)).transpose(0, 1)
         centre = self.unscented.observe(torch.from_numpy(np.stack(means)))
-        return centre.cpu().numpy(), joint_spread(joints, centre, torch.from_numpy(points.Wc))
+        return centre.cpu().numpy(), joint_spread(joints, centre, torch.from_numpy(points.Wc)), None

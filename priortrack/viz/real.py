@@ -2,7 +2,8 @@
 
 In the calibration's world (its up axis): every camera as a pinhole with its image size, its
 detections (radius and brightness by confidence) and the estimate's reprojection in its image, the
-3D estimate skeleton and the particle cloud coloured by weight, and per-frame scalars: each
+3D estimate skeleton (a smoothed run: the smoothed one, and the filter's own as "filtered") and the
+particle cloud coloured by weight, and per-frame scalars: each
 camera's median reprojection error, the ESS, the log-likelihood and the mismatch flag.
 """
 
@@ -16,6 +17,7 @@ import torch
 from priortrack.viz.recording import Recording
 
 ESTIMATE_COLOR, DETECTION_COLOR, MISMATCH_COLOR = (255, 90, 60), (60, 200, 255), (255, 0, 200)
+FILTERED_COLOR = (150, 150, 150)
 
 
 def record_detections(result, path: str | Path) -> Path:
@@ -28,6 +30,8 @@ def record_detections(result, path: str | Path) -> Path:
             rec.frame(int(result.frames[t]) if result.frames[t] >= 0 else t)
             if np.isfinite(joints).all():
                 rec.skeleton("estimate", joints, color=MISMATCH_COLOR if result.mismatch[t] else ESTIMATE_COLOR)
+            if result.filtered_joints is not None and np.isfinite(result.filtered_joints[t]).all():
+                rec.skeleton("filtered", result.filtered_joints[t], color=FILTERED_COLOR)
             if t in snapshots:
                 cloud = snapshots[t].joints.detach().cpu().double().numpy() @ result.working_to_world
                 rec.cloud("estimate", cloud, snapshots[t].weights.detach().cpu().numpy())
