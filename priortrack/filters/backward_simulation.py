@@ -99,18 +99,21 @@ def _parents(ancestors: torch.Tensor | None, children: torch.Tensor) -> torch.Te
 def _metropolis(log_transition, candidates: torch.Tensor, log_weights: torch.Tensor, following: torch.Tensor,
                 start: torch.Tensor, moves: int, generator: torch.Generator) -> torch.Tensor:
     """K independent Metropolis–Hastings moves (module docstring) from ``start`` (M,), targeting
-    Categorical(w_t^i p(following_m | candidates_i)) for each of the M rows of ``following``."""
-    current = start
-    current_density = log_transition(following, candidates[current])
-    weights = torch.exp(log_weights.to(torch.float64))
-    for _ in range(moves):
-        proposal = torch.multinomial(weights, len(current), replacement=True, generator=generator)
-        density = log_transition(following, candidates[proposal])
-        u = torch.rand(len(current), generator=generator, dtype=torch.float64)
-        accept = torch.log(u) < (density - current_density).to(torch.float64)
-        accept |= ~torch.isfinite(current_density)
-        current = torch.where(accept, proposal, current)
-        current_density = torch.where(accept, density, current_density)
+    Categorical(w_t^i p(following_m | candidates_i)) for each of the M rows of ``following``. The
+    proposals do not depend on the chain's state, so all K M of them are drawn and their densities
+    evaluated as one batch with the start's; the accept steps then run on those numbers."""
+    M = len(start)
+    proposals = torch.multinomial(torch.exp(log_weights.to(torch.float64)), M * moves, replacement=True,
+                                  generator=generator).reshape(moves, M) if moves else start.new_empty((0, M))
+    chosen = torch.cat([start[None], proposals])                                    # (K + 1, M)
+    density = log_transition(following.repeat(moves + 1, 1), candidates[chosen.flatten()]).reshape(moves + 1, M)
+    density = density.to(torch.float64)
+    u = torch.log(torch.rand((moves, M), generator=generator, dtype=torch.float64))
+    current, current_density = start, density[0]
+    for k in range(moves):
+        accept = (u[k] < density[k + 1] - current_density) | ~torch.isfinite(current_density)
+        current = torch.where(accept, proposals[k], current)
+        current_density = torch.where(accept, density[k + 1], current_density)
     return current
 
 
