@@ -387,6 +387,40 @@ def _bench_real_track(args: argparse.Namespace) -> None:
     _print_json(bench_real_track(frames=args.frames, preset=args.filter, seed=args.seed))
 
 
+def _compare(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    from priortrack.experiments.compare import compare, plan, table
+
+    if args.workers is not None and args.scheduler is not None:
+        raise PriortrackError("compare: give --workers or --scheduler, not both")
+    if args.workers is not None and args.workers < 1:
+        raise PriortrackError(f"compare: --workers must be a positive whole number, got {args.workers}")
+    configs = plan(args.filters, args.motions, args.scenarios, args.seeds, args.frames, args.smooth)
+    progress = _Progress("compare", "{0}")
+
+    def show(p) -> None:
+        eta = "" if p.eta_s is None else f", about {p.eta_s:.0f} s left"
+        progress(f"run {p.done} of {p.total} ({p.cached} cached){eta}: {p.label}", 0)
+
+    try:
+        rows = compare(configs, args.out, workers=args.workers, scheduler=args.scheduler, rrd=args.rrd, progress=show)
+    finally:
+        progress.close()
+    files = sorted(str(f) for f in Path(args.out).rglob("*") if f.is_file() and f.parent.name != "runs")
+    if args.json:
+        _print_json({"rows": rows, "out": args.out, "files": files})
+        return
+    scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
+    print(f"world MPJPE (mm), mean ± std over {len(args.motions)} motion(s) × {args.seeds} seed(s)")
+    print("| filter | " + " | ".join(scenarios) + " |")
+    print("|---|" + "---|" * len(scenarios))
+    for name, cells in table(rows, "mpjpe_mm").items():
+        print(f"| {name} | " + " | ".join(f"{cells[s][0]:.1f} ± {cells[s][1]:.1f}" for s in scenarios) + " |")
+    print(f"wrote {args.out}/results.csv, summary.md, plots/" + (", recordings/ (open with: rerun FILE.rrd)"
+                                                                    if args.rrd else ""))
+
+
 def _bench_smooth(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.smooth import bench_smooth
 
@@ -538,6 +572,21 @@ def build_parser() -> argparse.ArgumentParser:
                        help="smoothed trajectories a particle smoother draws (default 100)")
     track.add_argument("--json", action="store_true")
     track.set_defaults(run=_track)
+
+    grid = verbs.add_parser("compare", help="a grid of filters x motions x scenarios x seeds: CSV, summary, plots, "
+                                            "recordings; cached, resumable, serial or on Dask")
+    grid.add_argument("--filters", nargs="+", required=True, help="preset names or .toml files")
+    grid.add_argument("--motions", nargs="+", required=True, help="bundled names, .amc or .bvh files")
+    grid.add_argument("--scenarios", nargs="+", default=["clean"], help="NAME or NAME:key=value,... (clean)")
+    grid.add_argument("--seeds", type=int, default=1, help="seeds per motion and scenario (1)")
+    grid.add_argument("--frames", type=int, help="track only the first N frames of each motion")
+    grid.add_argument("--out", required=True, help="the results folder (reused: finished runs are not run again)")
+    grid.add_argument("--workers", type=int, help="run on a local Dask cluster of N one-thread workers")
+    grid.add_argument("--scheduler", help="run on the Dask scheduler at tcp://host:port")
+    grid.add_argument("--rrd", action="store_true", help="one rerun recording per run, under OUT/recordings/")
+    grid.add_argument("--smooth", action="store_true", help="smooth each run (MPJPE smoothed, filtered beside it)")
+    grid.add_argument("--json", action="store_true")
+    grid.set_defaults(run=_compare)
 
     ukf = bench.add_parser("ukf", help="one UKF step, batched sigma points vs filterpy's per-point loop")
     ukf.add_argument("--repeats", type=int, default=9)

@@ -341,7 +341,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         if np.isfinite(run.estimates[t]).all() and np.isfinite(z[first + t, ..., :2]).any():
             loglik[t] = float(model.likelihood.log_likelihood(torch.as_tensor(run.estimates[t])[None],
                                                               torch.as_tensor(z[first + t]))[0])
-    mismatch = _mismatch(loglik, z[first:], model.likelihood)
+    mismatch = mismatch_flags(loglik, z[first:], model.likelihood)
     def world(body: np.ndarray) -> np.ndarray:      # the detector's definitions, back in the world
         return np.einsum("ij,tjk->tik", M, body) @ A
 
@@ -440,9 +440,10 @@ def _expected_log_density(likelihood: MultiViewLikelihood) -> float:
     return const - 0.5 * (nu + 2) * (2 / nu)
 
 
-def _mismatch(loglik: np.ndarray, z: np.ndarray, likelihood: MultiViewLikelihood) -> np.ndarray:
+def mismatch_flags(loglik: np.ndarray, z: np.ndarray, likelihood: MultiViewLikelihood) -> np.ndarray:
     """(T,) bool: the ticks in runs of MISMATCH_RUN whose mean log-likelihood per detection is
-    MISMATCH_NATS below the noise model's expectation (module docstring)."""
+    MISMATCH_NATS below the noise model's expectation (module docstring). loglik (T,) of the estimates,
+    z (T, C, J, 3) the data with confidences, ``likelihood`` any model with sigma_px and robust_nu."""
     weight = np.nansum(np.where(np.isfinite(z[..., 0]), z[..., 2], 0.0), axis=(1, 2))        # Σ w per tick
     with np.errstate(invalid="ignore", divide="ignore"):
         per_detection = loglik / weight

@@ -43,10 +43,12 @@ class Recording:
                 rec.skeleton("truth", pose)
     """
 
-    def __init__(self, path: str | Path, application_id: str = "priortrack", up: str = "y"):
+    def __init__(self, path: str | Path, application_id: str = "priortrack", up: str = "y", name: str | None = None):
         self.path = output_path(path, "rerun recording")
         self.stream = rr.RecordingStream(application_id)
         self.stream.save(self.path)
+        if name is not None:                       # shown in the viewer's list of recordings
+            self.stream.send_recording_name(name)
         views = {"y": rr.ViewCoordinates.RIGHT_HAND_Y_UP, "z": rr.ViewCoordinates.RIGHT_HAND_Z_UP,
                  "-y": rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, "-z": rr.ViewCoordinates.RIGHT_HAND_Z_DOWN,
                  "x": rr.ViewCoordinates.RIGHT_HAND_X_UP, "-x": rr.ViewCoordinates.RIGHT_HAND_X_DOWN}

@@ -17,16 +17,16 @@ ESTIMATE_COLOR, SMOOTHED_COLOR = (255, 90, 60), (120, 230, 90)
 
 
 def replay(motion: Motion, observations: Observations, path: str | Path, track: Track | None = None,
-           smoothed: np.ndarray | None = None) -> Path:
+           smoothed: np.ndarray | None = None, name: str | None = None) -> Path:
     """Write the ground-truth eval15 skeleton over time, the camera as a pinhole entity and the 2D
     observations in its image to ``path`` (an ``.rrd`` file). With a tracking run ``track``, also
     the filter's estimate (after the known frames) and its projection, and the particle cloud or
     sigma points coloured by weight (if ``track`` kept its snapshots), with the 1σ ellipsoid of the
     body's translation where the filter integrated it out; with ``smoothed`` joints (T, 15, 3) the
-    smoothed skeleton beside the filter's. Returns the path."""
+    smoothed skeleton beside the filter's; ``name`` names the recording in the viewer. Returns the path."""
     positions = joint_positions(motion, "eval15")
     snapshots = {s.frame: s for s in track.snapshots or []} if track is not None else {}
-    with Recording(path) as rec:
+    with Recording(path, name=name) as rec:
         rec.camera(observations.camera)
         for i, pose in enumerate(positions):
             rec.frame(i)

@@ -1,0 +1,92 @@
+"""The plots of ``priortrack compare`` (matplotlib, Agg, PNG):
+
+- ``error_<scenario>.png``: world MPJPE per frame, one panel per motion, one line per filter (the
+  mean over seeds), the frames where joints were missing shaded (darker where more were missing,
+  over the runs);
+- ``ess_<scenario>.png``: the effective sample size per frame of the filters that have one;
+- ``summary.png``: mean ± std MPJPE per filter, bars grouped by scenario.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.=-]+", "-", name)
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _mean_over_runs(values: np.ndarray) -> np.ndarray:
+    """(R, T) → (T,) the mean over the runs with a value at each frame (NaN where none has one)."""
+    seen = np.isfinite(values)
+    count = seen.sum(axis=0)
+    return np.where(count > 0, np.where(seen, values, 0.0).sum(axis=0) / np.maximum(count, 1), np.nan)
+
+
+def write_plots(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], folder: Path) -> list[Path]:
+    """Write the plots of ``rows`` (the CSV rows) with their per-frame ``series`` (by config hash)
+    into ``folder``; returns the files written."""
+    plt = _pyplot()
+    folder.mkdir(parents=True, exist_ok=True)
+    filters = list(dict.fromkeys(r["filter"] for r in rows))
+    scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
+    motions = list(dict.fromkeys(r["motion"] for r in rows))
+    colours = {f: plt.get_cmap("tab10")(i % 10) for i, f in enumerate(filters)}
+    written = []
+    for scenario in scenarios:
+        for key, ylabel, stem in (("error_mm", "world MPJPE (mm)", "error"), ("ess", "ESS", "ess")):
+            figure, axes = plt.subplots(1, len(motions), figsize=(5 * len(motions), 3.5), squeeze=False)
+            drawn = False
+            for ax, motion in zip(axes[0], motions):
+                runs = [r for r in rows if r["scenario"] == scenario and r["motion"] == motion]
+                missing = np.mean([1 - series[r["config_hash"]]["observed_fraction"] for r in runs], axis=0)
+                for t in np.flatnonzero(missing > 0):
+                    ax.axvspan(t - 0.5, t + 0.5, color="grey", alpha=0.35 * float(missing[t]), lw=0)
+                for name in filters:
+                    values = [series[r["config_hash"]][key] for r in runs if r["filter"] == name]
+                    if values and np.isfinite(values).any():
+                        ax.plot(_mean_over_runs(np.array(values)), color=colours[name], label=name, lw=1.2)
+                        drawn = True
+                ax.set_title(motion, fontsize=9)
+                ax.set_xlabel("frame")
+                ax.set_ylabel(ylabel)
+            if not drawn:                     # no filter of the grid keeps particles: no ESS plot
+                plt.close(figure)
+                continue
+            axes[0][0].legend(fontsize=7)
+            figure.suptitle(f"{scenario} (shaded: joints missing)", fontsize=10)
+            figure.tight_layout()
+            path = folder / f"{stem}_{_safe(scenario)}.png"
+            figure.savefig(path, dpi=100)
+            plt.close(figure)
+            written.append(path)
+    figure, ax = plt.subplots(figsize=(max(5, 1.6 * len(scenarios) * max(1, len(filters)) / 2), 3.8))
+    width = 0.8 / len(filters)
+    for i, name in enumerate(filters):
+        stats = [[r["mpjpe_mm"] for r in rows if r["filter"] == name and r["scenario"] == s] for s in scenarios]
+        means = [np.mean(v) if v else np.nan for v in stats]            # a filter not run on a scenario: no bar
+        stds = [np.std(v, ddof=1) if len(v) > 1 else 0.0 for v in stats]
+        ax.bar(np.arange(len(scenarios)) + i * width, means, width, yerr=stds, capsize=3, color=colours[name],
+               label=name)
+    ax.set_xticks(np.arange(len(scenarios)) + 0.4 - width / 2, scenarios, fontsize=8)
+    ax.set_ylabel("world MPJPE (mm), mean ± std")
+    ax.legend(fontsize=7)
+    figure.tight_layout()
+    path = folder / "summary.png"
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    written.append(path)
+    return written
