@@ -11,14 +11,15 @@ install: $(VENV)/.installed
 
 $(VENV)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt torch==2.13.0
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev]'
+	$(BIN)/python -m pip install -qq --upgrade pip
+	$(BIN)/python -m pip install -qq -c constraints.txt torch==2.13.0
+	$(BIN)/python -m pip install -qq -c constraints.txt -e '.[dev]'
 	touch $@
 
+# Four filters on a walk no prior was trained on, under occlusion: the table, plots and recordings in demo/.
 demo: install
-	$(BIN)/priortrack replay cmu:07_01 --scenario occlusion --out walk.rrd
-	$(BIN)/priortrack track cmu:07_10 --filter pf-lie --scenario occlusion:sigma_px=5 --rrd track.rrd
+	$(BIN)/priortrack compare --filters pf-diffusion-local pf-gpdm pf-lie ukf-gpdm --motions cmu:07_10 \
+		--scenarios occlusion:sigma_px=5 --out demo --rrd
 
 test: install
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q

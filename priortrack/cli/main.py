@@ -412,13 +412,28 @@ def _compare(args: argparse.Namespace) -> None:
         _print_json({"rows": rows, "out": args.out, "files": files})
         return
     scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
-    print(f"world MPJPE (mm), mean ± std over {len(args.motions)} motion(s) × {args.seeds} seed(s)")
-    print("| filter | " + " | ".join(scenarios) + " |")
-    print("|---|" + "---|" * len(scenarios))
-    for name, cells in table(rows, "mpjpe_mm").items():
-        print(f"| {name} | " + " | ".join(f"{cells[s][0]:.1f} ± {cells[s][1]:.1f}" for s in scenarios) + " |")
-    print(f"wrote {args.out}/results.csv, summary.md, plots/" + (", recordings/ (open with: rerun FILE.rrd)"
-                                                                    if args.rrd else ""))
+    spread = args.seeds > 1 or len(args.motions) > 1
+
+    def cell(value: tuple[float, float], digits: int) -> str:
+        mean, std = value
+        return "—" if mean != mean else f"{mean:.{digits}f}" + (f" ± {std:.{digits}f}" if spread else "")
+
+    figures = (("mpjpe_mm", "MPJPE mm", 1), ("rootrel_mm", "root-rel. mm", 1), ("px_err", "2D px", 1),
+               ("failure_rate", "failures", 2), ("mean_ess", "ESS", 0), ("s_per_frame", "s/frame", 3))
+    tables = {key: table(rows, key) for key, _, _ in figures}
+    for scenario in scenarios:
+        print(f"\n{scenario}: {len(args.motions)} motion(s) × {args.seeds} seed(s)"
+              + (", mean ± std" if spread else ""))
+        print("| filter | " + " | ".join(label for _, label, _ in figures) + " |")
+        print("|---|" + "---|" * len(figures))
+        for name in tables["mpjpe_mm"]:
+            print(f"| {name} | " + " | ".join(cell(tables[key][name][scenario], digits) for key, _, digits in figures)
+                  + " |")
+    print(f"\nwrote {args.out}/results.csv, {args.out}/summary.md and the plots {args.out}/plots/*.png")
+    recordings = [f for f in files if f.endswith(".rrd")]
+    if recordings:
+        print(f"recordings (truth, estimate, particle cloud, camera view), one per run: rerun {recordings[0]}  (or any of "
+              f"{args.out}/recordings/*.rrd)")
 
 
 def _bench_smooth(args: argparse.Namespace) -> None:
