@@ -165,8 +165,12 @@ def _track(args: argparse.Namespace) -> None:
     finally:
         progress.close()
     if args.rrd:
+        from priortrack.experiments.presets import load_preset
+
         replay(run.motion, run.observations, args.rrd, track=run.track,
-               smoothed=None if run.smoothed is None else run.smoothed.estimates)
+               smoothed=None if run.smoothed is None else run.smoothed.estimates,
+               likelihood=load_preset(args.filter).likelihood(run.observations.camera),
+               name=f"{args.filter} · {run.motion.name} · {args.scenario} · seed {args.seed}")
     if args.json:
         _print_json(run.result)
         return

@@ -158,11 +158,12 @@ def run(config: RunConfig, cache: str | None = None, rrd: bool = False) -> tuple
     ess = np.asarray(result.track.ess, dtype=float) if particles else np.full(len(uv), np.nan)
     series = {"error_mm": error.tolist(), "ess": ess.tolist(),
               "observed_fraction": (observed / max(int(observed.max()), 1)).tolist()}
-    return row, series, _recording(config, result) if rrd else None
+    return row, series, _recording(config, result, likelihood, mismatch) if rrd else None
 
 
-def _recording(config: RunConfig, result) -> bytes:
-    """The bytes of the run's .rrd file (named by :attr:`RunConfig.label`)."""
+def _recording(config: RunConfig, result, likelihood, mismatch: np.ndarray) -> bytes:
+    """The bytes of the run's .rrd file (named by :attr:`RunConfig.label`; its log-likelihood and
+    mismatch scalars from ``likelihood`` and the flags)."""
     import tempfile
 
     from priortrack.viz.replay import replay
@@ -170,7 +171,8 @@ def _recording(config: RunConfig, result) -> bytes:
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "run.rrd"
         replay(result.motion, result.observations, path, track=result.track, name=config.label,
-               smoothed=None if result.smoothed is None else result.smoothed.estimates)
+               smoothed=None if result.smoothed is None else result.smoothed.estimates, likelihood=likelihood,
+               mismatch=mismatch)
         return path.read_bytes()
 
 

@@ -16,7 +16,9 @@ import torch
 
 from priortrack.viz.recording import Recording
 
-ESTIMATE_COLOR, DETECTION_COLOR, MISMATCH_COLOR = (255, 90, 60), (60, 200, 255), (255, 0, 200)
+from priortrack.viz.logger import ESTIMATE_COLOR
+
+DETECTION_COLOR, MISMATCH_COLOR = (60, 200, 255), (255, 0, 200)
 FILTERED_COLOR = (150, 150, 150)
 
 

@@ -9,7 +9,8 @@ Entity layout of a priortrack recording (timeline ``frame``):
   (a particle filter that integrates the translation out: its depth spread is not in the cloud);
 - ``world/<camera>``: a camera's pose (``camera`` by default); ``world/<camera>/image`` its pinhole;
   ``world/<camera>/image/<name>``: 2D points in pixels (missing joints are simply not logged);
-- ``metrics/<name>``: per-frame scalars.
+- ``metrics/<name>``: per-frame scalars; ``events``: a step's flags as text
+  (:class:`~priortrack.viz.logger.RerunLogger`, which also sends the default layout).
 """
 
 from __future__ import annotations
@@ -79,11 +80,12 @@ class Recording:
         """Set the ``frame`` timeline for what is logged next."""
         self.stream.set_time(TIMELINE, sequence=int(index))
 
-    def skeleton(self, name: str, positions, color=(60, 160, 255)) -> None:
-        """Log an eval15 skeleton, positions (15, 3) metres, at ``world/<name>``."""
+    def skeleton(self, name: str, positions, color=(60, 160, 255), colors=None) -> None:
+        """Log an eval15 skeleton, positions (15, 3) metres, at ``world/<name>``, in one colour or one
+        per joint (``colors`` (15, 3))."""
         self.stream.log(f"world/{name}", rr.Points3D(
             np.asarray(positions), class_ids=EVAL15_CLASS, keypoint_ids=np.arange(len(EVAL15_NAMES)),
-            colors=[color], radii=0.02))
+            colors=[color] if colors is None else np.asarray(colors, dtype=np.uint8), radii=0.02))
 
     def cloud(self, name: str, joints, weights) -> None:
         """Log particles' joints (P, 15, 3) metres at ``world/<name>/cloud``, coloured by weight:

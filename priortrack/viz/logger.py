@@ -1,0 +1,124 @@
+"""``RerunLogger``: a filter run written to a rerun recording as it goes, for users' own loops
+(``replay`` and ``priortrack compare --rrd`` use it too).
+
+Per frame (:meth:`RerunLogger.log`): the truth skeleton (joints missing from that frame's
+observation drawn grey), the 2D observations and the estimate's reprojection in the camera's image,
+the estimate (and smoothed) skeletons, the particle cloud or sigma points coloured by weight, the
+translation's 1σ ellipsoid; the scalars ``metrics/error_mm`` (against the truth), ``metrics/ess``,
+``metrics/loglik`` (the observation model's log-likelihood of the estimate), ``metrics/mismatch``
+and ``metrics/resampled``; and the step's flags ("outlier-gated", "no-observation", …) as text at
+``events``. The recording opens on a default layout: the 3D view, the camera's image and the
+time series.
+
+Example::
+
+    with RerunLogger("run.rrd", camera, name="pf-lie · my walk", likelihood=model.likelihood) as logger:
+        for t, z in enumerate(observations[2:], start=2):
+            logger.log(t, filt.step(z), observation=z, truth=truth[t])
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+import torch
+
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.viz.recording import Recording
+
+TRUTH_COLOR, OCCLUDED_COLOR = (60, 160, 255), (150, 150, 150)
+ESTIMATE_COLOR, SMOOTHED_COLOR = (255, 90, 60), (120, 230, 90)
+
+
+def default_blueprint(camera: str = "camera") -> rrb.Blueprint:
+    """The 3D world beside the camera's image, the per-frame scalars below."""
+    return rrb.Blueprint(rrb.Vertical(
+        rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3D"),
+                       rrb.Spatial2DView(origin=f"world/{camera}/image", name=camera)),
+        rrb.Horizontal(rrb.TimeSeriesView(origin="metrics", name="per frame"),
+                       rrb.TextLogView(origin="events", name="events")),
+        row_shares=[3, 1]), collapse_panels=True)
+
+
+class RerunLogger:
+    """A recording of one filter run, frame by frame (module docstring).
+
+    Args:
+        path: the ``.rrd`` file.
+        camera: the camera the observations were taken with (its pinhole and image are logged).
+        name: the recording's name in the viewer (filter · motion · scenario · seed, say).
+        likelihood: an observation model (``log_likelihood(joints, z)``) to log the estimate's
+            log-likelihood with; none, none logged.
+    """
+
+    def __init__(self, path: str | Path, camera: PinholeCamera, name: str | None = None, likelihood=None):
+        self.recording = Recording(path, name=name)
+        self.recording.stream.send_blueprint(default_blueprint())
+        self.recording.camera(camera)
+        self.camera, self.likelihood = camera, likelihood
+
+    def __enter__(self) -> RerunLogger:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.recording.close()
+
+    @property
+    def path(self) -> Path:
+        return self.recording.path
+
+    def log(self, frame: int, snapshot=None, observation=None, truth=None, estimate=None, smoothed=None,
+            mismatch: bool | None = None) -> None:
+        """Log one frame.
+
+        Args:
+            frame: the frame index (the ``frame`` timeline).
+            snapshot: the filter's step (:class:`~priortrack.filters.snapshot.Snapshot`): its estimate,
+                cloud, ESS, flags, resampling and translation spread.
+            observation: the frame's 2D joints (15, 2) pixels, NaN where missing.
+            truth: (15, 3) the true joints, metres, if known.
+            estimate: (15, 3) joints to draw as the estimate when there is no snapshot (a known frame).
+            smoothed: (15, 3) the smoothed joints, if the run was smoothed.
+            mismatch: the frame's mismatch flag, if computed.
+        """
+        rec = self.recording
+        rec.frame(frame)
+        seen = None if observation is None else np.isfinite(np.asarray(observation)).all(axis=-1)
+        if observation is not None:
+            rec.points_2d("observations", observation)
+        if truth is not None:
+            colours = np.tile(TRUTH_COLOR, (len(truth), 1))
+            if seen is not None:
+                colours[~seen] = OCCLUDED_COLOR
+            rec.skeleton("truth", truth, colors=colours)
+        if snapshot is not None:
+            estimate = snapshot.estimate
+            rec.cloud("estimate", snapshot.joints.detach().cpu().numpy(), snapshot.weights.detach().cpu().numpy())
+            spread = snapshot.translation_spread()
+            if spread is not None:
+                rec.ellipsoid("estimate/translation", *spread, color=ESTIMATE_COLOR)
+            if snapshot.covariance is None:                   # a particle set (a Gaussian filter's has no ESS)
+                rec.scalar("ess", snapshot.ess)
+                rec.scalar("resampled", float(snapshot.ancestors is not None))
+            if snapshot.flags:
+                rec.stream.log("events", rr.TextLog(f"frame {frame}: {', '.join(snapshot.flags)}", level="WARN"))
+        if estimate is not None and np.isfinite(estimate).all():
+            rec.skeleton("estimate", estimate, color=ESTIMATE_COLOR)
+            uv, _ = self.camera.project(torch.as_tensor(estimate))
+            rec.points_2d("estimate", uv.numpy(), color=ESTIMATE_COLOR)
+            if truth is not None:
+                rec.scalar("error_mm", 1000 * float(np.linalg.norm(np.asarray(estimate) - truth, axis=-1).mean()))
+            if self.likelihood is not None and seen is not None and seen.any():
+                rec.scalar("loglik", float(self.likelihood.log_likelihood(
+                    torch.as_tensor(estimate, dtype=torch.float64)[None],
+                    torch.as_tensor(observation, dtype=torch.float64))[0]))
+        if smoothed is not None and np.isfinite(smoothed).all():
+            rec.skeleton("smoothed", smoothed, color=SMOOTHED_COLOR)
+        if mismatch is not None:
+            rec.scalar("mismatch", float(mismatch))
