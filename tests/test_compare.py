@@ -103,3 +103,11 @@ def test_the_command_prints_the_table_and_names_its_files(tmp_path, capsys):
     with pytest.raises(PriortrackError, match="not both"):
         compare(plan(["ukf-gpdm"], ["cmu:07_10"], ["clean"], 1, frames=5), tmp_path / "p", workers=1,
                 scheduler="tcp://127.0.0.1:1")
+
+
+def test_a_smoothed_grid_has_the_filtered_error_beside_the_smoothed(tmp_path):
+    rows = compare(plan(["ukf-gpdm"], ["cmu:07_10"], ["blackout:sigma_px=5"], 1, smooth=True), tmp_path / "s")
+    table = _rows(tmp_path / "s" / "results.csv")
+    assert list(table[0])[-2:] == ["filtered_mpjpe_mm", "filtered_rootrel_mm"]
+    assert rows[0]["mpjpe_mm"] < 0.8 * rows[0]["filtered_mpjpe_mm"]          # 84 vs 121 mm measured on 07_10
+    assert "before smoothing" in (tmp_path / "s" / "summary.md").read_text()

@@ -49,3 +49,18 @@ def test_a_users_loop_is_recorded_with_its_scalars_flags_and_occlusions(tmp_path
 def _rgba(rgb) -> int:
     r, g, b = rgb
     return (r << 24) | (g << 16) | (b << 8) | 0xFF
+
+
+def test_the_recording_carries_its_default_layout(tmp_path):
+    """The blueprint (3D view, camera image, time series, events) is stored in the .rrd beside the data."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    camera = default_camera(np.zeros((1, 15, 3)) + [0, 1, 0])
+    with RerunLogger(tmp_path / "b.rrd", camera, name="layout") as logger:
+        logger.log(0, observation=np.full((15, 2), 500.0), truth=np.zeros((15, 3)) + [0, 1, 0])
+    rerun = Path(sys.executable).with_name("rerun")
+    printed = subprocess.run([str(rerun), "rrd", "print", str(tmp_path / "b.rrd")], capture_output=True, text=True,
+                             check=True).stdout
+    assert "Blueprint" in printed and "Recording" in printed
