@@ -440,6 +440,42 @@ def _compare(args: argparse.Namespace) -> None:
               f"{args.out}/recordings/*.rrd)")
 
 
+def _eval_fit_check(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    from priortrack.data.load import load_motion
+    from priortrack.experiments.presets import load_preset
+    from priortrack.priors.base import load_prior
+    from priortrack.priors.support import frame_log_density, reference, verdict
+
+    motion = load_motion(args.motion)
+    given = [load_motion(m) for m in args.reference or []]
+    if Path(args.prior).suffix.lower() == ".npz":
+        prior = load_prior(args.prior)
+        if not given:
+            raise PriortrackError(f"{args.prior} is a prior file: its training motions are not known; give "
+                                  f"--reference MOTION… (motions of its kind that it was not fitted on)")
+        reference_values = None
+    else:
+        preset = load_preset(args.prior)
+        prior = preset.prior()
+        reference_values = None if given else reference(preset)
+    if reference_values is None:
+        import numpy as np
+
+        reference_values = np.concatenate([frame_log_density(prior, m) for m in given])
+    result = {"prior": args.prior, "kind": prior.kind, "motion": args.motion,
+              **verdict(frame_log_density(prior, motion), reference_values)}
+    if args.json:
+        _print_json(result)
+        return
+    p = result["reference_percentiles"]
+    print(f"{args.motion} under {args.prior} ({prior.kind}): {result['verdict']}. "
+          f"{100 * result['below_p1_fraction']:.0f}% of its frames score below the 1st percentile of frames the prior "
+          f"was not fitted on ({p['1']:.1f}); median log-density {result['median_log_density']:.1f} per frame, at the "
+          f"{result['median_percentile']:.0f}th percentile (reference median {p['50']:.1f})")
+
+
 def _bench_smooth(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.smooth import bench_smooth
 
@@ -668,6 +704,14 @@ def build_parser() -> argparse.ArgumentParser:
                                                             "(the particle and unscented presets)")
     real.add_argument("--json", action="store_true")
     real.set_defaults(run=_eval_real_format)
+    fit_check = evaluate.add_parser("fit-check", help="is a motion in a prior's support? its per-frame log-density "
+                                                      "against frames held out from the prior's training data")
+    fit_check.add_argument("prior", help="a preset name or .toml, or a prior file (.npz, with --reference)")
+    fit_check.add_argument("motion", help="bundled name, .amc or .bvh file")
+    fit_check.add_argument("--reference", nargs="+", help="motions of the prior's kind it was not fitted on (default "
+                                                          "for a preset: two-fold cross-fits of its training motions)")
+    fit_check.add_argument("--json", action="store_true")
+    fit_check.set_defaults(run=_eval_fit_check)
     smoothing = evaluate.add_parser("smoothing", help="smoothed vs filtered through a blackout on held-out walks")
     smoothing.add_argument("--presets", nargs="+",
                            default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-diffusion-local", "ukf-gpdm"])

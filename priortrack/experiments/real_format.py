@@ -158,7 +158,8 @@ def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibr
             "mpjpe_where_dlt_mm": 1000 * float(error[has].mean()) if has.any() else float("nan"),
             "dlt_mm": 1000 * float(np.linalg.norm(dlt - truth, axis=-1)[has].mean()) if has.any() else float("nan"),
             "dlt_coverage": float(has.mean()), "seconds": seconds,
-            "mismatch_fraction": result.mismatch_fraction}
+            "mismatch_fraction": result.mismatch_fraction,
+            "fit_check": None if result.fit_check is None else result.fit_check["verdict"]}
 
 
 def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None = None, cache=None,

@@ -1,0 +1,129 @@
+"""A prior's support: is a motion one the prior knows? (``priortrack eval fit-check``)
+
+**The figure.** Per frame t ≥ 1 of a motion at the prior's rate, the log-density the prior gives it,
+
+    ℓ_t = ln p(x_t | x_{t−1})                                 (every prior's ``log_prob``),
+    ℓ_t = ln p(x_t | x_{t−1}) + ln p(y_t | x_t)               (a GPDM: its latents x are fitted to the
+                                                               poses y, eq. 18, so the dynamics alone
+                                                               would call any pose familiar),
+
+with x the encoded states (:meth:`encode`) and, for a GPDM, ln p(y | x) = −(eq. 18's energy).
+
+**The reference.** The same figure on frames the prior was *not* fitted on, but which are of its
+kind: the preset's training motions split into two folds (alternate motions; with fewer than four,
+the first and second half of each), a prior of the same kind and options fitted on each fold, and
+ℓ_t taken on the other fold. (Frames the prior
+was fitted on would set the bar too high: the Lie prior scores them 30 nats a frame above a held-out
+walk.) The reference is cached beside the priors, keyed by the preset's cache key.
+
+**The verdict.** The share of the motion's frames below the reference's 1st percentile (a frame of
+the prior's own kind falls there 1 % of the time): below ``IN_SUPPORT`` "in support", above
+``OUTSIDE`` "outside", between them "partly". A diffusion prior models step sizes, not poses: a
+slow motion of any kind is in its support. Measured shares (pf-lie / pf-gpdm presets): held-out
+walks 07_10 0.08 / 0.25, 35_29 0.00 / 0.36, 07_11 (slower) 0.50 / 0.69; balance 49_18, dance 131_04,
+martial arts 135_06, jump 13_39, kick 11_01, playground 01_01: 0.96–1.00 / 0.89–1.00. The thresholds
+sit in that gap; a walk unlike the training walks lands in "partly", as 07_11 does.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from priortrack.data.motion import Motion
+from priortrack.errors import PriortrackError
+from priortrack.priors.base import prepare_motions
+from priortrack.priors.registry import PRIOR_KINDS, fit_prior
+
+log = logging.getLogger(__name__)
+
+#: Share of frames below the reference's 1st percentile: under IN_SUPPORT "in support", over OUTSIDE
+#: "outside". Set on the bundled clips (module docstring's table), not on one file.
+IN_SUPPORT, OUTSIDE = 0.5, 0.85
+#: Training motions from which the reference's folds are whole motions (fewer: halves of each).
+MIN_MOTION_FOLDS = 4
+#: Percentiles of the reference reported with a verdict.
+PERCENTILES = (1, 5, 25, 50, 75, 95, 99)
+
+
+def frame_log_density(prior, motion: Motion) -> np.ndarray:
+    """(T − 1,) ℓ_t of ``motion``'s frames 1 … T − 1 at the prior's rate (module docstring), float64."""
+    motion = prepare_motions([motion], prior.fps)[0]
+    x = prior.encode(motion).detach().to(torch.float64)        # (a GPDM's encoding optimises: not under no_grad)
+    with torch.no_grad():
+        ell = prior.log_prob(x[1:], x[:-1]).to(torch.float64)
+        if "latent" in PRIOR_KINDS[prior.kind].capabilities:
+            y = prior.space.angles.encode(motion).to(torch.float64)
+            ell = ell - prior.reconstruction_energy(x[1:], y[1:])
+    return ell.cpu().numpy()
+
+
+def reference(preset, cache: Path | None = None) -> np.ndarray:
+    """ℓ_t on held-out frames of the preset's training data (module docstring): two-fold cross-fits,
+    cached as ``support-<key>.json`` (the values, no pickle) in the prior cache."""
+    from priortrack.experiments.presets import cache_dir
+
+    if preset.prior_file is not None:
+        raise PriortrackError(f"preset {preset.name!r} names a prior file: its training motions are not known, so "
+                              f"give reference motions of its kind (--reference)")
+    motions = list(preset.training_motions)
+    folder = cache_dir() if cache is None else Path(cache)
+    path = folder / f"support-{preset.prior_kind}-{preset.cache_key}.json"
+    if path.is_file() and not path.is_symlink():
+        try:
+            stored = json.loads(path.read_text())
+            if stored.get("digest") == _digest(stored["values"]):
+                return np.asarray(stored["values"], dtype=float)
+        except (OSError, ValueError, KeyError, TypeError):
+            pass
+        log.warning("support reference %s is unreadable or does not match its digest: recomputing", path)
+    values = []
+    for fit_on, held_out in _folds(motions):
+        fitted = fit_prior(preset.prior_kind, fit_on, fps=preset.fps, **preset.prior_options)
+        fitted = fitted if preset.annealing == 1.0 else fitted.annealed(preset.annealing)
+        values += [frame_log_density(fitted, m) for m in held_out]
+    values = np.concatenate(values)
+    folder.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".partial")
+    partial.write_text(json.dumps({"values": values.tolist(), "digest": _digest(values.tolist())}))
+    os.replace(partial, path)
+    return values
+
+
+def _folds(motions: list[Motion]) -> list[tuple[list[Motion], list[Motion]]]:
+    """Two (fit on, held out) splits: alternate motions when there are at least MIN_MOTION_FOLDS of them;
+    else each motion's first and second halves (two walks split by motion would leave each fold one
+    subject, a reference of another person's walk rather than of the prior's own kind)."""
+    if len(motions) >= MIN_MOTION_FOLDS:
+        folds = [[m for i, m in enumerate(motions) if i % 2 == f] for f in (0, 1)]
+    else:
+        folds = [[m[:len(m) // 2] for m in motions], [m[len(m) // 2:] for m in motions]]
+    return [(folds[0], folds[1]), (folds[1], folds[0])]
+
+
+def _digest(values: list) -> str:
+    return hashlib.sha256(json.dumps(values).encode()).hexdigest()
+
+
+def verdict(ell: np.ndarray, reference_values: np.ndarray) -> dict:
+    """The fit-check result of frame log-densities ``ell`` against ``reference_values`` (module docstring):
+    {"verdict", "below_p1_fraction", "median_log_density", "median_percentile", "reference_percentiles",
+    "frame_percentiles" (each frame's percentile within the reference)}."""
+    ell, reference_values = np.asarray(ell, dtype=float), np.sort(np.asarray(reference_values, dtype=float))
+    if not len(ell) or not len(reference_values):
+        raise PriortrackError("fit-check needs at least two frames of the motion and of the reference")
+    if not np.isfinite(ell).all():
+        ell = np.where(np.isfinite(ell), ell, -np.inf)             # a density of 0: below everything
+    percentile = 100 * np.searchsorted(reference_values, ell, side="right") / len(reference_values)
+    below = float(np.mean(ell < np.percentile(reference_values, 1)))
+    word = "in support" if below < IN_SUPPORT else "outside" if below > OUTSIDE else "partly"
+    return {"verdict": word, "below_p1_fraction": below, "median_log_density": float(np.median(ell)),
+            "median_percentile": float(np.median(percentile)),
+            "reference_percentiles": {str(p): float(np.percentile(reference_values, p)) for p in PERCENTILES},
+            "frame_percentiles": percentile.tolist()}

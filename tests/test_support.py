@@ -1,0 +1,68 @@
+"""A prior knows its support (issue 19, item 2): ``priortrack eval fit-check`` against frames held out
+from the prior's own training data, on held-out walks and on motions unlike walking."""
+
+import json
+
+import numpy as np
+import pytest
+
+from priortrack import PriortrackError
+from priortrack.cli.main import main
+from priortrack.priors.support import IN_SUPPORT, OUTSIDE, verdict
+
+
+def _check(capsys, *argv) -> dict:
+    assert main(["eval", "fit-check", *argv, "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("preset, motion, expected", [
+    ("pf-lie", "walkjog:35_29", "in support"),       # a held-out walk
+    ("pf-lie", "cmu:07_10", "in support"),
+    ("pf-lie", "cmu:49_18", "outside"),              # balancing on one leg
+    ("pf-lie", "cmu:131_04", "outside"),             # a dance
+    ("pf-gpdm", "cmu:07_10", "in support"),
+    ("pf-gpdm", "cmu:49_18", "outside"),
+    ("pf-gpdm", "cmu:135_06", "outside"),            # martial arts
+])
+def test_walking_priors_know_a_held_out_walk_and_refuse_a_balance_or_a_dance(preset, motion, expected, capsys):
+    result = _check(capsys, preset, motion)
+    assert result["verdict"] == expected
+    assert len(result["frame_percentiles"]) > 10 and set(result["reference_percentiles"]) >= {"1", "50", "99"}
+
+
+def test_a_diffusion_prior_models_step_sizes_not_poses(capsys):
+    """Local diffusion learned on walks accepts a slow balance: it has no model of the pose."""
+    assert _check(capsys, "pf-diffusion-local", "cmu:49_18")["verdict"] == "in support"
+
+
+def test_a_prior_file_is_checked_against_reference_motions_it_was_not_fitted_on(tmp_path, capsys):
+    prior = tmp_path / "walk.npz"
+    assert main(["fit", "diffusion-local", "--train", "walkjog:35_01", "--out", str(prior)]) == 0
+    capsys.readouterr()
+    assert main(["eval", "fit-check", str(prior), "cmu:07_10"]) == 2
+    assert "give --reference" in capsys.readouterr().err
+    result = _check(capsys, str(prior), "cmu:13_39", "--reference", "walkjog:35_02", "walkjog:35_03")
+    assert result["verdict"] in ("in support", "partly", "outside") and result["kind"] == "diffusion-local"
+
+
+def test_the_verdict_counts_frames_below_the_references_first_percentile():
+    reference = np.arange(1000.0)                             # p1 = 9.99
+    assert verdict(np.full(10, 500.0), reference)["verdict"] == "in support"
+    assert verdict(np.r_[np.full(6, 0.0), np.full(4, 500.0)], reference)["verdict"] == "partly"
+    assert verdict(np.r_[np.full(9, 0.0), np.full(1, 500.0)], reference)["verdict"] == "outside"
+    assert verdict(np.array([-np.inf, 500.0]), reference)["below_p1_fraction"] == 0.5
+    assert 0 < IN_SUPPORT < OUTSIDE < 1
+    with pytest.raises(PriortrackError, match="at least two frames"):
+        verdict(np.array([]), reference)
+
+
+def test_the_tracker_says_when_the_tracked_motion_is_outside_the_prior():
+    """Real-format input (4 cameras): a held-out walk tracked with pf-lie is in its support, a person
+    balancing on one leg is not; the GPDM's tracked motion is not judged (its pose density is in the
+    training skeleton's angles)."""
+    from priortrack.experiments.real_format import run_real_format
+
+    assert run_real_format("pf-lie", "cmu:07_10", seed=0)["fit_check"] == "in support"
+    assert run_real_format("pf-lie", "cmu:49_18", seed=0)["fit_check"] == "outside"
+    assert run_real_format("pf-gpdm", "cmu:07_10", seed=0)["fit_check"] is None
