@@ -371,6 +371,18 @@ def test_fill_in_smoke_on_one_window(model):
     assert [w[0] for w in fill_in.windows(125)] == [(k * 75) // 11 for k in range(12)]
 
 
+def test_the_papers_knn_is_least_squares_over_the_nearest_windows():
+    """A window that is 0.3 A + 0.7 B of two training windows is filled exactly by the least-squares
+    combination (the paper's KNN), not by the average (our window-KNN)."""
+    rng = np.random.default_rng(0)
+    A, B, C = (rng.normal(size=(12, 4)) for _ in range(3))
+    y = 0.3 * A + 0.7 * B
+    missing = np.arange(3, 9)
+    filled = fill_in.fill_knn_least_squares(y, missing, [A, B, C], k=3)
+    np.testing.assert_allclose(filled, y[missing], atol=1e-10)
+    assert np.abs(fill_in.fill_knn(y, missing, [A, B, C], k=2) - y[missing]).max() > 0.1
+
+
 def test_fill_floor_recovers_poses_between_training_frames(model):
     # Poses on the model's manifold between training frames: the floor (each pose's own eq.-18
     # latent, then μ_Y) reproduces them far better than the nearest training pose does.
