@@ -584,6 +584,9 @@ def test_bad_input_raises(walk_split, synthetic):
         LiePrior.fit([Motion(legless, short.channels, short.fps, "legless", "07")])
     with pytest.raises(PriortrackError, match="subsample"):
         LiePrior.fit(train, subsample=0)
+    with pytest.raises(PriortrackError, match="paces must be speeds"):
+        LiePrior.fit(train, paces=(0.0,))
+
     g = torch.Generator().manual_seed(0)
     with pytest.raises(PriortrackError, match="shape"):
         prior.sample(torch.zeros(3, 41), g)
@@ -621,3 +624,12 @@ def test_bad_input_raises(walk_split, synthetic):
     with pytest.raises(PriortrackError, match="bones"):
         LiePrior(DirectionSpace(np.ones(B)), GeodesicMixture([1.0], np.tile([1.0, 0, 0], (1, 2, 1)),
                                                              np.zeros((1, 2, 2)), np.tile(np.eye(4), (1, 2, 1, 1))))
+
+
+def test_pace_augmentation_learns_each_walk_at_each_speed():
+    """paces (0.5, 1): every walk also played at half speed, sampled twice as densely: about three
+    times the samples, and slower velocities among them."""
+    walks = [load_motion(name) for name in ("cmu:07_01", "cmu:07_02", "cmu:07_09", "cmu:35_01")]
+    plain = LiePrior.fit(walks, seed=0, max_components=3)
+    both = LiePrior.fit(walks, seed=0, max_components=3, paces=(0.5, 1.0))
+    assert abs(both.train_frames - 3 * plain.train_frames) <= 4

@@ -71,7 +71,7 @@ import logging
 import math
 import queue
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -751,14 +751,20 @@ class LiePrior(TransitionModel):
     def fit(cls, motions: Sequence[Motion], fps: float = DEFAULT_FPS, scale: float = DEFAULT_SCALE,
             max_components: int = 30, subsample: int | None = None, seed: int = 0,
             progress: Callable[[int, float], None] | None = None, ridge: float = 1e-6,
-            tol: float = 1e-5) -> LiePrior:
+            tol: float = 1e-5, paces: Sequence[float] = (1.0,)) -> LiePrior:
         """Learn the prior from motions (resampled to ``fps``) by MML EM (module docstring).
 
         Samples are the pairs (x_t, v_t = s log_{x_t}(x_{t+1})) within each motion; with
         ``subsample`` set, that many of them drawn without replacement (seeded by ``seed``,
         which also seeds the starting components). ``progress(sweep, message_length)``.
+        ``paces``: each motion is also learned played at these speeds (time-warped before the
+        velocities are taken: pace p samples it at fps / p and plays it at fps), so that a walk
+        slower or faster than the training walks is not outside the conditional's reach.
         """
-        motions = prepare_motions(motions, fps, min_frames=2)
+        if not paces or any(not (isinstance(p, (int, float)) and 0.2 <= p <= 5) for p in paces):
+            raise PriortrackError(f"paces must be speeds in [0.2, 5], got {paces!r}")
+        motions = [replace(m.resample(fps / float(p)), fps=fps)
+                   for m in prepare_motions(motions, fps, min_frames=2) for p in paces]
         space = DirectionSpace.fit(motions)
         xs, vs = [], []
         for m in motions:
