@@ -480,6 +480,23 @@ def _eval_fit_check(args: argparse.Namespace) -> None:
           f"{result['median_percentile']:.0f}th percentile (reference median {p['50']:.1f})")
 
 
+def _eval_pace(args: argparse.Namespace) -> None:
+    from priortrack.experiments.pace import eval_pace
+
+    result = eval_pace(args.presets, args.motions, args.paces, args.scenarios, args.seeds)
+    if args.json:
+        _print_json(result)
+        return
+    walks = list(next(iter(result["table"].values())))
+    print(f"world MPJPE (mm), mean over {args.seeds} seeds; a walk@p is played at p x its speed")
+    for scenario in args.scenarios:
+        print(f"\n{scenario}")
+        print("| preset | " + " | ".join(walks) + " |")
+        print("|---|" + "---|" * len(walks))
+        for preset, cells in result["table"].items():
+            print(f"| {preset} | " + " | ".join(f"{cells[w][scenario]:.0f}" for w in walks) + " |")
+
+
 def _bench_smooth(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.smooth import bench_smooth
 
@@ -716,6 +733,14 @@ def build_parser() -> argparse.ArgumentParser:
                                                           "for a preset: two-fold cross-fits of its training motions)")
     fit_check.add_argument("--json", action="store_true")
     fit_check.set_defaults(run=_eval_fit_check)
+    pace = evaluate.add_parser("pace", help="filters on held-out walks played slower and faster than the training walks")
+    pace.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-lie", "pf-lie-defensive", "pf-gpdm"])
+    pace.add_argument("--motions", nargs="+", default=["walkjog:35_29", "cmu:07_10", "cmu:07_11"])
+    pace.add_argument("--paces", type=float, nargs="+", default=[0.6, 1.0, 1.4])
+    pace.add_argument("--scenarios", nargs="+", default=["noise", "blackout:sigma_px=5"])
+    pace.add_argument("--seeds", type=int, default=2)
+    pace.add_argument("--json", action="store_true")
+    pace.set_defaults(run=_eval_pace)
     smoothing = evaluate.add_parser("smoothing", help="smoothed vs filtered through a blackout on held-out walks")
     smoothing.add_argument("--presets", nargs="+",
                            default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-diffusion-local", "ukf-gpdm"])

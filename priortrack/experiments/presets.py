@@ -15,6 +15,7 @@ A preset (the shipped ones: ``priortrack presets``; any path works too)::
     options = { space = "angles" }   # keyword arguments of the kind's fit
     # file = "walk.npz"           # a prior written by `priortrack fit` instead of fitting one
     #                               (relative to the preset's folder; train then fits the global motion only)
+    # defensive = 0.1             # mix in a fraction ε of local diffusion (priortrack.priors.defensive)
 
     [observation]                 # JointLikelihood's parameters
     sigma_px = 10.0
@@ -41,7 +42,7 @@ import math
 import os
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -66,7 +67,9 @@ PRESET_DIR = next((d for d in (Path(__file__).resolve().parent / "preset_files",
                                Path(__file__).resolve().parents[2] / "filters") if d.is_dir()),
                   Path(__file__).resolve().parent / "preset_files")
 TOP_KEYS = ("description", "filter", "prior", "observation")
-PRIOR_KEYS = ("kind", "train", "fps", "options", "annealing", "file")
+PRIOR_KEYS = ("kind", "train", "fps", "options", "annealing", "file", "defensive")
+#: The state spaces a defensive diffusion can share, by the prior's space class.
+DEFENSIVE_SPACES = {"DirectionSpace": "directions", "AngleSpace": "angles"}
 
 
 #: Filter kind → (module, class). Each class says what it needs of a prior in ``requires``
@@ -138,6 +141,8 @@ class Preset:
             global motion), or None.
         annealing: the GPDM's dynamics annealing λ for filters that draw from it
             (:meth:`GPDM.annealed`; 1 = as learned); applied after fitting, not part of the cache key.
+        defensive: ε of a :class:`~priortrack.priors.defensive.DefensiveMixture` with local diffusion
+            fitted to the same motions in the prior's space (0: none).
         observation: JointLikelihood parameters (sigma_px, robust_nu).
     """
 
@@ -152,6 +157,7 @@ class Preset:
     observation: dict[str, Any] = field(default_factory=dict)
     annealing: float = 1.0
     prior_file: Path | None = None
+    defensive: float = 0.0
 
     @property
     def cache_key(self) -> str:
@@ -174,7 +180,21 @@ class Preset:
 
     def prior(self, cache: Path | None = None, progress=None) -> TransitionModel:
         """The prior: the preset's prior file, else the fitted prior from the cache if it is there
-        (fitted and cached otherwise)."""
+        (fitted and cached otherwise); with ``defensive`` ε, mixed with local diffusion."""
+        prior = self._learned_prior(cache, progress)
+        if self.defensive == 0:
+            return prior
+        from priortrack.priors.defensive import DefensiveMixture
+
+        space = DEFENSIVE_SPACES.get(type(prior.space).__name__)
+        if space is None:
+            raise PriortrackError(f"preset {self.name!r}: [prior] defensive mixes in diffusion on the prior's own "
+                                  f"state space; the {self.prior_kind} prior's ({type(prior.space).__name__}) has none")
+        fallback = replace(self, prior_kind="diffusion-local", prior_options={"space": space}, annealing=1.0,
+                           prior_file=None, defensive=0.0).prior(cache)
+        return DefensiveMixture(prior, fallback, self.defensive)
+
+    def _learned_prior(self, cache: Path | None, progress) -> TransitionModel:
         if self.prior_file is not None:
             prior = load_prior(self.prior_file)
             if prior.kind != self.prior_kind:
@@ -336,12 +356,19 @@ def parse_preset(table: dict, name: str, where: str = "preset", folder: Path | N
         if isinstance(annealing, bool) or not isinstance(annealing, (int, float)) or not 0 < annealing <= 1:
             raise PriortrackError(f"{where}: [prior] annealing must be a number in (0, 1], got {annealing!r}")
 
+    defensive = prior.get("defensive", 0.0)
+    if isinstance(defensive, bool) or not isinstance(defensive, (int, float)) or not 0 <= defensive < 1:
+        raise PriortrackError(f"{where}: [prior] defensive must be a fraction in [0, 1), got {defensive!r}")
+    if defensive and kind == "ukf":
+        raise PriortrackError(f"{where}: [prior] defensive makes the transition a mixture, which the unscented filter "
+                              f"cannot use (it needs one Gaussian)")
+
     observation = dict(table.get("observation", {}))
     _check_keys(f"{where} [observation]", observation, _parameters(JointLikelihood.__init__, ("self", "camera")))
     _check_types(f"{where} [observation]", observation, {"sigma_px": 10.0, "robust_nu": 4.0})
     return Preset(name, str(table.get("description", "")), kind, options, prior_kind,
                   tuple(expand_sources(train)), float(fps), prior_options, observation,
-                  float(annealing), prior_file)
+                  float(annealing), prior_file, float(defensive))
 
 
 def _prior_file(prior: dict, where: str, folder: Path | None) -> Path | None:
