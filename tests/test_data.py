@@ -286,3 +286,12 @@ def test_truncated_asf(tmp_path):
         path.write_text(text[: int(len(text) * cut)])
         with pytest.raises(PriortrackError, match=r"cut\.asf"):
             read_asf(path)
+
+
+def test_a_motion_played_at_another_pace():
+    walk = load_motion("cmu:07_01").resample(30)
+    slow = walk.played_at(0.5)
+    assert slow.fps == 30 and slow.name == "07_01@0.5" and abs(len(slow) - 2 * len(walk)) <= 1
+    np.testing.assert_allclose(slow.channels[::2][:len(walk)], walk.channels[:len(slow.channels[::2])], atol=1e-12)
+    with pytest.raises(PriortrackError, match="pace must be a speed"):
+        walk.played_at(0.0)

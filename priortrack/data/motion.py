@@ -76,3 +76,10 @@ class Motion:
         rotation[self.skeleton.trans_channels[self.skeleton.trans_channels >= 0]] = False
         step[:, rotation] = np.mod(step[:, rotation] + np.pi, 2 * np.pi) - np.pi
         return replace(self, channels=a + weight * step, fps=float(fps))
+
+    def played_at(self, pace: float) -> Motion:
+        """The motion played at ``pace`` × its speed, at its own frame rate (time-warped: sampled at
+        fps / pace, then played at fps; pace 0.5 has twice the frames). Named ``<name>@<pace>``."""
+        if isinstance(pace, bool) or not isinstance(pace, (int, float)) or not 0.2 <= pace <= 5:
+            raise PriortrackError(f"pace must be a speed in [0.2, 5], got {pace!r}")
+        return replace(self.resample(self.fps / pace), fps=self.fps, name=f"{self.name}@{pace:g}")

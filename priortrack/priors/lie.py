@@ -71,7 +71,7 @@ import logging
 import math
 import queue
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -763,8 +763,7 @@ class LiePrior(TransitionModel):
         """
         if not paces or any(not (isinstance(p, (int, float)) and 0.2 <= p <= 5) for p in paces):
             raise PriortrackError(f"paces must be speeds in [0.2, 5], got {paces!r}")
-        motions = [replace(m.resample(fps / float(p)), fps=fps)
-                   for m in prepare_motions(motions, fps, min_frames=2) for p in paces]
+        motions = [m.played_at(p) for m in prepare_motions(motions, fps, min_frames=2) for p in paces]
         space = DirectionSpace.fit(motions)
         xs, vs = [], []
         for m in motions:
