@@ -56,7 +56,7 @@ def test_a_rerun_does_no_work_and_an_interrupted_grid_resumes(grid, monkeypatch)
     monkeypatch.setattr(compare_module, "run", lambda *a, **k: pytest.fail("a cached run was run again"))
     assert compare(configs, out) == rows
     # one run's files gone (as if interrupted before it finished): only that run runs again
-    key = configs[5].key()
+    key = configs[5].key
     (out / "runs" / f"{key}.json").unlink()
     ran = []
     monkeypatch.setattr(compare_module, "run", lambda config, *a: ran.append(config) or

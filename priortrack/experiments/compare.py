@@ -7,7 +7,7 @@ on one torch thread (so that a serial run and a Dask run of the same grid give t
 the GPDM fits, and some reductions, part in their last digits with the thread count), its priors
 fitted once beforehand in this process.
 
-**Cache.** A run's configuration hash (:meth:`RunConfig.key`) covers the preset file's text, the
+**Cache.** A run's configuration hash (:attr:`RunConfig.key`) covers the preset file's text, the
 motion (its name and, for a file, its bytes), the scenario, seed, frame count, smoothing, the
 thread count and priortrack's version. ``DIR/runs/<hash>.json`` (the CSV row) and ``<hash>.npz``
 (its per-frame series) are written when a run finishes; a run whose files are there is not run
@@ -30,6 +30,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -63,8 +64,10 @@ class RunConfig:
     frames: int | None = None
     smooth: bool = False
 
+    @cached_property
     def key(self) -> str:
-        """The configuration hash (module docstring), 16 hex digits."""
+        """The configuration hash (module docstring), 16 hex digits; computed once (it reads the
+        preset file, and a motion file's bytes)."""
         from priortrack import __version__
         from priortrack.experiments.presets import preset_path
 
@@ -116,42 +119,32 @@ def run(config: RunConfig, cache: str | None = None, rrd: bool = False) -> tuple
     """One run on RUN_THREADS torch threads: its CSV row, per-frame series and, with ``rrd``, its
     recording (:func:`priortrack.viz.replay.replay`) as the bytes of an .rrd file: plain values, what
     a Dask worker returns."""
-    import torch
-
     from priortrack.body.fk import joint_positions
     from priortrack.experiments.metrics import mpjpe
-    from priortrack.experiments.real import mismatch_flags
+    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.real import frame_log_likelihoods, mismatch_flags
     from priortrack.experiments.tracking import track
     from priortrack.filters.snapshot import KNOWN_FRAMES
+    from priortrack.threads import torch_threads
 
-    threads = torch.get_num_threads()
-    torch.set_num_threads(RUN_THREADS)
-    try:
+    with torch_threads(RUN_THREADS):
         result = track(config.motion, config.filter, config.scenario, config.seed, cache=cache,
                        frames=config.frames, smooth=config.smooth, keep_snapshots=rrd)
-    finally:
-        torch.set_num_threads(threads)
     r, uv = result.result, result.observations.uv
     estimates = result.track.estimates if result.smoothed is None else result.smoothed.estimates
     error = np.full(len(uv), np.nan)
     error[KNOWN_FRAMES:] = mpjpe(estimates[KNOWN_FRAMES:], joint_positions(result.motion, "eval15")[KNOWN_FRAMES:])
-    from priortrack.experiments.presets import load_preset
-
     preset = load_preset(config.filter)
     likelihood = preset.likelihood(result.observations.camera)
     particles = preset.filter_kind in ("pf", "apf")          # the UKF's "ESS" counts sigma points: none
-    loglik = np.full(len(uv), np.nan)
-    for t in range(KNOWN_FRAMES, len(uv)):
-        if np.isfinite(uv[t]).any():
-            loglik[t] = float(likelihood.log_likelihood(torch.as_tensor(result.track.estimates[t])[None],
-                                                        torch.as_tensor(uv[t]))[0])
+    loglik = frame_log_likelihoods(likelihood, result.track.estimates, uv)     # (mismatch_flags skips the known frames)
     confident = np.concatenate([uv, np.ones(uv.shape[:2] + (1,))], -1)[:, None]          # (T, 1, J, 3)
     mismatch = mismatch_flags(loglik, confident, likelihood)
     row = {"filter": config.filter, "motion": config.motion, "scenario": config.scenario, "seed": config.seed,
            "mpjpe_mm": r["mpjpe_mm"], "rootrel_mm": r["mpjpe_root_rel_mm"], "px_err": r["err2d_px"],
            "failure_rate": float(np.mean(error[KNOWN_FRAMES:] > FAILURE_MM)),
            "s_per_frame": r["seconds_per_frame"], "mean_ess": r["mean_ess"] if particles else None,
-           "mismatch_fraction": float(mismatch[KNOWN_FRAMES:].mean()), "config_hash": config.key()}
+           "mismatch_fraction": float(mismatch[KNOWN_FRAMES:].mean()), "config_hash": config.key}
     if config.smooth:
         row.update(filtered_mpjpe_mm=r["filtered_mpjpe_mm"], filtered_rootrel_mm=r["filtered_mpjpe_root_rel_mm"])
     observed = np.isfinite(uv).all(axis=-1).sum(axis=-1)
@@ -193,6 +186,7 @@ def compare(configs: Sequence[RunConfig], out: str | Path, workers: int | None =
     """Run (or read from ``out``'s cache) every configuration, write ``out``/results.csv, summary.md,
     plots/ and (``rrd``) recordings/; returns the rows in the grid's order."""
     from priortrack.experiments.presets import cache_dir, load_preset
+    from priortrack.threads import torch_threads
 
     if workers is not None and scheduler is not None:
         raise PriortrackError("compare: give --workers or --scheduler, not both")
@@ -206,7 +200,7 @@ def compare(configs: Sequence[RunConfig], out: str | Path, workers: int | None =
     cache = str(cache_dir() if cache is None else cache)
     rows: dict[RunConfig, dict] = {}
     for config in configs:
-        stored = _stored(runs_dir, config.key())
+        stored = _stored(runs_dir, config.key)
         if stored is not None and (not rrd or _recording_path(out, config).exists()):
             rows[config] = stored
     pending = [c for c in configs if c not in rows]
@@ -214,7 +208,7 @@ def compare(configs: Sequence[RunConfig], out: str | Path, workers: int | None =
     start, cached = time.perf_counter(), len(rows)
 
     def finished(config: RunConfig, row: dict, series: dict, recording: bytes | None) -> None:
-        _store(runs_dir, config.key(), row, series)
+        _store(runs_dir, config.key, row, series)
         if recording is not None:
             path = _recording_path(out, config)
             path.parent.mkdir(exist_ok=True)
@@ -226,12 +220,9 @@ def compare(configs: Sequence[RunConfig], out: str | Path, workers: int | None =
             progress(Progress(len(rows), len(configs), cached, rate * (len(configs) - len(rows)), config.label))
 
     if pending:
-        threads = _set_run_threads()
-        try:
+        with torch_threads(RUN_THREADS):
             for name in dict.fromkeys(c.filter for c in pending):
                 load_preset(name).prior(cache)                  # fitted once, here, before any run
-        finally:
-            _restore_threads(threads)
         if workers is None and scheduler is None:
             for config in pending:
                 finished(config, *run(config, cache, rrd))
@@ -242,22 +233,8 @@ def compare(configs: Sequence[RunConfig], out: str | Path, workers: int | None =
     (out / "summary.md").write_text(summary_markdown(ordered))
     from priortrack.viz.compare_plots import write_plots
 
-    write_plots(ordered, {c.key(): _series(runs_dir, c.key()) for c in configs}, out / "plots")
+    write_plots(ordered, {c.key: _series(runs_dir, c.key) for c in configs}, out / "plots")
     return ordered
-
-
-def _set_run_threads() -> int:
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(RUN_THREADS)
-    return threads
-
-
-def _restore_threads(threads: int) -> None:
-    import torch
-
-    torch.set_num_threads(threads)
 
 
 def _on_dask(pending: list[RunConfig], cache: str, rrd: bool, workers: int | None, scheduler: str | None,

@@ -339,17 +339,14 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
     run = filt.run(z[first:], known, keep_snapshots=True, progress=progress, **initial)
     T = len(index) - first
-    spread, loglik = np.full((T, 15), np.nan), np.full(T, np.nan)
+    spread = np.full((T, 15), np.nan)
     for s in run.snapshots:
         spread[s.frame] = _spread(s)
     smoothed = smooth_run(filt, run, z[first:], trajectories, lag, seed) if smooth else None
     if smoothed is not None:
         spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
     estimates = run.estimates if smoothed is None else smoothed.estimates
-    for t in range(T):
-        if np.isfinite(run.estimates[t]).all() and np.isfinite(z[first + t, ..., :2]).any():
-            loglik[t] = float(model.likelihood.log_likelihood(torch.as_tensor(run.estimates[t])[None],
-                                                              torch.as_tensor(z[first + t]))[0])
+    loglik = frame_log_likelihoods(model.likelihood, run.estimates, z[first:])
     mismatch = mismatch_flags(loglik, z[first:], model.likelihood)
     def world(body: np.ndarray) -> np.ndarray:      # the detector's definitions, back in the world
         return np.einsum("ij,tjk->tik", M, body) @ A
@@ -483,6 +480,17 @@ def _expected_log_density(likelihood: MultiViewLikelihood) -> float:
         return -1.0 - math.log(2 * math.pi * var)
     const = math.lgamma((nu + 2) / 2) - math.lgamma(nu / 2) - math.log(nu * math.pi * var)
     return const - 0.5 * (nu + 2) * (2 / nu)
+
+
+def frame_log_likelihoods(likelihood, estimates: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(T,) log p(z_t | estimate_t) under the observation model, for estimates (T, J, 3) and the data
+    z (T, …) (pixels, with confidences for several cameras); NaN where the estimate is not finite or
+    nothing was seen."""
+    loglik = np.full(len(estimates), np.nan)
+    for t, (joints, frame) in enumerate(zip(estimates, z)):
+        if np.isfinite(joints).all() and np.isfinite(frame[..., :2]).any():
+            loglik[t] = float(likelihood.log_likelihood(torch.as_tensor(joints)[None], torch.as_tensor(frame))[0])
+    return loglik
 
 
 def mismatch_flags(loglik: np.ndarray, z: np.ndarray, likelihood: MultiViewLikelihood) -> np.ndarray:
