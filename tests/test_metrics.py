@@ -96,3 +96,12 @@ def test_summarise():
     assert empty["frames"] == 0 and empty["frames_without_data"] == 3 and np.isnan(empty["mean"])
     with pytest.raises(PriortrackError, match=r"per_frame.*\(T,\)"):
         summarise(np.zeros((2, 2)))
+
+
+def test_a_table_cells_mean_and_sample_std():
+    from priortrack.experiments.metrics import mean_std
+
+    assert mean_std([1.0, 2.0, 3.0]) == (2.0, 1.0)
+    assert mean_std([4.0, None, float("nan")]) == (4.0, 0.0)
+    mean, std = mean_std([None])
+    assert np.isnan(mean) and np.isnan(std)

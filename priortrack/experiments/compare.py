@@ -313,18 +313,13 @@ def write_csv(rows: Sequence[dict], path: Path) -> None:
             writer.writerow(["" if row.get(c) is None else row[c] for c in columns])
 
 
-def _mean_std(values: list[float]) -> tuple[float, float]:
-    values = [v for v in values if v is not None and math.isfinite(v)]
-    if not values:
-        return float("nan"), float("nan")
-    return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
-
-
 def table(rows: Sequence[dict], key: str) -> dict[str, dict[str, tuple[float, float]]]:
-    """{filter: {scenario: (mean, std) of ``key`` over motions and seeds}}."""
+    """{filter: {scenario: (mean, std) of ``key`` over motions and seeds}} (:func:`~priortrack.experiments.metrics.mean_std`)."""
+    from priortrack.experiments.metrics import mean_std
+
     filters = list(dict.fromkeys(r["filter"] for r in rows))
     scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
-    return {f: {s: _mean_std([r.get(key) for r in rows if r["filter"] == f and r["scenario"] == s])
+    return {f: {s: mean_std([r.get(key) for r in rows if r["filter"] == f and r["scenario"] == s])
                 for s in scenarios} for f in filters}
 
 

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import numpy as np
@@ -141,3 +142,12 @@ def summarise(per_frame: Any) -> dict[str, float | int]:
             "std": float(valid.std()),
         }
     return {**stats, "frames": n, "frames_without_data": int(x.size - n)}
+
+
+def mean_std(values) -> tuple[float, float]:
+    """Mean and sample standard deviation (ddof = 1; 0 for one value) of the finite ``values`` over
+    runs (None and NaN left out; NaN, NaN if none is left): a table cell's mean ± std."""
+    kept = [float(v) for v in values if v is not None and math.isfinite(v)]
+    if not kept:
+        return float("nan"), float("nan")
+    return float(np.mean(kept)), float(np.std(kept, ddof=1)) if len(kept) > 1 else 0.0

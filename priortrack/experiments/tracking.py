@@ -28,7 +28,7 @@ import torch
 from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.experiments.metrics import error_2d, mpjpe, mpjpe_root_relative
+from priortrack.experiments.metrics import error_2d, mean_std, mpjpe, mpjpe_root_relative
 from priortrack.experiments.presets import Preset, load_preset
 from priortrack.filters.smoothing import TRAJECTORIES, Smoothed, smooth as smooth_run
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
@@ -50,8 +50,8 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"
 
 
 def _mean_std(rows: list[dict], key: str) -> dict[str, float]:
-    values = np.array([r[key] for r in rows])
-    return {key: float(values.mean()), f"{key}_std": float(values.std(ddof=1)) if len(values) > 1 else 0.0}
+    mean, std = mean_std([r[key] for r in rows])
+    return {key: mean, f"{key}_std": std}
 
 
 @dataclass

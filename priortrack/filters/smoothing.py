@@ -1,7 +1,7 @@
 """Smoothing: each frame's estimate given every frame of a finished run (or, with a lag L, the
 frames up to L after it), from the filter's stored steps.
 
-- Particle filters (plain and annealed): forward-filtering backward-simulation of M trajectories
+- The particle filter: forward-filtering backward-simulation of M trajectories
   (:mod:`priortrack.filters.backward_simulation`) with the tracking model's transition density;
   with the translation integrated out, the pose and rotation are drawn and each trajectory's
   translation is Kalman-smoothed given them (Rao–Blackwellised:
@@ -10,7 +10,8 @@ frames up to L after it), from the filter's stored steps.
 - The unscented filter: the unscented RTS smoother (:mod:`priortrack.filters.unscented_rts`); the
   estimate is the joints of the smoothed mean, the spread the RMS of the joints over the smoothed
   Gaussian (its sigma points, weights Wc).
-- The MAP tracker is itself a sliding-window smoother and keeps no distribution: refused.
+- Refused: the annealed particle filter (its tempered weights are not a posterior) and the MAP
+  tracker (itself a sliding-window smoother, keeping no distribution).
 
 **Fixed lag L** (online use): the estimate of frame t − L is released at frame t, smoothed over the
 window t − L … t (frames 0 … L − 1 of the window's end come out of the last window). L = 0 is the
@@ -73,8 +74,8 @@ def smooth(filt, track: Track, observations, trajectories: int = TRAJECTORIES, l
     """The smoothed estimates of a finished run (module docstring).
 
     Args:
-        filt: the filter that made ``track`` (a ParticleFilter, AnnealedParticleFilter or
-            UnscentedFilter), as it was after the run.
+        filt: the filter that made ``track`` (a ParticleFilter or UnscentedFilter), as it was
+            after the run.
         track: its run, with ``keep_snapshots=True``.
         observations: (T, *observation_shape) what the run was given.
         trajectories: M, the particle smoother's trajectories (ignored by the unscented smoother).
