@@ -88,3 +88,18 @@ def test_the_mismatch_flag_needs_the_prior_to_find_the_step_implausible(tmp_path
         result = track_detections(read_detections(folder, keypoints="body25b"), calibration, "pf-lie", fps=30.0)
         fractions[motion] = result.mismatch_fraction
     assert fractions["walkjog:35_29"] < 0.3 and fractions["cmu:49_18"] > 0.6, fractions
+
+
+def test_the_reference_is_cached_and_verified_like_the_priors(tmp_path, caplog):
+    """The held-out reference goes through the prior cache's digest check: a planted file is refitted."""
+    from priortrack.experiments.presets import load_preset
+    from priortrack.priors.support import reference
+
+    preset = load_preset("pf-diffusion-local")
+    first = reference(preset, cache=tmp_path)
+    (stored,) = tmp_path.glob("support-*.npz")
+    assert stored.with_suffix(".sha256").is_file()
+    np.savez(stored, values=np.zeros(3))
+    again = reference(preset, cache=tmp_path)
+    assert "does not match its digest" in caplog.text
+    np.testing.assert_array_equal(again, first)

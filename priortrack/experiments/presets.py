@@ -203,11 +203,11 @@ class Preset:
             return prior if self.annealing == 1.0 else prior.annealed(self.annealing)
         cache = cache_dir() if cache is None else Path(cache)
         path = cache / f"{self.prior_kind}-{self.cache_key}.npz"
-        prior = _cached(path)
+        prior = read_cached(path, load_prior)
         if prior is None:
             prior = fit_prior(self.prior_kind, self.training_motions, progress=progress, fps=self.fps,
                               **self.prior_options)
-            _cache(prior, path)
+            write_cached(path, prior.save, f"{prior.kind} prior")
         return prior if self.annealing == 1.0 else prior.annealed(self.annealing)
 
     @cached_property
@@ -238,41 +238,41 @@ def _digest_path(path: Path) -> Path:
     return path.with_suffix(".sha256")
 
 
-def _cached(path: Path) -> TransitionModel | None:
-    """The prior cached at ``path`` if it is a regular file (not a link) whose SHA-256 matches the digest
-    written beside it; None (logged) otherwise, for a refit."""
+def read_cached(path: Path, load: Callable[[Path], Any], what: str = "prior"):
+    """``load(path)`` of the cache entry ``path`` if it is a regular file (not a link) whose SHA-256
+    matches the digest written beside it; None (logged) otherwise, for a refit."""
     if not path.exists() and not path.is_symlink():
         return None
     digest = _digest_path(path)
     if path.is_symlink() or digest.is_symlink() or not path.is_file() or not digest.is_file():
-        log.warning("cached prior %s is a link or lacks its digest: not used, refitting", path)
+        log.warning("cached %s %s is a link or lacks its digest: not used, refitting", what, path)
         return None
     try:
         if hashlib.sha256(path.read_bytes()).hexdigest() != digest.read_text().strip():
-            log.warning("cached prior %s does not match its digest (corrupted or replaced): refitting", path)
+            log.warning("cached %s %s does not match its digest (corrupted or replaced): refitting", what, path)
             return None
-        log.info("prior from cache %s", path)
-        return load_prior(path)
+        log.info("%s from cache %s", what, path)
+        return load(path)
     except (OSError, PriortrackError) as exc:
-        log.warning("cached prior %s cannot be read (%s): refitting", path, exc)
+        log.warning("cached %s %s cannot be read (%s): refitting", what, path, exc)
         return None
 
 
-def _cache(prior: TransitionModel, path: Path) -> None:
-    """Write the prior and its digest to the cache atomically (each to a partial file, then renamed);
-    a cache that cannot be written costs the next run a refit, no more."""
+def write_cached(path: Path, save: Callable[[Path], Any], what: str = "prior") -> None:
+    """Write a cache entry by ``save(file)`` and its digest atomically (each to a partial file, then
+    renamed); a cache that cannot be written costs the next run a refit, no more."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_suffix(".partial.npz")
-        prior.save(partial)
+        partial = path.with_suffix(".partial" + path.suffix)
+        save(partial)
         text = hashlib.sha256(partial.read_bytes()).hexdigest()
         digest_partial = _digest_path(path).with_suffix(".partial.sha256")
         digest_partial.write_text(text + "\n")
         partial.replace(path)
         digest_partial.replace(_digest_path(path))
-        log.info("fitted %s prior cached at %s", prior.kind, path)
+        log.info("fitted %s cached at %s", what, path)
     except (PriortrackError, OSError) as exc:
-        log.warning("fitted %s prior not cached (%s)", prior.kind, exc)
+        log.warning("fitted %s not cached (%s)", what, exc)
 
 
 def cache_dir() -> Path:

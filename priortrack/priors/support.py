@@ -27,25 +27,23 @@ sit in that gap; a walk unlike the training walks lands in "partly", as 07_11 do
 
 from __future__ import annotations
 
-import hashlib
-import json
-import logging
-import os
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from priortrack.data.motion import Motion
+from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
 from priortrack.priors.base import prepare_motions
 from priortrack.priors.registry import PRIOR_KINDS, fit_prior
 
-log = logging.getLogger(__name__)
 
 #: Share of frames below the reference's 1st percentile: under IN_SUPPORT "in support", over OUTSIDE
 #: "outside". Set on the bundled clips (module docstring's table), not on one file.
 IN_SUPPORT, OUTSIDE = 0.5, 0.85
+#: The most a cached reference may hold (10⁶ frames).
+REFERENCE_BYTES = 8 * 10**6
 #: Training motions from which the reference's folds are whole motions (fewer: halves of each).
 MIN_MOTION_FOLDS = 4
 #: Percentiles of the reference reported with a verdict.
@@ -66,33 +64,25 @@ def frame_log_density(prior, motion: Motion) -> np.ndarray:
 
 def reference(preset, cache: Path | None = None) -> np.ndarray:
     """ℓ_t on held-out frames of the preset's training data (module docstring): two-fold cross-fits,
-    cached as ``support-<key>.json`` (the values, no pickle) in the prior cache."""
-    from priortrack.experiments.presets import cache_dir
+    cached as ``support-<kind>-<key>.npz`` in the prior cache, verified by its digest as the priors are."""
+    from priortrack.experiments.presets import cache_dir, read_cached, write_cached
 
     if preset.prior_file is not None:
         raise PriortrackError(f"preset {preset.name!r} names a prior file: its training motions are not known, so "
                               f"give reference motions of its kind (--reference)")
     motions = list(preset.training_motions)
-    folder = cache_dir() if cache is None else Path(cache)
-    path = folder / f"support-{preset.prior_kind}-{preset.cache_key}.json"
-    if path.is_file() and not path.is_symlink():
-        try:
-            stored = json.loads(path.read_text())
-            if stored.get("digest") == _digest(stored["values"]):
-                return np.asarray(stored["values"], dtype=float)
-        except (OSError, ValueError, KeyError, TypeError):
-            pass
-        log.warning("support reference %s is unreadable or does not match its digest: recomputing", path)
+    path = (cache_dir() if cache is None else Path(cache)) / f"support-{preset.prior_kind}-{preset.cache_key}.npz"
+    stored = read_cached(path, lambda p: read_npz(p, REFERENCE_BYTES, "support reference")["values"],
+                         "support reference")
+    if stored is not None:
+        return stored
     values = []
     for fit_on, held_out in _folds(motions):
         fitted = fit_prior(preset.prior_kind, fit_on, fps=preset.fps, **preset.prior_options)
         fitted = fitted if preset.annealing == 1.0 else fitted.annealed(preset.annealing)
         values += [frame_log_density(fitted, m) for m in held_out]
     values = np.concatenate(values)
-    folder.mkdir(parents=True, exist_ok=True)
-    partial = path.with_suffix(".partial")
-    partial.write_text(json.dumps({"values": values.tolist(), "digest": _digest(values.tolist())}))
-    os.replace(partial, path)
+    write_cached(path, lambda p: np.savez(p, values=values), "support reference")
     return values
 
 
@@ -105,10 +95,6 @@ def _folds(motions: list[Motion]) -> list[tuple[list[Motion], list[Motion]]]:
     else:
         folds = [[m[:len(m) // 2] for m in motions], [m[len(m) // 2:] for m in motions]]
     return [(folds[0], folds[1]), (folds[1], folds[0])]
-
-
-def _digest(values: list) -> str:
-    return hashlib.sha256(json.dumps(values).encode()).hexdigest()
 
 
 def verdict(ell: np.ndarray, reference_values: np.ndarray) -> dict:
