@@ -400,10 +400,6 @@ def _compare(args: argparse.Namespace) -> None:
 
     from priortrack.experiments.compare import compare, plan, table
 
-    if args.workers is not None and args.scheduler is not None:
-        raise PriortrackError("compare: give --workers or --scheduler, not both")
-    if args.workers is not None and args.workers < 1:
-        raise PriortrackError(f"compare: --workers must be a positive whole number, got {args.workers}")
     configs = plan(args.filters, args.motions, args.scenarios, args.seeds, args.frames, args.smooth)
     progress = _Progress("compare", "{0}")
 
