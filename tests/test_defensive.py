@@ -66,3 +66,12 @@ def test_a_slow_walk_is_held_by_the_defensive_mixture_and_the_normal_pace_is_not
     assert defensive < 80 < 1.5 * 80 < lie
     assert track(normal, "pf-lie-defensive", "noise", 0).result["mpjpe_mm"] < 1.1 * \
         track(normal, "pf-lie", "noise", 0).result["mpjpe_mm"]
+
+
+def test_eval_pace_refuses_bad_arguments(capsys):
+    from priortrack.cli.main import main
+
+    assert main(["eval", "pace", "--seeds", "0"]) == 2
+    assert "seeds must be at least 1" in capsys.readouterr().err
+    assert main(["eval", "pace", "--paces", "0", "--presets", "pf-lie", "--motions", "cmu:07_10"]) == 2
+    assert "pace must be a speed in [0.2, 5], got 0.0" in capsys.readouterr().err
