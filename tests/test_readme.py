@@ -39,7 +39,11 @@ def test_the_python_blocks_run(tmp_path, monkeypatch, capsys):
 
 
 def test_the_demo_prints_the_table_the_readme_shows(tmp_path, capsys):
-    """The Makefile's demo command, run here: its table rows are the README's (but the timing column)."""
+    """The Makefile's demo command, run here: its table is the README's (but the timing column), each
+    figure within 15 % (failure rates within 0.1). Not to the digit: the balanced GPDM's fit (some 800
+    L-BFGS iterations) and the particle filters' float32 kernels round differently on another CPU, and
+    the figures move with it (pf-gpdm 93.2 / 45.9 mm on one machine, 94.3 / 49.6 on another); a stale
+    table, or the wrong filters, is far outside that."""
     from priortrack.cli.main import main
 
     makefile = (Path(__file__).resolve().parents[1] / "Makefile").read_text()
@@ -49,7 +53,17 @@ def test_the_demo_prints_the_table_the_readme_shows(tmp_path, capsys):
     assert main(command) == 0
     printed = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "---" not in line]
     shown = re.search(r"It prints\n\n```text\n(.*?)```", README, re.S).group(1).splitlines()
-    def untimed(rows: list[str]) -> list[str]:
-        return [row.rsplit("|", 2)[0] for row in rows]
 
-    assert len(printed) == 5 and untimed(printed) == untimed(shown)
+    def cells(rows: list[str]) -> list[list[str]]:
+        return [[c.strip() for c in row.strip("| ").split("|")][:-1] for row in rows]      # the timing column dropped
+
+    assert len(printed) == 5 and cells(printed)[0] == cells(shown)[0]
+    for ran, readme in zip(cells(printed)[1:], cells(shown)[1:]):
+        assert ran[0] == readme[0] and len(ran) == len(readme)
+        for column, (a, b) in enumerate(zip(ran[1:], readme[1:]), start=1):
+            if b == "—":
+                assert a == "—", (ran, readme)
+            elif column == 4:                                                              # failure rate
+                assert abs(float(a) - float(b)) <= 0.1, (ran, readme)
+            else:
+                assert abs(float(a) - float(b)) <= 0.15 * float(b), (ran, readme)

@@ -70,8 +70,12 @@ def test_the_tracker_says_when_the_tracked_motion_is_outside_the_prior():
 
 def test_the_mismatch_flag_needs_the_prior_to_find_the_step_implausible(tmp_path):
     """At 30 fps the likelihood alone flagged 72 % of held-out 35_29 under pf-lie; a mismatch tick
-    must now also be a step the Lie prior scores below its held-out 1st percentile: 21 % measured. A
-    balance stays flagged (82 % measured)."""
+    must now also be a step the Lie prior scores below its held-out 1st percentile. Over three seeds
+    (detector noise and filter) the held-out walks' median flagged fraction stays low and a balance's
+    high. One run is not enough: a run whose estimate goes astray is flagged at length (35_29, seed 0:
+    53 % on one machine, 21 % on another, where the filter's float32 kernels round differently), so
+    the medians are compared (measured: 35_29 0.53 / 0.02 / 0.00, 07_10 0.03 / 0.06 / 0.00,
+    49_18 0.70 / 0.92 / 0.90)."""
     from priortrack.data.calibration import read_calibration
     from priortrack.data.detections import read_detections
     from priortrack.experiments.real import track_detections
@@ -82,12 +86,18 @@ def test_the_mismatch_flag_needs_the_prior_to_find_the_step_implausible(tmp_path
     calibration = read_calibration(DEFAULT_CALIBRATION)
     cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
     fractions = {}
-    for motion, seconds in (("walkjog:35_29", 1.5), ("cmu:49_18", 3.0)):
+    for motion, seconds in (("walkjog:35_29", 1.5), ("cmu:07_10", 1.5), ("cmu:49_18", 3.0)):
         X = placed_walk(motion, calibration.up, fps=30.0, seconds=seconds)
-        folder = write_openpose(detector_keypoints(X, cameras, np.random.default_rng(0)), tmp_path / motion.replace(":", "_"))
-        result = track_detections(read_detections(folder, keypoints="body25b"), calibration, "pf-lie", fps=30.0)
-        fractions[motion] = result.mismatch_fraction
-    assert fractions["walkjog:35_29"] < 0.3 and fractions["cmu:49_18"] > 0.6, fractions
+        runs = []
+        for seed in range(3):
+            folder = write_openpose(detector_keypoints(X, cameras, np.random.default_rng(seed)),
+                                    tmp_path / f"{motion.replace(':', '_')}-{seed}")
+            result = track_detections(read_detections(folder, keypoints="body25b"), calibration, "pf-lie",
+                                      fps=30.0, seed=seed)
+            runs.append(result.mismatch_fraction)
+        fractions[motion] = float(np.median(runs))
+    assert fractions["walkjog:35_29"] < 0.3 and fractions["cmu:07_10"] < 0.3, fractions
+    assert fractions["cmu:49_18"] > 0.6, fractions
 
 
 def test_the_reference_is_cached_and_verified_like_the_priors(tmp_path, caplog):
