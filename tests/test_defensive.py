@@ -59,19 +59,15 @@ def test_presets_check_the_defensive_fraction():
 
 
 def test_a_slow_walk_is_held_by_the_defensive_mixture_and_the_normal_pace_is_not_worse():
-    """07_10 at 0.6x its pace, 5 px: pf-lie loses it (178 mm over 2 seeds, measured), the mixture holds
-    it (63 mm); at its own pace both are near 62 mm."""
+    """07_10 at 0.6x its pace, 5 px: pf-lie loses it (163-210 mm, measured), the mixture holds it
+    (51-69 mm). At its own pace, over three seeds, the mixture costs 2 % on one machine (64.4 against
+    63.3 mm) and 8 % with numba's generic code (64.8 against 60.2): single runs differ by more than
+    that between machines (their float32 kernels round differently), hence the mean."""
     slow, normal = (at_pace(load_motion("cmu:07_10").resample(30), p) for p in (0.6, 1.0))
     lie, defensive = (track(slow, name, "noise", 0).result["mpjpe_mm"] for name in ("pf-lie", "pf-lie-defensive"))
     assert defensive < 80 < 1.5 * 80 < lie
-    assert track(normal, "pf-lie-defensive", "noise", 0).result["mpjpe_mm"] < 1.1 * \
-        track(normal, "pf-lie", "noise", 0).result["mpjpe_mm"]
 
+    def mean_error(preset: str) -> float:
+        return float(np.mean([track(normal, preset, "noise", seed).result["mpjpe_mm"] for seed in range(3)]))
 
-def test_eval_pace_refuses_bad_arguments(capsys):
-    from priortrack.cli.main import main
-
-    assert main(["eval", "pace", "--seeds", "0"]) == 2
-    assert "seeds must be at least 1" in capsys.readouterr().err
-    assert main(["eval", "pace", "--paces", "0", "--presets", "pf-lie", "--motions", "cmu:07_10"]) == 2
-    assert "pace must be a speed in [0.2, 5], got 0.0" in capsys.readouterr().err
+    assert mean_error("pf-lie-defensive") < 1.15 * mean_error("pf-lie")
