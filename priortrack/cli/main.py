@@ -313,7 +313,7 @@ def _eval_loglik(args: argparse.Namespace) -> None:
         _print_json(result)
         return
     print("mean log p(v_t | x_t) per frame (higher is better)")
-    for model in ("lie", "diffusion_local", "diffusion_global"):
+    for model in ("lie", "lie_defensive", "diffusion_local", "diffusion_global"):
         print(f"  {model:<17} train {result[model]['train']:9.2f}   test {result[model]['test']:9.2f}")
 
 

@@ -11,6 +11,10 @@ isotropic Gaussian per bone, so its density of v is
 
     ln p(v | x) = ln p_u(v / s) − 28 ln s = Diffusion.log_prob(x_next, x) − 28 ln s.
 
+The defensive mixture of the ``pf-lie-defensive`` preset, (1 − ε) Lie + ε local diffusion with
+that preset's ε (:class:`~priortrack.priors.defensive.DefensiveMixture`), is scored the same way:
+its density of the step, less 28 ln s.
+
 Protocol: leave one subject out over the bundled CMU subjects. Each fold trains the Lie prior,
 the local and the global diffusion (all on the directions space, at 30 fps) on every other
 subject's clips and scores the training frames and the left-out subject's frames. The
@@ -31,13 +35,17 @@ from priortrack.data.bundled import bundled_clips
 from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
+from priortrack.experiments.presets import load_preset
 from priortrack.priors.base import DEFAULT_FPS
+from priortrack.priors.defensive import DefensiveMixture
 from priortrack.priors.diffusion import Diffusion
 from priortrack.priors.lie import DEFAULT_SCALE, LiePrior
 
 logger = logging.getLogger(__name__)
 
-MODELS = ("lie", "diffusion_local", "diffusion_global")
+MODELS = ("lie", "lie_defensive", "diffusion_local", "diffusion_global")
+#: The preset whose defensive mixture is scored as ``lie_defensive``.
+DEFENSIVE_PRESET = "pf-lie-defensive"
 
 
 def _velocity_log_probs(models: dict, motions: Sequence[Motion], scale: float) -> dict[str, np.ndarray]:
@@ -49,7 +57,7 @@ def _velocity_log_probs(models: dict, motions: Sequence[Motion], scale: float) -
         if len(x) < 2:
             continue
         scores["lie"].append(lie.velocity_log_prob(x[1:], x[:-1]))
-        for name in ("diffusion_local", "diffusion_global"):
+        for name in ("lie_defensive", "diffusion_local", "diffusion_global"):
             dims = float(models[name].space.tangent_dims.sum())
             scores[name].append(models[name].log_prob(x[1:], x[:-1]) - dims * math.log(scale))
     if not scores["lie"]:
@@ -67,6 +75,8 @@ def _split(train: Sequence[Motion], test: Sequence[Motion], seed: int, scale: fl
         "diffusion_local": Diffusion.fit(train, local=True, space="directions", fps=fps),
         "diffusion_global": Diffusion.fit(train, local=False, space="directions", fps=fps),
     }
+    models["lie_defensive"] = DefensiveMixture(models["lie"], models["diffusion_local"],
+                                               load_preset(DEFENSIVE_PRESET).defensive)
     on_train = _velocity_log_probs(models, train, scale)
     on_test = _velocity_log_probs(models, test, scale)
     row = {name: {"train": float(on_train[name].mean()), "test": float(on_test[name].mean())} for name in MODELS}
@@ -98,7 +108,7 @@ def eval_loglik(train: Sequence[str] | None = None, test: Sequence[str] | None =
         walkjog: add the subject-35 walk/jog set (33 trials) to subject 35 in the folds.
 
     Returns:
-        ``{"lie": {"train", "test"}, "diffusion_local": {…}, "diffusion_global": {…},
+        ``{"lie": {"train", "test"}, "lie_defensive": {…}, "diffusion_local": {…}, "diffusion_global": {…},
         "clusters", "train_frames", "test_frames", "folds": [row, …]}``. A row holds the same
         per-model numbers for one fold plus ``subject``, ``test_clips``, ``clusters``,
         ``train_frames`` and ``test_frames`` (frame pairs scored), ``fit_frames`` (samples the
