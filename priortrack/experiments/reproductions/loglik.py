@@ -132,8 +132,9 @@ def eval_loglik(train: Sequence[str] | None = None, test: Sequence[str] | None =
             rest = [m for other, ms in motions.items() if other != subject for m in ms]
             row = _split(rest, motions[subject], seed, scale, fps, max_components, subsample)
             row.update(subject=subject, test_clips=names)
-            logger.info("loglik fold %s: lie %.2f / %.2f, local %.2f / %.2f, global %.2f / %.2f (train / test), "
-                        "%d clusters, %.0f s", subject, row["lie"]["train"], row["lie"]["test"],
+            logger.info("loglik fold %s: lie %.2f / %.2f, defensive %.2f / %.2f, local %.2f / %.2f, global %.2f / %.2f "
+                        "(train / test), %d clusters, %.0f s", subject, row["lie"]["train"], row["lie"]["test"],
+                        row["lie_defensive"]["train"], row["lie_defensive"]["test"],
                         row["diffusion_local"]["train"], row["diffusion_local"]["test"],
                         row["diffusion_global"]["train"], row["diffusion_global"]["test"],
                         row["clusters"], row["seconds"])
