@@ -71,3 +71,12 @@ def test_a_slow_walk_is_held_by_the_defensive_mixture_and_the_normal_pace_is_not
         return float(np.mean([track(normal, preset, "noise", seed).result["mpjpe_mm"] for seed in range(3)]))
 
     assert mean_error("pf-lie-defensive") < 1.15 * mean_error("pf-lie")
+
+
+def test_eval_pace_refuses_bad_arguments(capsys):
+    from priortrack.cli.main import main
+
+    assert main(["eval", "pace", "--seeds", "0"]) == 2
+    assert "seeds must be at least 1" in capsys.readouterr().err
+    assert main(["eval", "pace", "--paces", "0", "--presets", "pf-lie", "--motions", "cmu:07_10"]) == 2
+    assert "pace must be a speed in [0.2, 5], got 0.0" in capsys.readouterr().err
