@@ -66,8 +66,9 @@ def _velocity_log_probs(models: dict, motions: Sequence[Motion], scale: float) -
 
 
 def _split(train: Sequence[Motion], test: Sequence[Motion], seed: int, scale: float, fps: float,
-           max_components: int, subsample: int | None) -> dict:
-    """Fit the three models on ``train`` and score ``train`` and ``test``: one row of the table."""
+           max_components: int, subsample: int | None, epsilon: float) -> dict:
+    """Fit the three models on ``train`` (and the defensive mixture of the Lie prior and local diffusion
+    with fraction ``epsilon``) and score ``train`` and ``test``: one row of the table."""
     start = time.perf_counter()
     models = {
         "lie": LiePrior.fit(train, fps=fps, scale=scale, max_components=max_components, subsample=subsample,
@@ -75,8 +76,7 @@ def _split(train: Sequence[Motion], test: Sequence[Motion], seed: int, scale: fl
         "diffusion_local": Diffusion.fit(train, local=True, space="directions", fps=fps),
         "diffusion_global": Diffusion.fit(train, local=False, space="directions", fps=fps),
     }
-    models["lie_defensive"] = DefensiveMixture(models["lie"], models["diffusion_local"],
-                                               load_preset(DEFENSIVE_PRESET).defensive)
+    models["lie_defensive"] = DefensiveMixture(models["lie"], models["diffusion_local"], epsilon)
     on_train = _velocity_log_probs(models, train, scale)
     on_test = _velocity_log_probs(models, test, scale)
     row = {name: {"train": float(on_train[name].mean()), "test": float(on_test[name].mean())} for name in MODELS}
@@ -117,11 +117,12 @@ def eval_loglik(train: Sequence[str] | None = None, test: Sequence[str] | None =
     """
     if (train is None) != (test is None):
         raise PriortrackError("eval_loglik: give both train and test, or neither (leave one subject out)")
+    epsilon = load_preset(DEFENSIVE_PRESET).defensive
     if train is not None:
         if not train or not test:
             raise PriortrackError("eval_loglik: train and test must each name at least one motion")
         row = _split([load_motion(n) for n in train], [load_motion(n) for n in test], seed, scale, fps,
-                     max_components, subsample)
+                     max_components, subsample, epsilon)
         row.update(subject=None, test_clips=list(test))
         folds = [row]
     else:
@@ -130,7 +131,7 @@ def eval_loglik(train: Sequence[str] | None = None, test: Sequence[str] | None =
         folds = []
         for subject, names in subjects.items():
             rest = [m for other, ms in motions.items() if other != subject for m in ms]
-            row = _split(rest, motions[subject], seed, scale, fps, max_components, subsample)
+            row = _split(rest, motions[subject], seed, scale, fps, max_components, subsample, epsilon)
             row.update(subject=subject, test_clips=names)
             logger.info("loglik fold %s: lie %.2f / %.2f, defensive %.2f / %.2f, local %.2f / %.2f, global %.2f / %.2f "
                         "(train / test), %d clusters, %.0f s", subject, row["lie"]["train"], row["lie"]["test"],
