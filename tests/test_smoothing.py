@@ -11,8 +11,9 @@ from linear_gaussian import LinearGaussian, kalman_rts
 from priortrack import PriortrackError
 from priortrack.filters.backward_simulation import backward_indices
 from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.posterior_linearisation import posterior_linearisation
 from priortrack.filters.smoothing import smooth
-from priortrack.filters.ukf import UnscentedFilter
+from priortrack.filters.ukf import ManifoldSigmaPoints, UnscentedFilter
 from priortrack.filters.unscented_rts import unscented_rts
 
 A = [[1, 1.0, 0], [0, 1, 0], [0, 0, 0.9]]
@@ -54,6 +55,28 @@ def test_the_unscented_rts_smoother_is_the_kalman_rts_smoother_on_a_linear_model
         assert np.linalg.eigvalsh(P_f - P_s).min() > -1e-12
     # and only the last frame has nothing after it
     assert np.trace(filtered_covariances[8] - covariances[8]) > 0.1 * np.trace(filtered_covariances[8])
+
+
+@pytest.mark.parametrize("iterations", [1, 3])
+def test_posterior_linearisation_is_the_kalman_rts_smoother_on_a_linear_model(iterations):
+    """Its regressions of a linear f and h are exact (no linearisation error): each iteration returns
+    the RTS smoother's means and covariances, whatever the sigma points' spread."""
+    model = LinearGaussian(A, Q, H, R)
+    _, zs = _simulate(0)
+    ukf = UnscentedFilter(model, gate_probability=0)
+    ukf.initialise_states(M0, P0)
+    snapshots = [ukf.step(z) for z in zs]
+    means, covariances = posterior_linearisation(ukf.unscented, ManifoldSigmaPoints(ukf.unscented, 0.1, 2.0, 0.0),
+                                                 [s.mean.numpy() for s in snapshots],
+                                                 [s.covariance.numpy() for s in snapshots], zs, iterations, 0.0)
+    reference_means, reference_covariances = kalman_rts(model, M0, P0, zs)
+    assert np.abs(np.array(means) - reference_means).max() < 1e-8
+    assert np.abs(np.array(covariances) - reference_covariances).max() < 1e-8
+    filtered = [s.mean.numpy() for s in snapshots], [s.covariance.numpy() for s in snapshots]
+    with pytest.raises(PriortrackError, match="iterations must be"):
+        posterior_linearisation(ukf.unscented, ukf.kf.points_fn, *filtered, zs, -1)
+    with pytest.raises(PriortrackError, match="19 frames of data for 20 filtered frames"):
+        posterior_linearisation(ukf.unscented, ukf.kf.points_fn, *filtered, zs[1:])
 
 
 def test_smoothed_estimates_are_consistent():
@@ -131,8 +154,10 @@ def test_smoothing_through_a_blackout_on_a_held_out_walk(preset, tmp_path):
 
 
 def test_fixed_lag_releases_the_whole_run_smoother_of_the_frames_so_far(tmp_path):
-    """The unscented smoother's estimate of frame t − L released at frame t is the whole-run smoother
-    of the run cut at t, frame t − L; lag 0 is the filter; a lag past the end is the whole-run smoother."""
+    """The unscented smoother's estimate of frame t − L released at frame t uses nothing after t: it is
+    the same when the run is cut at t; lag 0 is the filter; a lag past the end is the whole-run smoother.
+    (It is not the whole-run smoother of the cut run: the posterior linearisation relinearises the
+    window only, from the filter's posterior at its first frame.)"""
     from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 
     run = _tracked("ukf-gpdm", "occlusion:sigma_px=5", tmp_path, frames=30)
@@ -142,7 +167,7 @@ def test_fixed_lag_releases_the_whole_run_smoother_of_the_frames_so_far(tmp_path
     for t in (10, 20):
         cut = Track(track.estimates[:t + 1], track.ess[:t + 1], track.flags[:t + 1], 0.0,
                     track.snapshots[:t + 1 - KNOWN_FRAMES])
-        assert np.allclose(lagged.estimates[t - 4], smooth(filt, cut, z[:t + 1]).estimates[t - 4], atol=1e-9)
+        assert np.allclose(lagged.estimates[t - 4], smooth(filt, cut, z[:t + 1], lag=4).estimates[t - 4], atol=1e-9)
     assert np.allclose(smooth(filt, track, z, lag=0).estimates, track.estimates, atol=1e-9)
     assert np.allclose(smooth(filt, track, z, lag=100).estimates, smooth(filt, track, z).estimates)
 

@@ -7,16 +7,17 @@ frames up to L after it), from the filter's stored steps.
   translation is Kalman-smoothed given them (Rao–Blackwellised:
   :func:`~priortrack.filters.marginal_translation.smooth_translation`). The estimate is the mean of
   the trajectories' joints, the spread their RMS distance from it.
-- The unscented filter: the unscented RTS smoother (:mod:`priortrack.filters.unscented_rts`); the
-  estimate is the joints of the smoothed mean, the spread the RMS of the joints over the smoothed
-  Gaussian (its sigma points, weights Wc).
+- The unscented filter: the iterated posterior-linearisation smoother
+  (:mod:`priortrack.filters.posterior_linearisation`, whose first pass is the unscented RTS smoother
+  of :mod:`priortrack.filters.unscented_rts`); the estimate is the joints of the smoothed mean, the
+  spread the RMS of the joints over the smoothed Gaussian (its sigma points, weights Wc).
 - Refused: the annealed particle filter (its tempered weights are not a posterior) and the MAP
   tracker (itself a sliding-window smoother, keeping no distribution).
 
 **Fixed lag L** (online use): the estimate of frame t − L is released at frame t, smoothed over the
 window t − L … t (frames 0 … L − 1 of the window's end come out of the last window). L = 0 is the
-filter; a lag longer than the run is the whole-run smoother. Each window is smoothed anew, so the
-cost is L + 1 times the whole-run smoother's.
+filter; a lag longer than the run is the whole-run smoother. Each window is smoothed anew from the
+filter's steps in it, so the cost is L + 1 times the whole-run smoother's.
 """
 
 from __future__ import annotations

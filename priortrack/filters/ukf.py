@@ -517,16 +517,19 @@ class UnscentedFilter(SequentialFilter):
 
     def smooth_window(self, snapshots: list[Snapshot], observations, generator: torch.Generator,
                       **_particle_options) -> tuple[np.ndarray, np.ndarray, None]:
-        """The unscented RTS smoother over these steps (:mod:`priortrack.filters.smoothing`; the
-        observations, the generator and the particle smoother's options are not needed): the joints of each smoothed
-        mean (W, J, 3) and their spread over the smoothed Gaussian's sigma points (W, J) (and no
-        trajectories to count)."""
+        """The iterated posterior-linearisation smoother over these steps and their observations (W, …)
+        (:mod:`priortrack.filters.posterior_linearisation`, its sigma points at ``SMOOTHER_ALPHA``; the
+        generator and the particle smoother's options are not needed): the joints of each smoothed
+        mean (W, J, 3) and their spread over the smoothed Gaussian's sigma points, at the filter's α
+        (W, J) (and no trajectories to count)."""
+        from priortrack.filters.posterior_linearisation import SMOOTHER_ALPHA, posterior_linearisation
         from priortrack.filters.smoothing import joint_spread
-        from priortrack.filters.unscented_rts import unscented_rts
 
-        means, covariances = unscented_rts(self.unscented, self.kf.points_fn, [s.mean.numpy() for s in snapshots],
-                                           [s.covariance.numpy() for s in snapshots])
         points = self.kf.points_fn
+        local = ManifoldSigmaPoints(self.unscented, SMOOTHER_ALPHA, points.offsets.beta, points.offsets.kappa)
+        means, covariances = posterior_linearisation(self.unscented, local, [s.mean.numpy() for s in snapshots],
+                                                     [s.covariance.numpy() for s in snapshots], observations,
+                                                     gate_probability=self.gate_probability)
         sigmas = torch.from_numpy(np.stack([points.sigma_points(m, P) for m, P in zip(means, covariances)]))
         joints = self.unscented.observe(sigmas.flatten(0, 1)).reshape(sigmas.shape[:2] + (-1, 3)).transpose(0, 1)
         centre = self.unscented.observe(torch.from_numpy(np.stack(means)))

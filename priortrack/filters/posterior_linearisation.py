@@ -1,0 +1,142 @@
+"""The iterated posterior-linearisation smoother (García-Fernández, Svensson & Särkkä, IEEE TAC
+62(4), 2017) on the unscented filter's manifold states.
+
+The unscented RTS smoother (:mod:`priortrack.filters.unscented_rts`) linearises the dynamics f about
+the *filtered* Gaussians. Through a long gap in the data these are wide and far from where the
+smoothed trajectory ends up, and a nonlinear f (the GPDM's periodic orbit) is then linearised where
+the motion is not. Posterior linearisation relinearises f and h about the current *smoothed*
+Gaussians N(μ_k, Σ_k) and smooths the linearised model again, ``iterations`` times.
+
+One iteration, in the tangent coordinates δ_k at each μ_k (x_k = μ_k ⊞ δ_k), with the sigma
+points χ_i = μ_k ⊞ ξ_i of N(μ_k, Σ_k) (the filter's weights Wm, Wc; Σ_i Wm_i ξ_i = 0):
+
+- statistical linear regression of f (eq. 9–11 of the paper): y_i = f(χ_i) ⊟ μ_{k+1},
+  ȳ = Σ Wm_i y_i, Ψ = Σ Wc_i ξ_i (y_i − ȳ)ᵀ, Φ = Σ Wc_i (y_i − ȳ)(y_i − ȳ)ᵀ, A_k = Ψᵀ Σ_k⁻¹,
+  b_k = ȳ, Ω_k = Φ − A_k Σ_k A_kᵀ, so δ_{k+1} = A_k δ_k + b_k + q, q ~ N(0, Q(μ_k) + Ω_k);
+- the same of h on the observed pixels: z_k = H_k δ_k + ẑ_k + r, r ~ N(0, R_k + Λ_k); a point whose
+  d² = νᵀ S⁻¹ ν under the linearised prediction exceeds the filter's validation gate is left out
+  (all of a frame's points are kept if every one fails, as the filter reopens its gate);
+- the Kalman filter and RTS smoother of that linear-Gaussian model, started from the filter's own
+  first posterior (which holds the first frame's data); then μ_k ← μ_k ⊞ δ^s_k and Σ_k ← Γ P^s_k Γᵀ
+  (Γ the change of tangent coordinates from the old μ_k to the new).
+
+The first linearisation is the unscented RTS smoother's output. On a linear-Gaussian model the
+regressions are exact (Ω = Λ = 0) and every iteration returns the RTS smoother's estimates.
+
+**The spread of the sigma points.** Both the first pass and the regressions place their sigma points
+at α = ``SMOOTHER_ALPHA`` (0.1), not at the filter's α (0.5 in the presets): through a blackout the
+heading's variance reaches 2–12 rad², points 1.9 σ out (α = 0.5, n = 15) pass π, the rotation chart
+wraps, and the regression of f (and the RTS gain) is then of the wrapped points: walkjog 35_29's
+smoothed heading swung by 2.8 rad and its blackout error doubled (122 → 255 mm). With α = 0.1 the
+regressions are local (α = 0.001 gives the same figures to 1 mm). α and ``ITERATIONS`` were chosen
+on walks outside every accuracy table (walkjog 35_02, 35_05, CMU 07_02, 07_09): α = 0.3 already
+wraps on 07_09; a second and third iteration changed the GPDM's errors by under 5 mm and made the
+local diffusion UKF's worse.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.stats import chi2
+
+from priortrack.errors import PriortrackError
+from priortrack.filters.ukf import ManifoldSigmaPoints, repaired_covariance
+from priortrack.filters.unscented_rts import unscented_rts
+
+#: Relinearisations after the unscented RTS smoother's pass, by default.
+ITERATIONS = 1
+#: Van der Merwe's α of the smoother's sigma points (module docstring).
+SMOOTHER_ALPHA = 0.1
+
+
+def _regression(xi: np.ndarray, y: np.ndarray, Sigma: np.ndarray, Wm: np.ndarray, Wc: np.ndarray):
+    """Statistical linear regression of y (N, d) on offsets ξ (N, n) with covariance Σ (n, n):
+    (A (d, n), b = ȳ (d,), Ω (d, d), Φ (d, d))."""
+    y_bar = Wm @ y
+    r = y - y_bar
+    Psi = (xi.T * Wc) @ r
+    Phi = (r.T * Wc) @ r
+    A = np.linalg.solve(Sigma, Psi).T
+    return A, y_bar, Phi - A @ Sigma @ A.T, Phi
+
+
+def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.ndarray, Wm, Wc, threshold: float):
+    """The linearised measurement of one frame: (H (k, n), ẑ (k,), R + Λ (k, k), z (k,)) on the
+    observed, predictable and validated pixels, or None where there are none."""
+    gated, _ = model.gate(z)
+    values, R = model.measurement(torch.as_tensor(gated, dtype=torch.float64))
+    values, R = values.numpy(), R.numpy()
+    usable = np.isfinite(values) & np.isfinite(h).all(axis=0)
+    if not usable.any():
+        return None
+    H, z_hat, Lam, Phi = _regression(xi, h[:, usable], Sigma, Wm, Wc)
+    R_u = R[np.ix_(usable, usable)]
+    nu = values[usable] - z_hat
+    b = model.measurement_block
+    S = (Phi + R_u).reshape(-1, b, len(nu) // b, b).diagonal(axis1=0, axis2=2).transpose(2, 0, 1)
+    d2 = np.einsum("kc,kc->k", nu.reshape(-1, b), np.linalg.solve(S, nu.reshape(-1, b, 1))[..., 0])
+    kept = np.repeat(d2 <= threshold, b)
+    if not kept.any():
+        kept[:] = True
+    return H[kept], z_hat[kept], (R_u + Lam)[np.ix_(kept, kept)], values[usable][kept]
+
+
+def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.ndarray],
+                            covariances: list[np.ndarray], data: np.ndarray, iterations: int = ITERATIONS,
+                            gate_probability: float = 1e-4) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Smoothed (μ_k (A,), Σ_k (n, n)) of the filtered ``means`` and ``covariances`` (module
+    docstring) given each frame's ``data`` (T, *observation_shape), for a model in the unscented
+    filter's form and its sigma points. ``iterations`` = 0 is the unscented RTS smoother."""
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
+        raise PriortrackError(f"iterations must be a whole number ≥ 0, got {iterations!r}")
+    if len(data) != len(means):
+        raise PriortrackError(f"{len(data)} frames of data for {len(means)} filtered frames")
+    mu, Sigma = unscented_rts(model, points, means, covariances)
+    Wm, Wc = points.Wm, points.Wc
+    threshold = chi2.isf(gate_probability, model.measurement_block) if gate_probability > 0 else np.inf
+    T, n = len(mu), len(Sigma[0])
+    for _ in range(iterations):
+        chi = [torch.from_numpy(points.sigma_points(m, P)) for m, P in zip(mu, Sigma)]
+        xi = [model.boxminus(c, torch.from_numpy(m)).numpy() for c, m in zip(chi, mu)]
+        moved = model.mean_step(torch.cat(chi)).split(len(chi[0]))
+        h = model.measure(torch.cat(chi)).numpy().reshape(T, len(chi[0]), -1)
+        # the filter, in the tangent coordinates at each μ_k
+        gamma = model.transport(torch.from_numpy(means[0]), torch.from_numpy(mu[0])).numpy()
+        d = model.boxminus(torch.from_numpy(means[0])[None], torch.from_numpy(mu[0]))[0].numpy()
+        P = gamma @ covariances[0] @ gamma.T
+        filtered, predicted, dynamics = [(d, P)], [], []
+        for k in range(1, T):
+            y = model.boxminus(moved[k - 1], torch.from_numpy(mu[k])).numpy()
+            A, b, Omega, _ = _regression(xi[k - 1], y, Sigma[k - 1], Wm, Wc)
+            Q = model.process_covariance(torch.from_numpy(mu[k - 1])).numpy() + Omega
+            d, P = A @ d + b, A @ P @ A.T + Q
+            P = (P + P.T) / 2
+            predicted.append((d, P))
+            dynamics.append(A)
+            obs = _observed(model, data[k], h[k], xi[k], Sigma[k], Wm, Wc, threshold)
+            if obs is not None:
+                H, z_hat, R, z = obs
+                S = H @ P @ H.T + R
+                K = np.linalg.solve(S, H @ P).T
+                d = d + K @ (z - z_hat - H @ d)
+                I_KH = np.eye(n) - K @ H
+                P = I_KH @ P @ I_KH.T + K @ R @ K.T
+            filtered.append((d, P))
+        # the RTS smoother of the linearised model
+        smoothed = [filtered[-1]]
+        for k in range(T - 2, -1, -1):
+            (d, P), (d_pred, P_pred), A = filtered[k], predicted[k], dynamics[k]
+            G = np.linalg.solve(P_pred, A @ P).T
+            d_s, P_s = smoothed[-1]
+            smoothed.append((d + G @ (d_s - d_pred), P + G @ (P_s - P_pred) @ G.T))
+        smoothed.reverse()
+        new_mu, new_Sigma = [], []
+        for m, (d_s, P_s) in zip(mu, smoothed):
+            m_t = torch.from_numpy(m)
+            m_new = model.boxplus(m_t[None], torch.from_numpy(d_s)[None])[0]
+            onto = model.transport(m_t, m_new).numpy()
+            new_mu.append(m_new.numpy())
+            new_Sigma.append(repaired_covariance(onto @ P_s @ onto.T)[0])
+        mu, Sigma = new_mu, new_Sigma
+    return mu, Sigma
