@@ -206,3 +206,34 @@ def test_smoothed_detections_are_exported_beside_the_filtered(tmp_path, capsys):
     assert 0 < np.abs(joints - filtered)[2:].max() < 0.1
     entities = {str(c.entity_path) for c in rr.chunk.RrdReader(tmp_path / "s.rrd").stream().to_chunks()}
     assert {"/world/estimate", "/world/filtered"} <= entities
+
+
+@pytest.mark.parametrize("preset", ["ukf-diffusion-local", "pf-diffusion-local"])
+def test_the_exported_spread_is_the_posteriors_spread(preset, tmp_path):
+    """The spread written per joint is the RMS distance of the posterior's joints from the estimate: for the
+    unscented filter, against 20,000 states drawn from its Gaussian N(mean, P) (within 5 %; the unscented
+    transform of a nearly linear map); for the particle filter, the weighted particles' own (to 1e-9)."""
+    import torch
+
+    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.real import _spread
+    from priortrack.experiments.tracking import track
+
+    run = track("cmu:07_10", preset, "noise:sigma_px=5", seed=0, frames=12, cache=tmp_path)
+    filt = load_preset(preset).build(run.observations.camera, seed=0, cache=tmp_path)
+    last = filt.run(run.observations.uv, run.motion, keep_snapshots=True).snapshots[-1]
+    if preset.startswith("ukf"):
+        u = filt.unscented
+        draws = torch.randn(20000, u.tangent_dim, dtype=torch.float64) @ torch.linalg.cholesky(last.covariance).T
+        joints = u.observe(u.boxplus(last.mean.expand(len(draws), -1), draws))
+        centre = u.observe(last.mean[None])[0]
+        reference = ((joints - centre) ** 2).sum(-1).mean(0).sqrt().numpy()
+        assert np.allclose(_spread(last), reference, rtol=0.05)
+    else:
+        w = last.weights.double() / last.weights.double().sum()
+        X = last.joints.double()
+        mean = torch.einsum("p,pjk->jk", w, X)
+        reference = torch.einsum("p,pj->j", w, ((X - mean) ** 2).sum(-1))
+        if last.translation_spread() is not None:
+            reference = reference + float(np.trace(last.translation_spread()[1]))
+        assert np.allclose(_spread(last), reference.sqrt().numpy(), atol=1e-9)

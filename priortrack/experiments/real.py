@@ -62,7 +62,7 @@ from priortrack.data.detections import Detections
 from priortrack.data.motion import Motion
 from priortrack.data.skeleton import Skeleton
 from priortrack.data.trc import write_trc
-from priortrack.filters.smoothing import TRAJECTORIES, smooth as smooth_run
+from priortrack.filters.smoothing import TRAJECTORIES, joint_spread, smooth as smooth_run
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
@@ -457,19 +457,20 @@ def steady_start(window: Motion) -> Motion:
 
 
 def _spread(snapshot) -> np.ndarray:
-    """(15,) √ of the trace of each joint's covariance over a weighted point set (with the translation's
-    Kalman covariance where the filter integrated it out)."""
+    """(15,) RMS distance of each joint from the estimate over the snapshot's weighted point set
+    (:func:`~priortrack.filters.smoothing.joint_spread`), with the translation's Kalman covariance where
+    the filter integrated it out. Particles: about their weighted mean. Sigma points (weights Wm, the
+    first negative): about the central point, the mean's joints X_0, as Σ_i Wm_i ‖X_i − X_0‖², the
+    unscented transform's variance (Wc_i = Wm_i for i ≥ 1; the central term is zero)."""
     w = snapshot.weights.detach().cpu().double()
     X = snapshot.joints.detach().cpu().double()
-    if (w < 0).any():                                                  # sigma points: their own spread
-        w = torch.full_like(w, 1 / len(w))
     w = w / w.sum()
-    mean = torch.einsum("p,pjk->jk", w, X)
-    variance = torch.einsum("p,pj->j", w, ((X - mean) ** 2).sum(-1))
+    centre = X[0] if (w < 0).any() else torch.einsum("p,pjk->jk", w, X)
+    variance = joint_spread(X[:, None], centre[None], w)[0] ** 2
     spread = snapshot.translation_spread()
     if spread is not None:
         variance = variance + float(np.trace(spread[1]))
-    return variance.sqrt().numpy()
+    return np.sqrt(variance)
 
 
 def _expected_log_density(likelihood: MultiViewLikelihood) -> float:
