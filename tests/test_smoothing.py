@@ -66,13 +66,12 @@ def test_posterior_linearisation_is_the_kalman_rts_smoother_on_a_linear_model(it
     ukf = UnscentedFilter(model, gate_probability=0)
     ukf.initialise_states(M0, P0)
     snapshots = [ukf.step(z) for z in zs]
+    filtered = [s.mean.numpy() for s in snapshots], [s.covariance.numpy() for s in snapshots]
     means, covariances = posterior_linearisation(ukf.unscented, ManifoldSigmaPoints(ukf.unscented, 0.1, 2.0, 0.0),
-                                                 [s.mean.numpy() for s in snapshots],
-                                                 [s.covariance.numpy() for s in snapshots], zs, iterations, 0.0)
+                                                 *filtered, zs, iterations, 0.0)
     reference_means, reference_covariances = kalman_rts(model, M0, P0, zs)
     assert np.abs(np.array(means) - reference_means).max() < 1e-8
     assert np.abs(np.array(covariances) - reference_covariances).max() < 1e-8
-    filtered = [s.mean.numpy() for s in snapshots], [s.covariance.numpy() for s in snapshots]
     with pytest.raises(PriortrackError, match="iterations must be"):
         posterior_linearisation(ukf.unscented, ukf.kf.points_fn, *filtered, zs, -1)
     with pytest.raises(PriortrackError, match="19 frames of data for 20 filtered frames"):

@@ -41,7 +41,8 @@ import torch
 from scipy.stats import chi2
 
 from priortrack.errors import PriortrackError
-from priortrack.filters.ukf import ManifoldSigmaPoints, repaired_covariance
+from priortrack.filters.ukf import (GATE_PROBABILITY, ManifoldSigmaPoints, block_distances, diagonal_blocks,
+                                   repaired_covariance)
 from priortrack.filters.unscented_rts import unscented_rts
 
 #: Relinearisations after the unscented RTS smoother's pass, by default.
@@ -72,10 +73,8 @@ def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.nda
         return None
     H, z_hat, Lam, Phi = _regression(xi, h[:, usable], Sigma, Wm, Wc)
     R_u = R[np.ix_(usable, usable)]
-    nu = values[usable] - z_hat
     b = model.measurement_block
-    S = (Phi + R_u).reshape(-1, b, len(nu) // b, b).diagonal(axis1=0, axis2=2).transpose(2, 0, 1)
-    d2 = np.einsum("kc,kc->k", nu.reshape(-1, b), np.linalg.solve(S, nu.reshape(-1, b, 1))[..., 0])
+    d2 = block_distances((values[usable] - z_hat).reshape(-1, b), diagonal_blocks(Phi + R_u, b))
     kept = np.repeat(d2 <= threshold, b)
     if not kept.any():
         kept[:] = True
@@ -84,7 +83,7 @@ def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.nda
 
 def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.ndarray],
                             covariances: list[np.ndarray], data: np.ndarray, iterations: int = ITERATIONS,
-                            gate_probability: float = 1e-4) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                            gate_probability: float = GATE_PROBABILITY) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Smoothed (μ_k (A,), Σ_k (n, n)) of the filtered ``means`` and ``covariances`` (module
     docstring) given each frame's ``data`` (T, *observation_shape), for a model in the unscented
     filter's form and its sigma points. ``iterations`` = 0 is the unscented RTS smoother."""
@@ -97,10 +96,11 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.n
     threshold = chi2.isf(gate_probability, model.measurement_block) if gate_probability > 0 else np.inf
     T, n = len(mu), len(Sigma[0])
     for _ in range(iterations):
-        chi = [torch.from_numpy(points.sigma_points(m, P)) for m, P in zip(mu, Sigma)]
-        xi = [model.boxminus(c, torch.from_numpy(m)).numpy() for c, m in zip(chi, mu)]
-        moved = model.mean_step(torch.cat(chi)).split(len(chi[0]))
-        h = model.measure(torch.cat(chi)).numpy().reshape(T, len(chi[0]), -1)
+        xi = [points.offsets_at(P) for P in Sigma]                                   # (2n + 1, n) each
+        N = len(xi[0])
+        chi = model.boxplus(torch.from_numpy(np.repeat(np.stack(mu), N, axis=0)), torch.from_numpy(np.concatenate(xi)))
+        moved = model.mean_step(chi).split(N)
+        h = model.measure(chi).numpy().reshape(T, N, -1)
         # the filter, in the tangent coordinates at each μ_k
         gamma = model.transport(torch.from_numpy(means[0]), torch.from_numpy(mu[0])).numpy()
         d = model.boxminus(torch.from_numpy(means[0])[None], torch.from_numpy(mu[0]))[0].numpy()

@@ -251,6 +251,18 @@ def repaired_covariance(P: np.ndarray) -> tuple[np.ndarray, bool]:
         return (V * np.maximum(w, floor)) @ V.T, True
 
 
+def diagonal_blocks(M: np.ndarray, b: int) -> np.ndarray:
+    """The K diagonal b × b blocks (K, b, b) of M (K b, K b): one observed point's coordinates each."""
+    K = len(M) // b
+    return M.reshape(K, b, K, b).diagonal(axis1=0, axis2=2).transpose(2, 0, 1)
+
+
+def block_distances(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """d²_k = ν_kᵀ S_k⁻¹ ν_k (K,) of innovations ν (K, b) with covariances S (K, b, b): what the
+    validation gate tests."""
+    return np.einsum("kc,kc->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+
+
 class ManifoldSigmaPoints:
     """filterpy's sigma-point object (duck-typed) for states whose tangent dimension n differs from
     their width A: filterpy's ``MerweScaledSigmaPoints(n, α, β, κ)`` gives the weights and the
@@ -264,9 +276,13 @@ class ManifoldSigmaPoints:
     def num_sigmas(self) -> int:
         return self.offsets.num_sigmas()
 
+    def offsets_at(self, P: np.ndarray) -> np.ndarray:
+        """Covariance P (n, n) → the offsets ξ_i (2n + 1, n) of the sigma points, on 0 ∈ Rⁿ."""
+        return self.offsets.sigma_points(np.zeros(self.model.tangent_dim), P)
+
     def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """Mean x (A,), covariance P (n, n) → sigma points (2n + 1, A)."""
-        xi = torch.from_numpy(self.offsets.sigma_points(np.zeros(self.model.tangent_dim), P))
+        """Mean x (A,), covariance P (n, n) → sigma points x ⊞ ξ_i (2n + 1, A)."""
+        xi = torch.from_numpy(self.offsets_at(P))
         base = torch.from_numpy(x).expand(len(xi), -1)
         return self.model.boxplus(base, xi).numpy()
 
@@ -492,10 +508,8 @@ class UnscentedFilter(SequentialFilter):
         Z = predicted[:, columns].reshape(len(predicted), -1, b)                    # (2n + 1, K, b)
         z_hat = np.einsum("i,ikc->kc", self.kf.Wm, Z)
         r = Z - z_hat
-        R_blocks = R[np.ix_(columns, columns)].reshape(-1, b, len(columns) // b, b).diagonal(axis1=0, axis2=2)
-        S = np.einsum("i,ikc,ikd->kcd", self.kf.Wc, r, r) + R_blocks.transpose(2, 0, 1)
-        nu = z[columns].reshape(-1, b) - z_hat
-        d2 = np.einsum("kc,kc->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+        S = np.einsum("i,ikc,ikd->kcd", self.kf.Wc, r, r) + diagonal_blocks(R[np.ix_(columns, columns)], b)
+        d2 = block_distances(z[columns].reshape(-1, b) - z_hat, S)
         rejected = d2 > chi2.isf(self.gate_probability, b)
         if not rejected.any():
             self.gated_frames = 0
