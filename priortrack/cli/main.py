@@ -493,6 +493,26 @@ def _eval_pace(args: argparse.Namespace) -> None:
             print(f"| {preset} | " + " | ".join(f"{cells[w][scenario]:.0f}" for w in walks) + " |")
 
 
+def _eval_people(args: argparse.Namespace) -> None:
+    from priortrack.experiments.people import LAB_SCENARIOS, eval_people
+
+    result = eval_people(args.presets, args.people, args.seeds, args.benches, args.out, jobs=args.jobs)
+    if args.json:
+        _print_json(result)
+        return
+    columns = [(f"{s.split(':')[0]}_mm", f"{s.split(':')[0]}_ratio") for s in LAB_SCENARIOS] + \
+        [("real4_mm", "real4_dlt_ratio"), ("real1_relative_mm", None)]
+    print(f"leave one walking person out, mean over the person's walks and {args.seeds} seeds: lab world MPJPE mm "
+          f"(x pf-diffusion-local), 4 cameras shoulders-ankles mm (x DLT), 1 camera relative to hips mm")
+    print("| held out | preset | clean | blackout | 4 cameras | 1 camera |")
+    print("|---|---|---|---|---|---|")
+    for person, presets in result["table"].items():
+        for preset, cells in presets.items():
+            text = [(f"{cells[value]:.0f}" + (f" ({cells[ratio]:.2f})" if ratio in cells else "")) if value in cells
+                    else "—" for value, ratio in columns]
+            print(f"| {person} | {preset} | " + " | ".join(text) + " |")
+
+
 def _bench_smooth(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.smooth import bench_smooth
 
@@ -737,6 +757,19 @@ def build_parser() -> argparse.ArgumentParser:
     pace.add_argument("--seeds", type=int, default=2)
     pace.add_argument("--json", action="store_true")
     pace.set_defaults(run=_eval_pace)
+    people = evaluate.add_parser("people", help="leave one walking person out: priors refitted without them, their "
+                                                "walks tracked on the lab and the real-format benches")
+    people.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "pf-lie-defensive"])
+    people.add_argument("--people", nargs="+", default=["07", "35", "02", "05", "08+39"],
+                        help="the held-out people (08+39: CMU subjects 08 and 39, one person)")
+    people.add_argument("--benches", nargs="+", default=["lab", "real4", "real1"],
+                        help="lab (synthetic side camera), real4 (OpenPose-style JSON, 4 cameras), real1 (1 camera)")
+    people.add_argument("--seeds", type=int, default=2)
+    people.add_argument("--out", help="the run cache: a rerun does no work, an interrupted one resumes "
+                                      "(default: people/ beside the prior cache)")
+    people.add_argument("--jobs", type=int, default=1, help="runs in this many worker processes (the same numbers)")
+    people.add_argument("--json", action="store_true")
+    people.set_defaults(run=_eval_people)
     smoothing = evaluate.add_parser("smoothing", help="smoothed vs filtered through a blackout on held-out walks")
     smoothing.add_argument("--presets", nargs="+",
                            default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-diffusion-local", "ukf-gpdm"])

@@ -32,10 +32,27 @@ WALKJOG_PATH = DATA_DIR / "subject35_walkjog" / "cmu35_walkjog_30fps.npz"
 CMU_FPS = 120.0
 
 _DESCRIPTIONS = {
-    "07": "walk", "35": "walk", "01": "playground: forward jumps, turn around",
-    "11": "soccer kick", "13": "jump", "49": "balance on one leg, arms out",
-    "131": "stylised dance", "135": "martial arts",
+    "07": "walk", "35": "walk", "02": "walk", "05": "walk (slower, 0.9 m/s)", "08": "walk", "39": "walk",
+    "01": "playground: forward jumps, turn around", "11": "soccer kick", "13": "jump",
+    "49": "balance on one leg, arms out", "131": "stylised dance", "135": "martial arts", "141": "run",
 }
+#: Trials whose motion differs from their subject's (02_03 is a run; 08_04 is a slow walk).
+_TRIAL_DESCRIPTIONS = {"02_03": "run/jog", "08_04": "walk (slow)"}
+
+#: The walking people: person → the bundled walks (patterns over bundled names). CMU subjects 08 and 39
+#: are one person (the same skeleton file, bone lengths within 2 cm): one entry, never split.
+WALKING_PEOPLE: dict[str, tuple[str, ...]] = {
+    "07": ("cmu:07_*",),
+    "35": ("walkjog:35_0*", "walkjog:35_1[0-6]", "walkjog:35_28", "walkjog:35_29", "walkjog:35_3*"),
+    "02": ("cmu:02_01", "cmu:02_02"),
+    "05": ("cmu:05_01",),
+    "08+39": ("cmu:08_*", "cmu:39_*"),
+}
+
+
+def person_of(subject: str) -> str:
+    """The person a CMU subject number names ("39" → "08+39"; any other subject is its own person)."""
+    return "08+39" if subject in ("08", "39") else subject
 
 
 @dataclass(frozen=True)
@@ -47,6 +64,11 @@ class BundledClip:
     description: str
     fps: float
     frames: int
+
+    @property
+    def person(self) -> str:
+        """The person the clip shows: its subject, except that CMU subjects 08 and 39 are one ("08+39")."""
+        return person_of(self.subject)
 
 
 @dataclass(frozen=True)
@@ -84,8 +106,8 @@ def cmu_skeleton(subject: str) -> Skeleton:
 def bundled_clips() -> list[BundledClip]:
     """Every bundled clip, ``cmu:`` trials first, then the ``walkjog:`` set."""
     clips = [
-        BundledClip(f"cmu:{p.stem}", p.stem.split("_")[0], _DESCRIPTIONS.get(p.stem.split("_")[0], ""),
-                    CMU_FPS, _amc_frames(p))
+        BundledClip(f"cmu:{p.stem}", p.stem.split("_")[0],
+                    _TRIAL_DESCRIPTIONS.get(p.stem, _DESCRIPTIONS.get(p.stem.split("_")[0], "")), CMU_FPS, _amc_frames(p))
         for p in sorted(ASF_AMC_DIR.glob("*.amc"))
     ]
     data = walkjog_arrays()

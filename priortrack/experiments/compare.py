@@ -245,9 +245,9 @@ def _on_dask(pending: list[RunConfig], cache: str, rrd: bool, workers: int | Non
     except ImportError:
         raise PriortrackError("compare --workers/--scheduler runs on Dask: pip install 'priortrack[cluster]' "
                               "(dask[distributed])") from None
-    from priortrack.experiments.tracking import THREAD_VARIABLES, _environment
+    from priortrack.experiments.tracking import THREAD_VARIABLES, environment
 
-    with _environment({name: str(RUN_THREADS) for name in THREAD_VARIABLES}):
+    with environment({name: str(RUN_THREADS) for name in THREAD_VARIABLES}):
         if scheduler is not None:
             try:
                 client = Client(scheduler, timeout="20s")

@@ -37,6 +37,7 @@ from priortrack.data.detections import read_detections
 from priortrack.data.keypoints import LAYOUTS
 from priortrack.data.load import load_motion
 from priortrack.errors import PriortrackError
+from priortrack.experiments.presets import Preset
 from priortrack.experiments.real import median_reprojection, track_detections
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.frames import to_y_up
@@ -114,7 +115,7 @@ def jitter_mm(J: np.ndarray) -> float:
     return 1000 * float(np.nanmean(np.linalg.norm(np.diff(J, 2, axis=0), axis=-1)))
 
 
-def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibration | None = None,
+def run_real_format(preset: Preset | str, motion: str, seed: int = 0, calibration: Calibration | None = None,
                     cameras: list[int] | None = None, cache=None, smooth: bool = False) -> dict:
     """One run of the bench (module docstring): the tracker's and the triangulation's world MPJPE (mm)
     from shoulders to ankles, with the run's time and mismatch fraction; smoothed, also the filter's
@@ -153,7 +154,7 @@ def run_real_format(preset: str, motion: str, seed: int = 0, calibration: Calibr
                     "jitter_mm": jitter_mm(result.joints[run][:, SHOULDERS_TO_ANKLES]),
                     "filtered_jitter_mm": jitter_mm(result.filtered_joints[run][:, SHOULDERS_TO_ANKLES]),
                     "truth_jitter_mm": jitter_mm(X[result.frames[run]][:, SHOULDERS_TO_ANKLES])}
-    return {**smoothed, "preset": preset, "motion": motion, "seed": seed, "cameras": len(views), "ticks": int(ticks.sum()),
+    return {**smoothed, "preset": preset if isinstance(preset, str) else preset.name, "motion": motion, "seed": seed, "cameras": len(views), "ticks": int(ticks.sum()),
             "mpjpe_mm": 1000 * float(error.mean()), "relative_mm": 1000 * float(relative.mean()),
             "mpjpe_where_dlt_mm": 1000 * float(error[has].mean()) if has.any() else float("nan"),
             "dlt_mm": 1000 * float(np.linalg.norm(dlt - truth, axis=-1)[has].mean()) if has.any() else float("nan"),

@@ -161,7 +161,7 @@ def _table_runs(presets, scenarios, motions, seeds, cache, progress, jobs) -> di
     # runtimes it starts with: oversubscribed, their spinning threads slowed a UKF run 4×.
     threads = max(1, torch.get_num_threads() // jobs)
     context = multiprocessing.get_context("spawn")            # a forked child can hang in the parent's OpenMP pool
-    with _environment({name: str(threads) for name in THREAD_VARIABLES}), \
+    with environment({name: str(threads) for name in THREAD_VARIABLES}), \
             ProcessPoolExecutor(jobs, mp_context=context) as pool:
         futures = {pool.submit(_table_run, *key, cache, threads): key for key in runs}
         for future in as_completed(futures):
@@ -170,7 +170,7 @@ def _table_runs(presets, scenarios, motions, seeds, cache, progress, jobs) -> di
 
 
 @contextlib.contextmanager
-def _environment(values: dict[str, str]) -> Iterator[None]:
+def environment(values: dict[str, str]) -> Iterator[None]:
     """Set environment variables inside the block (for the processes started there), restoring them after."""
     previous = {name: os.environ.get(name) for name in values}
     os.environ.update(values)

@@ -15,7 +15,7 @@ The defensive mixture of the ``pf-lie-defensive`` preset, (1 − ε) Lie + ε lo
 that preset's ε (:class:`~priortrack.priors.defensive.DefensiveMixture`), is scored the same way:
 its density of the step, less 28 ln s.
 
-Protocol: leave one subject out over the bundled CMU subjects. Each fold trains the Lie prior,
+Protocol: leave one subject out over the bundled CMU subjects (08 and 39, one person, leave together). Each fold trains the Lie prior,
 the local and the global diffusion (all on the directions space, at 30 fps) on every other
 subject's clips and scores the training frames and the left-out subject's frames. The
 subject-35 walk/jog set (``walkjog:``) can be added as more subject-35 data.
@@ -86,11 +86,12 @@ def _split(train: Sequence[Motion], test: Sequence[Motion], seed: int, scale: fl
 
 
 def _subjects(walkjog: bool) -> dict[str, list[str]]:
-    """Bundled names per subject: the ``cmu:`` trials, plus the walk/jog set as subject 35 if asked."""
+    """Bundled names per person (CMU subjects 08 and 39 are one): the ``cmu:`` trials, plus the walk/jog
+    set as subject 35 if asked."""
     subjects: dict[str, list[str]] = {}
     for clip in bundled_clips():
         if clip.name.startswith("cmu:") or (walkjog and clip.name.startswith("walkjog:")):
-            subjects.setdefault(clip.subject, []).append(clip.name)
+            subjects.setdefault(clip.person, []).append(clip.name)
     return subjects
 
 

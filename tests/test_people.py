@@ -1,0 +1,77 @@
+"""``priortrack eval people`` (issue 31, item 2): leave one walking person out, refit, track their walks."""
+
+import json
+
+import numpy as np
+import pytest
+
+from priortrack import PriortrackError
+from priortrack.cli.main import main
+from priortrack.data.bundled import WALKING_PEOPLE, bundled_clips, expand_sources
+from priortrack.experiments import people
+from priortrack.experiments.presets import load_preset
+
+
+def test_the_walking_people_are_every_bundled_walk_once_and_08_39_stay_together():
+    walks = [n for patterns in WALKING_PEOPLE.values() for n in expand_sources(list(patterns))]
+    assert len(walks) == len(set(walks))
+    persons = {c.name: c.person for c in bundled_clips()}
+    for person, patterns in WALKING_PEOPLE.items():
+        assert {persons[n] for n in expand_sources(list(patterns))} == {person}
+    bundled_walks = {c.name for c in bundled_clips() if c.description.startswith("walk")
+                     and not c.description.endswith("(test)") and c.name != "cmu:35_01"}   # = walkjog:35_01
+    assert bundled_walks - {"walkjog:35_29"} <= set(walks)
+    assert persons["cmu:08_01"] == persons["cmu:39_06"] == "08+39"
+
+
+@pytest.mark.parametrize("held_out", list(WALKING_PEOPLE))
+def test_a_fold_never_trains_on_the_held_out_person(held_out):
+    own = set(expand_sources(list(WALKING_PEOPLE[held_out])))
+    lie = people.fold_training(load_preset("pf-lie"), held_out)
+    gpdm = people.fold_training(load_preset("pf-gpdm"), held_out)
+    assert not own & set(lie) and not own & set(gpdm)
+    assert set(people.TEST_WALKS[held_out]) <= own
+    others = [p for p in WALKING_PEOPLE if p != held_out]
+    assert len(gpdm) == len(others)                       # the GPDM: one walk per other person
+    assert len(lie) == sum(len(expand_sources(list(WALKING_PEOPLE[p]))) for p in others)
+
+
+def test_bad_arguments_are_named_before_any_work(tmp_path):
+    with pytest.raises(PriortrackError, match="--people 99"):
+        people.eval_people(["pf-lie"], ["99"], out=tmp_path)
+    with pytest.raises(PriortrackError, match="--benches moon"):
+        people.eval_people(["pf-lie"], ["05"], benches=["moon"], out=tmp_path)
+    with pytest.raises(PriortrackError, match="--seeds"):
+        people.eval_people(["pf-lie"], ["05"], seeds=0, out=tmp_path)
+    with pytest.raises(PriortrackError, match="no preset"):
+        people.eval_people(["pf-nothing"], ["05"], out=tmp_path)
+    assert main(["eval", "people", "--people", "99", "--out", str(tmp_path)]) == 2
+    assert not list((tmp_path / "runs").glob("*.json")) if (tmp_path / "runs").exists() else True
+
+
+def test_a_small_evaluation_runs_is_cached_and_its_table_holds_the_runs(tmp_path, monkeypatch, capsys):
+    """One held-out person (05, the slow walker), the baseline and pf-lie, one seed, the lab and one camera."""
+    args = (["pf-diffusion-local", "pf-lie"], ["05"], 1, ["lab", "real1"], tmp_path)
+    result = people.eval_people(*args)
+    runs = result["runs"]
+    assert len(runs) == 2 * (2 + 1)                    # two presets × (clean, blackout; one camera)
+    assert len(list((tmp_path / "runs").glob("*.json"))) == len(runs)
+    cells = result["table"]["05"]
+    base, lie = cells["pf-diffusion-local"], cells["pf-lie"]
+    assert base["clean_ratio"] == 1.0 and base["blackout_ratio"] == 1.0
+    for name in ("clean", "blackout"):
+        row = [r for r in runs if r["preset"] == "pf-lie" and r["scenario"].startswith(name)][0]
+        assert lie[f"{name}_mm"] == pytest.approx(row["error_mm"])
+        assert lie[f"{name}_ratio"] == pytest.approx(row["error_mm"] / [
+            r for r in runs if r["preset"] == "pf-diffusion-local" and r["scenario"].startswith(name)][0]["error_mm"])
+    for cell in cells.values():
+        assert 0 < cell["clean_mm"] < 1000 and 0 < cell["real1_relative_mm"] < 1000
+        assert "real4_mm" not in cell
+    # a rerun does no work: every run comes from its cached row
+    monkeypatch.setattr(people, "run_one", lambda *a, **k: pytest.fail("a cached run was run again"))
+    again = people.eval_people(*args)
+    assert again["runs"] == runs
+    assert main(["eval", "people", "--presets", "pf-diffusion-local", "pf-lie", "--people", "05", "--seeds", "1",
+                 "--benches", "lab", "real1", "--out", str(tmp_path), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert np.isclose(printed["table"]["05"]["pf-lie"]["clean_mm"], lie["clean_mm"])
