@@ -39,6 +39,13 @@ class LinearGaussian:
         R = self.R[seen][:, seen]
         return torch.distributions.MultivariateNormal(torch.zeros(len(R), dtype=d.dtype), R).log_prob(d)
 
+    # the particle filter's resample-move
+    def pose_step(self, s, parents):
+        return (s - parents).pow(2).mean(0).sqrt()
+
+    def perturb(self, s, std, generator):
+        return s + torch.randn(s.shape, generator=generator, dtype=s.dtype) * std
+
     def gate(self, z):
         """No validation gate: every observation is kept."""
         return torch.as_tensor(z, dtype=torch.float64), 0

@@ -41,18 +41,15 @@ def test_a_tenth_of_the_steps_come_from_the_diffusion(mixture):
     lie = mixture.learned.log_prob(steps, x) > mixture.fallback.log_prob(steps, x) + 5   # clearly a Lie step
     share = 1 - float(lie.double().mean())
     assert abs(share - 0.1) < 0.03, share
-    with pytest.raises(AttributeError, match="no 'transition_covariance'"):
-        mixture.transition_covariance(x[:1])               # not a Gaussian: the UKF cannot take it
+    with pytest.raises(AttributeError, match="no 'velocity_log_prob'"):
+        mixture.velocity_log_prob(x[:1], x[:1])            # the learned prior's own density is not the mixture's
 
 
 def test_presets_check_the_defensive_fraction():
     table = {"filter": {"kind": "pf"}, "prior": {"kind": "lie", "train": ["cmu:07_01"], "defensive": 1.5}}
     with pytest.raises(PriortrackError, match="defensive must be a fraction in"):
         parse_preset(table, "bad")
-    table["prior"] = {"kind": "diffusion-local", "train": ["cmu:07_01"], "defensive": 0.1}
-    table["filter"] = {"kind": "ukf"}
-    with pytest.raises(PriortrackError, match="defensive makes the transition a mixture"):
-        parse_preset(table, "bad")
+    assert load_preset("ukf-lie-defensive").defensive == 0.1       # the UKF runs it moment-matched
     gpdm = replace(load_preset("pf-gpdm"), defensive=0.1)
     with pytest.raises(PriortrackError, match="has none"):
         gpdm.prior()

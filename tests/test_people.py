@@ -32,7 +32,8 @@ def test_a_fold_never_trains_on_the_held_out_person(held_out):
     assert not own & set(lie) and not own & set(gpdm)
     assert set(people.TEST_WALKS[held_out]) <= own
     others = [p for p in WALKING_PEOPLE if p != held_out]
-    assert len(gpdm) == len(others)                       # the GPDM: one walk per other person
+    assert len(gpdm) == people.GPDM_PEOPLE                # the GPDM: a few walks, one per other person
+    assert len({n.split(":")[1][:2] for n in gpdm}) == people.GPDM_PEOPLE
     assert len(lie) == sum(len(expand_sources(list(WALKING_PEOPLE[p]))) for p in others)
 
 

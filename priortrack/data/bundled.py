@@ -144,15 +144,22 @@ def load_walkjog() -> WalkJogSet:
     return WalkJogSet(splits["train"], splits["test"], actions)
 
 
+@lru_cache(maxsize=None)
+def _amc_channels(trial: str) -> np.ndarray:
+    """A bundled trial's channels (T, C), parsed once per process (a table or a leave-one-out evaluation
+    loads the same walks for every run), read-only: :func:`load_bundled` hands out copies."""
+    channels = read_amc(ASF_AMC_DIR / f"{trial}.amc", cmu_skeleton(trial.split("_")[0]))
+    channels.flags.writeable = False
+    return channels
+
+
 def load_bundled(name: str) -> Motion:
     """Load a bundled clip by name (``cmu:07_01`` or ``walkjog:35_29``)."""
     kind, _, trial = name.partition(":")
     if kind == "cmu":
-        path = ASF_AMC_DIR / f"{trial}.amc"
         if trial in {p.stem for p in ASF_AMC_DIR.glob("*.amc")}:     # a name, never a path
             subject = trial.split("_")[0]
-            skeleton = cmu_skeleton(subject)
-            return Motion(skeleton, read_amc(path, skeleton), CMU_FPS, trial, subject)
+            return Motion(cmu_skeleton(subject), _amc_channels(trial).copy(), CMU_FPS, trial, subject)
     elif kind == "walkjog":
         walkjog = load_walkjog()
         for motion in walkjog.train + walkjog.test:

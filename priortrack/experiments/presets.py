@@ -359,9 +359,6 @@ def parse_preset(table: dict, name: str, where: str = "preset", folder: Path | N
     defensive = prior.get("defensive", 0.0)
     if isinstance(defensive, bool) or not isinstance(defensive, (int, float)) or not 0 <= defensive < 1:
         raise PriortrackError(f"{where}: [prior] defensive must be a fraction in [0, 1), got {defensive!r}")
-    if defensive and kind == "ukf":
-        raise PriortrackError(f"{where}: [prior] defensive makes the transition a mixture, which the unscented filter "
-                              f"cannot use (it needs one Gaussian)")
 
     observation = dict(table.get("observation", {}))
     _check_keys(f"{where} [observation]", observation, _parameters(JointLikelihood.__init__, ("self", "camera")))

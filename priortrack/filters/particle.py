@@ -7,6 +7,8 @@ Per frame, for P particles s^i held as one tensor:
     normalise w_t^i = exp(log w_t^i − logsumexp_j log w_t^j),  ESS = 1 / Σ_i (w_t^i)²
     estimate  the weighted mean state (pose mean on the prior's manifold), and the best particle
     resample  when ESS < threshold · P (systematic by default), weights reset to 1/P.
+    move      (``moves`` K > 0) after a resampling, K Metropolis–Hastings moves of each particle's pose
+              that leave the filtering distribution invariant (resample-move, :meth:`ParticleFilter.move`).
 
 A frame with no observed joint leaves the weights as they are (the prediction stands). If
 every particle's likelihood is −inf, the weights are reset to uniform (flagged), never NaN.
@@ -62,6 +64,10 @@ class ParticleFilter(SequentialFilter):
             Gaussian likelihood only). The particles' translations are then the Kalman means, and
             ``covariance`` (P, 6, 6) holds each particle's covariance of (t_t, t_{t-1}) (each
             Snapshot carries its particles' as ``translation_covariance``).
+        moves: K, the Metropolis–Hastings moves of every particle's pose after each resampling
+            (0: none, the bootstrap filter; :meth:`move`).
+        move_scale: the moves' first step size, as a fraction of the size of the prior's own step
+            this frame (adapted between frames towards an acceptance rate of 0.2–0.5).
         seed: seeds the filter's own torch.Generator.
     """
 
@@ -69,7 +75,8 @@ class ParticleFilter(SequentialFilter):
     requires = None
 
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
-                 ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", seed: int = 0):
+                 ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", moves: int = 0,
+                 move_scale: float = 0.3, seed: int = 0):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
         if not 0.0 <= ess_threshold <= 1.0:
@@ -82,6 +89,9 @@ class ParticleFilter(SequentialFilter):
             raise PriortrackError("translation = 'marginalised' integrates a body's translation out by a Kalman filter "
                                   "on the linearised likelihood: it needs a TrackingModel whose observation model is "
                                   "linearisable (a JointLikelihood without robust_nu, or a MultiViewLikelihood)")
+        if moves < 0 or not 0 < move_scale <= 10:
+            raise PriortrackError(f"moves must be at least 0 and move_scale in (0, 10]; got {moves} and {move_scale}")
+        self.moves, self.move_step = int(moves), float(move_scale)
         self.marginal = translation == "marginalised"
         self.covariance: torch.Tensor | None = None
         self.model, self.P, self.ess_threshold = model, int(particles), float(ess_threshold)
@@ -130,11 +140,13 @@ class ParticleFilter(SequentialFilter):
             flags.append("outlier-gated")
             z = gated.to(z)
         t0 = time.perf_counter()
+        parents, parent_covariance = self.states, self.covariance
         if self.marginal:       # t_t = t̂_t, its covariance predicted in update (or below)
             self.states = self.model.predict(self.states, self.generator, translation=False)
         else:                   # any model with predict(s, generator), not only a TrackingModel
             self.states = self.model.predict(self.states, self.generator)
         t1 = time.perf_counter()
+        predicted = self.states
         if torch.isfinite(z).any():
             joints = self.update(z, flags)
         else:
@@ -153,6 +165,10 @@ class ParticleFilter(SequentialFilter):
             ancestors = self.resample(weights, self.generator)
             self.select(ancestors)
             self.log_weights = torch.full_like(self.log_weights, -math.log(self.P))
+            if self.moves and torch.isfinite(z).any() and "weights-underflow" not in flags:
+                rate = self.move(z, predicted[ancestors], parents[ancestors],
+                                 None if parent_covariance is None else parent_covariance[ancestors])
+                flags.append(f"moved:{rate:.2f}")
         t4 = time.perf_counter()
         timings.update(predict=t1 - t0, weight=t2 - t1, estimate=t3 - t2, resample=t4 - t3)
         self.frame += 1
@@ -184,14 +200,59 @@ class ParticleFilter(SequentialFilter):
                                                       self.model.likelihood)
         return log_likelihood, (shift, C_post)
 
-    def keep_update(self, pending: tuple | None, joints: torch.Tensor) -> torch.Tensor:
+    def keep_update(self, pending: tuple | None, joints: torch.Tensor | None = None) -> torch.Tensor | None:
         """Apply :meth:`weigh`'s Kalman update (t̂ → the Kalman mean, C⁺ kept); returns the joints
-        moved with it (unchanged for a sampled translation)."""
+        moved with it (unchanged for a sampled translation; None if none were given)."""
         if pending is None:
             return joints
         shift, self.covariance = pending
         self.states = self.model.shift_translation(self.states, shift)
-        return joints + shift[:, None, :3]
+        return None if joints is None else joints + shift[:, None, :3]
+
+    def move(self, z: torch.Tensor, s: torch.Tensor, parents: torch.Tensor, parent_covariance: torch.Tensor | None) -> float:
+        """Resample-move (Gilks & Berzuini, JRSS B 2001): ``moves`` Metropolis–Hastings moves of each
+        resampled particle's pose, each leaving its share of the filtering distribution invariant,
+
+            π(s_t) ∝ p(s_t | s_{t−1}) · p(z_t | s_t, z_{1:t−1}),
+
+        the particle's parent s_{t−1} fixed and, with a marginalised translation, t integrated out of
+        the likelihood as in the weights (the parent's Kalman covariance predicted again). The proposal
+        s' = ``model.perturb(s, σ)`` (x ⊞ ε, the placements kept) is symmetric, σ = ``move_step`` ×
+        ``model.pose_step(s, parents)``, the size of the prior's own step this frame; s' is kept if
+        log u < log π(s') − log π(s), u ~ U(0, 1). ``move_step`` is then adapted for the next frame:
+        × 1.5 above an acceptance of 0.5, ÷ 1.5 below 0.2.
+
+        Args: z the frame's observation; s (P, A) the resampled particles as predicted (before the
+        Kalman update); parents (P, A) their states at t − 1; parent_covariance (P, 6, 6) their
+        translation covariances at t − 1 (None: the translation is sampled). Sets ``states`` (and
+        ``covariance``); returns the acceptance rate.
+        """
+        scale = self.model.pose_step(s, parents)
+
+        def target(candidate: torch.Tensor):
+            self.covariance = parent_covariance
+            log_likelihood, pending = self.weigh(self.model.observe(candidate), z)
+            return (self.model.log_transition(candidate, parents).to(torch.float64)
+                    + log_likelihood.to(torch.float64)), pending
+
+        log_pi, pending = target(s)
+        accepted = 0
+        for _ in range(self.moves):
+            proposal = self.model.perturb(s, self.move_step * scale, self.generator)
+            log_pi_new, pending_new = target(proposal)
+            u = torch.rand(len(s), generator=self.generator, dtype=torch.float64, device=s.device)
+            keep = torch.log(u) < log_pi_new - log_pi                                      # NaN: rejected
+            s = torch.where(keep[:, None], proposal, s)
+            log_pi = torch.where(keep, log_pi_new, log_pi)
+            if pending is not None:
+                pending = tuple(torch.where(keep.reshape((-1,) + (1,) * (new.dim() - 1)), new, old)
+                                for new, old in zip(pending_new, pending))
+            accepted += int(keep.sum())
+        rate = accepted / (self.moves * len(s))
+        self.move_step *= 1.5 if rate > 0.5 else 1 / 1.5 if rate < 0.2 else 1.0
+        self.states = s
+        self.keep_update(pending)
+        return rate
 
     def select(self, ancestors: torch.Tensor) -> None:
         """Keep the particles ``ancestors`` (P,): their states and, marginalised, their covariances."""

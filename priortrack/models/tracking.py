@@ -78,6 +78,23 @@ class TrackingModel:
         x, g, g_prev = self.split(s)
         return self.prior.log_prob(x_next, x) + self.global_motion.log_prob(g_next, g, g_prev, translation)
 
+    def pose_step(self, s: torch.Tensor, parents: torch.Tensor) -> torch.Tensor:
+        """(P, S + 12) states and their parents → (S + 12,) per coordinate, the RMS length per tangent
+        dimension of the prior's step x_{t−1} → x_t in that coordinate's joint group (0 for the
+        placements): the scale of the particle filter's resample-move proposals (:meth:`perturb`)."""
+        space = self.prior.space
+        x, x_prev = self.split(s)[0], self.split(parents)[0]
+        dims = torch.as_tensor(space.tangent_dims, dtype=s.dtype, device=s.device)
+        per_group = (space.group_norms_sq(space.boxminus(x, x_prev)).mean(0) / dims).sqrt()
+        return torch.cat([per_group[torch.as_tensor(space.groups, device=s.device)], s.new_zeros(2 * GLOBAL_DIM)])
+
+    def perturb(self, s: torch.Tensor, std: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """s (P, S + 12) with each pose moved to x ⊞ ε, ε isotropic tangent noise of std (S + 12,)'s pose
+        part (equal within a joint group: a symmetric proposal), the placements kept."""
+        space, S = self.prior.space, self.pose_dim
+        x = s[:, :S]
+        return torch.cat([space.boxplus(x, space.tangent_noise(x, std[:S].to(s), generator)), s[:, S:]], -1)
+
     def with_translation(self, s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """s (P, S + 12) with t_t and t_{t-1} replaced by t[:, :3] and t[:, 3:] (P, 6)."""
         S = self.pose_dim

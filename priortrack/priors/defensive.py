@@ -43,7 +43,7 @@ class DefensiveMixture:
         self.learned, self.fallback, self.epsilon = learned, fallback, float(epsilon)
 
     #: What is the learned prior's (the state space and the start); the transition's own methods
-    #: (a mean step, a covariance) are not: the mixture has none a Gaussian filter could use.
+    #: (a mean step, a covariance) are the mixture's (:meth:`mean`, :meth:`transition_covariance`).
     SHARED = ("kind", "space", "fps", "state_dim", "encode", "joints", "initial", "check_state", "check_pair")
 
     def __getattr__(self, name: str):
@@ -56,6 +56,30 @@ class DefensiveMixture:
         learned, fallback = self.learned.sample(x, generator), self.fallback.sample(x, generator).to(x.dtype)
         chosen = torch.rand(len(x), generator=generator, device=x.device) < self.epsilon
         return torch.where(chosen[:, None], fallback, learned)
+
+    def _mean_step(self, x: torch.Tensor) -> torch.Tensor:
+        """(P, S) → (P, n) ū, the learned prior's mean step log_x(mean(x)) in the tangent coordinates of
+        ``space.local`` at each row (the diffusion's mean step is 0)."""
+        space, target = self.learned.space, self.learned.mean(x)
+        return torch.cat([space.local(target[i:i + 1], x[i]) for i in range(len(x))])
+
+    def mean(self, x: torch.Tensor) -> torch.Tensor:
+        """(P, S) → (P, S) x ⊞ (1 − ε) ū: the mixture's mean step (the diffusion stays put)."""
+        space = self.learned.space
+        step = space.boxminus(self.learned.mean(x), x)
+        return space.boxplus(x, (1 - self.epsilon) * step)
+
+    def transition_covariance(self, x: torch.Tensor) -> torch.Tensor:
+        """(P, S) → (P, n, n) the mixture's step covariance, moment-matched (what the unscented filter runs):
+
+            (1 − ε) Σ_learned + ε Σ_diffusion + ε (1 − ε) ū ūᵀ,
+
+        ū the learned mean step (:meth:`_mean_step`); both parts' covariances in the coordinates of
+        ``space.local`` (the diffusion's is isotropic per joint, the same in any orthonormal basis)."""
+        u = self._mean_step(x)
+        eps = self.epsilon
+        return ((1 - eps) * self.learned.transition_covariance(x) + eps * self.fallback.transition_covariance(x).to(u)
+                + eps * (1 - eps) * u[:, :, None] * u[:, None, :])
 
     def log_prob(self, x_next: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """(P,) ln[(1 − ε) p_learned + ε p_fallback], in float64."""

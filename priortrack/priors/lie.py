@@ -78,7 +78,7 @@ import torch
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.geometry.sphere import clamped_cosine, karcher_mean, log_map, theta_over_sin
+from priortrack.geometry.sphere import clamped_cosine, karcher_mean, log_map, theta_over_sin, transport
 from priortrack.geometry.tangent_basis import tangent_basis, to_coordinates
 from priortrack.geometry.linalg import jittered_cholesky
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions
@@ -338,6 +338,29 @@ class GeodesicMixture:
         marginal = torch.stack([p[0] for p in parts], dim=-1)
         joint = torch.stack([p[0] + p[2] for p in parts], dim=-1)
         return torch.logsumexp(joint, dim=-1) - torch.logsumexp(marginal, dim=-1)
+
+    def velocity_moments(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The mean (P, 2B) and covariance (P, 2B, 2B) of v | x, for flat poses x (P, 3B), in the
+        orthonormal coordinates E(x) of T_x (S²)ᴮ (:func:`~priortrack.geometry.tangent_basis.tangent_basis`
+        at each bone direction of x). Component k's velocity in those coordinates is c_k = T_k b_k with
+        T_kb = E(x_b) Γ_{μ_kb→x_b} E_kbᵀ (2×2, a rotation), so that, the mixture moment-matched,
+
+            E[c | x] = Σ_k π_k T_k (m_k + R_k a_k),
+            Cov[c | x] = Σ_k π_k (T_k C_k T_kᵀ + (c̄_k − c̄)(c̄_k − c̄)ᵀ),
+
+        block-diagonal over bones within a component, full between them."""
+        b, n = self.bones, x.shape[0]
+        log_pi, means, cond = self.conditional(x)                                     # (P, K), (P, K, B, 2)
+        moved = transport(self.means.to(x).reshape(1, -1, b, 1, 3), x.reshape(n, 1, b, 1, 3),
+                          self.basis.to(x)[None])                                      # (P, K, B, 2, 3)
+        T = tangent_basis(x.reshape(n, 1, b, 3)) @ moved.transpose(-1, -2)             # (P, K, B, 2, 2)
+        c = (T @ means[..., None])[..., 0]                                             # (P, K, B, 2)
+        pi = torch.exp(log_pi)
+        mean = torch.einsum("pk,pkbi->pbi", pi, c)
+        within = torch.einsum("pk,pkbij->pbij", pi, T @ cond[None] @ T.transpose(-1, -2))
+        spread = (c - mean[:, None]).reshape(n, self.components, 2 * b)
+        covariance = _block_diagonal(within) + torch.einsum("pk,pki,pkj->pij", pi, spread, spread)
+        return mean.reshape(n, 2 * b), 0.5 * (covariance + covariance.transpose(-1, -2))
 
     # ---- the sampling path (any dtype and device, planar, in blocks) ------------------------------
     def _hot(self, dtype: torch.dtype, device: torch.device, scale: float) -> _Hot:
@@ -799,6 +822,14 @@ class LiePrior(TransitionModel):
         """(P, 42), (P, 42) → (P,) ln p(x_next | x) = ln p(v = s log_x(x_next) | x) + 2B ln s,
         the density of the step log_x(x_next) in orthonormal tangent coordinates (as the diffusions)."""
         return self.velocity_log_prob(x_next, x) + 2 * self.mixture.bones * math.log(self.scale)
+
+    def transition_covariance(self, x) -> torch.Tensor:
+        """(P, 42) → (P, 28, 28) the covariance of the step u = log_x(x_next) = v / s in the tangent
+        coordinates of :meth:`DirectionSpace.local` at each x: the mixture's conditional moment-matched
+        to one Gaussian (:meth:`GeodesicMixture.velocity_moments`), divided by s². With :meth:`mean`
+        (the same moments' mean) it is the Gaussian transition the unscented filter runs (``ukf-lie``)."""
+        x = self.check_state(x)
+        return self.mixture.velocity_moments(x.contiguous())[1] / self.scale ** 2
 
     def responsibilities(self, x) -> torch.Tensor:
         """(P, 42) → (P, K) π_k(x), summing to 1 over k."""
