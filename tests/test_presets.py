@@ -65,8 +65,9 @@ def test_unknown_top_level_key_and_missing_section():
 def test_a_filter_that_cannot_run_the_prior_says_so():
     with pytest.raises(PriortrackError, match="filter 'map' cannot run a 'lie' prior; it runs gpdm, bgpdm"):
         parse_preset(table(filter__kind="map", prior__kind="lie", prior__options={}), "bad")
-    with pytest.raises(PriortrackError, match="filter 'ukf' cannot run a 'lie' prior"):
-        parse_preset(table(filter__kind="ukf", prior__kind="lie", prior__options={}), "bad")
+    unscented = table(prior__kind="lie", prior__options={})
+    unscented["filter"] = {"kind": "ukf"}
+    assert parse_preset(unscented, "ok").prior_kind == "lie"           # the moment-matched Lie transition
 
 
 def test_gpdm_dynamics_annealing_is_checked_and_kept_out_of_the_cache_key():
@@ -146,11 +147,11 @@ def test_a_preset_can_name_a_fitted_prior_file(tmp_path):
         parse_preset({**file_table, "prior": {**file_table["prior"], "options": {}}}, "bad", folder=tmp_path)
     with pytest.raises(PriortrackError, match=r"\[prior\] file .*nothing.npz does not exist"):
         parse_preset({**file_table, "prior": {**file_table["prior"], "file": "nothing.npz"}}, "bad", folder=tmp_path)
-    with pytest.raises(PriortrackError, match="filter 'ukf' cannot run"):
+    with pytest.raises(PriortrackError, match="filter 'map' cannot run"):
         lie = parse_preset(table(prior__kind="lie", prior__train=["walkjog:35_0[1-4]"],
                                  prior__options={"max_components": 2}), "l").prior(tmp_path / "c")
         lie.save(tmp_path / "lie.npz")
-        parse_preset({"filter": {"kind": "ukf"}, "prior": {"file": "lie.npz", "train": ["walkjog:35_01"]}}, "bad",
+        parse_preset({"filter": {"kind": "map"}, "prior": {"file": "lie.npz", "train": ["walkjog:35_01"]}}, "bad",
                      folder=tmp_path)
 
 
@@ -158,7 +159,7 @@ def test_the_registry_is_the_one_list_of_kinds():
     from priortrack.priors.registry import PRIOR_KINDS, kinds_with, prior_kind
 
     assert list(PRIOR_KINDS) == ["diffusion-global", "diffusion-local", "gpdm", "bgpdm", "lie"]
-    assert kinds_with("latent") == ("gpdm", "bgpdm") and "lie" not in kinds_with("gaussian")
+    assert kinds_with("latent") == ("gpdm", "bgpdm") and "lie" in kinds_with("gaussian")
     assert set(prior_kind("bgpdm").options()) == {"d", "seed", "dynamics_noise_floor"}
     with pytest.raises(PriortrackError, match="unknown prior kind 'hmm'; kinds: diffusion-global"):
         prior_kind("hmm")

@@ -14,8 +14,8 @@ from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import GPDM, Diffusion
 from priortrack.priors.global_motion import GlobalMotion
-from priortrack.priors.lie import GeodesicMixture, LiePrior
-from priortrack.priors.spaces import AngleSpace, DirectionSpace
+from priortrack.priors.lie import LiePrior
+from priortrack.priors.spaces import AngleSpace
 
 from linear_gaussian import LinearGaussian, kalman
 from priortrack.body.fk import joint_positions
@@ -264,16 +264,9 @@ def test_gpdm_prior_noise_is_its_dynamics_variance(walks):
     assert ukf.covariance.shape == (15, 15) and np.isfinite(ukf.mean.numpy()).all()
 
 
-def test_robust_likelihood_and_lie_prior_are_refused(walks):
+def test_robust_likelihood_is_refused(walks):
     train, motion = walks
     prior = Diffusion.fit(train[:2], local=True)
     model, _, _ = tracking_model(prior, train[:2], motion[:10], robust_nu=4.0)
     with pytest.raises(PriortrackError, match="Student-t"):
-        UnscentedFilter(model)
-    B = 14
-    mixture = GeodesicMixture([1.0], np.tile([0.0, 1.0, 0.0], (1, B, 1)), np.zeros((1, B, 2)),
-                              np.tile(np.eye(4), (1, B, 1, 1)))
-    lie = LiePrior(DirectionSpace(np.full(B, 0.3)), mixture)
-    model = TrackingModel(lie, GlobalMotion(np.full(6, 0.01)), model.likelihood)
-    with pytest.raises(PriortrackError, match="'lie' prior"):
         UnscentedFilter(model)
