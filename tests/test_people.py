@@ -76,3 +76,23 @@ def test_a_small_evaluation_runs_is_cached_and_its_table_holds_the_runs(tmp_path
                  "--benches", "lab", "real1", "--out", str(tmp_path), "--json"]) == 0
     printed = json.loads(capsys.readouterr().out)
     assert np.isclose(printed["table"]["05"]["pf-lie"]["clean_mm"], lie["clean_mm"])
+
+
+def test_a_run_that_fails_is_a_counted_row_not_a_stopped_evaluation(tmp_path, monkeypatch, capsys):
+    """A filter that diverges on one held-out walk (a PriortrackError) is recorded and counted; the
+    other runs go on and the table's means leave it out."""
+    def errors(run, preset, cache):
+        if run.preset == "pf-lie" and run.scenario.startswith("blackout"):
+            raise PriortrackError("state is not on the spheres")
+        return {"error_mm": 100.0 if run.preset == "pf-lie" else 200.0, "relative_mm": 50.0, "seconds_per_frame": 0.01}
+
+    monkeypatch.setattr(people, "_errors", errors)
+    result = people.eval_people(["pf-diffusion-local", "pf-lie"], ["05"], 2, ["lab"], tmp_path)
+    failed = [r for r in result["runs"] if r.get("failed")]
+    assert len(failed) == 2 and all(r["error_mm"] is None and "spheres" in r["failed"] for r in failed)
+    cells = result["table"]["05"]["pf-lie"]
+    assert cells["failed_runs"] == 2 and cells["clean_mm"] == 100.0 and cells["clean_ratio"] == 0.5
+    assert "blackout_mm" not in cells and result["table"]["05"]["pf-diffusion-local"]["failed_runs"] == 0
+    assert main(["eval", "people", "--presets", "pf-diffusion-local", "pf-lie", "--people", "05", "--benches", "lab",
+                 "--out", str(tmp_path)]) == 0
+    assert "| 05 | pf-lie | 100 (0.50) | — | — | — | 2 |" in capsys.readouterr().out

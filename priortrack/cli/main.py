@@ -504,13 +504,13 @@ def _eval_people(args: argparse.Namespace) -> None:
         [("real4_mm", "real4_dlt_ratio"), ("real1_relative_mm", None)]
     print(f"leave one walking person out, mean over the person's walks and {args.seeds} seeds: lab world MPJPE mm "
           f"(x pf-diffusion-local), 4 cameras shoulders-ankles mm (x DLT), 1 camera relative to hips mm")
-    print("| held out | preset | clean | blackout | 4 cameras | 1 camera |")
-    print("|---|---|---|---|---|---|")
+    print("| held out | preset | clean | blackout | 4 cameras | 1 camera | failed runs |")
+    print("|---|---|---|---|---|---|---|")
     for person, presets in result["table"].items():
         for preset, cells in presets.items():
             text = [(f"{cells[value]:.0f}" + (f" ({cells[ratio]:.2f})" if ratio in cells else "")) if value in cells
                     else "—" for value, ratio in columns]
-            print(f"| {person} | {preset} | " + " | ".join(text) + " |")
+            print(f"| {person} | {preset} | " + " | ".join(text) + f" | {cells['failed_runs']} |")
 
 
 def _bench_smooth(args: argparse.Namespace) -> None:

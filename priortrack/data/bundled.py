@@ -105,6 +105,11 @@ def cmu_skeleton(subject: str) -> Skeleton:
 
 def bundled_clips() -> list[BundledClip]:
     """Every bundled clip, ``cmu:`` trials first, then the ``walkjog:`` set."""
+    return list(_bundled_clips())
+
+
+@lru_cache(maxsize=1)
+def _bundled_clips() -> tuple[BundledClip, ...]:
     clips = [
         BundledClip(f"cmu:{p.stem}", p.stem.split("_")[0],
                     _TRIAL_DESCRIPTIONS.get(p.stem, _DESCRIPTIONS.get(p.stem.split("_")[0], "")), CMU_FPS, _amc_frames(p))
@@ -115,7 +120,7 @@ def bundled_clips() -> list[BundledClip]:
         for s, trial in enumerate(data[f"trial_{split}"]):
             clips.append(BundledClip(f"walkjog:{trial}", "35", f"{data[f'action_{split}'][s]} ({split})",
                                      float(data["fps"]), int(np.sum(data[f"seq_index_{split}"] == s))))
-    return clips
+    return tuple(clips)
 
 
 @lru_cache(maxsize=1)

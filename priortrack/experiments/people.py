@@ -129,14 +129,28 @@ def plan(presets: Sequence[str], people: Sequence[str], seeds: int, benches: Seq
 
 def run_one(run: PeopleRun, cache=None) -> dict:
     """One run's result row: the run's fields and its errors (mm; the bench's comparison beside them;
-    None where there is none: no DLT from one camera)."""
-    from priortrack.experiments.real_format import run_real_format
-    from priortrack.experiments.tracking import track
-
+    None where there is none: no DLT from one camera). A run that stops on a PriortrackError (a filter
+    that diverged) is a row too, its ``failed`` the message and its errors None: counted, not hidden."""
     torch.set_num_threads(RUN_THREADS)
     preset = fold_preset(load_preset(run.preset), run.person)
     start = time.perf_counter()
     row = {**asdict(run), "preset": preset.name}
+    try:
+        row.update(_errors(run, preset, cache))
+    except PriortrackError as exc:
+        log.warning("eval people: %s without %s on %s (%s, %s, seed %d) failed: %s", run.preset, run.person,
+                    run.motion, run.bench, run.scenario, run.seed, exc)
+        row.update(failed=str(exc), error_mm=None, relative_mm=None)
+    row["seconds"] = time.perf_counter() - start
+    return {key: None if isinstance(value, float) and math.isnan(value) else value for key, value in row.items()}
+
+
+def _errors(run: PeopleRun, preset: Preset, cache) -> dict:
+    """The bench's figures of one run (:func:`run_one`)."""
+    from priortrack.experiments.real_format import run_real_format
+    from priortrack.experiments.tracking import track
+
+    row: dict = {}
     if run.bench == "lab":
         result = track(run.motion, preset, run.scenario, run.seed, cache=cache).result
         row.update(error_mm=result["mpjpe_mm"], relative_mm=result["mpjpe_root_rel_mm"],
@@ -148,8 +162,7 @@ def run_one(run: PeopleRun, cache=None) -> dict:
                    where_dlt_mm=result["mpjpe_where_dlt_mm"], dlt_mm=result["dlt_mm"],
                    seconds_per_frame=result["seconds"] / max(result["ticks"], 1),
                    mismatch_fraction=result["mismatch_fraction"])
-    row["seconds"] = time.perf_counter() - start
-    return {key: None if isinstance(value, float) and math.isnan(value) else value for key, value in row.items()}
+    return row
 
 
 def _read_row(path: Path) -> dict | None:
@@ -165,11 +178,17 @@ def _write_row(path: Path, row: dict) -> None:
     partial.replace(path)
 
 
-def _fit_priors(presets: Sequence[str], people: Sequence[str], cache) -> None:
-    """Fit (or load) every fold's prior here, once, before any run (workers then read the cache)."""
+def _fit_priors(presets: Sequence[str], people: Sequence[str], cache, real: bool) -> None:
+    """Fit (or load) every fold's prior here, once, before any run (workers then read the cache); with
+    ``real`` runs to come, also the support references their fit-check reads (for the kinds it judges)."""
+    from priortrack.priors.support import reference
+
     for person in people:
         for name in presets:
-            fold_preset(load_preset(name), person).prior(cache)
+            preset = fold_preset(load_preset(name), person)
+            preset.prior(cache)
+            if real and "latent" not in PRIOR_KINDS[preset.prior_kind].capabilities:
+                reference(preset)
 
 
 def eval_people(presets: Sequence[str] = PRESETS, people: Sequence[str] = tuple(WALKING_PEOPLE), seeds: int = 2,
@@ -184,7 +203,8 @@ def eval_people(presets: Sequence[str] = PRESETS, people: Sequence[str] = tuple(
     A cell is a mean over the person's test walks and seeds: ``clean_mm``, ``blackout_mm`` (lab, world
     MPJPE) with ``clean_ratio`` and ``blackout_ratio`` to the baseline on the same runs; ``real4_mm``
     with ``real4_dlt_ratio`` (the error where DLT has the joints / DLT's) and ``real4_dlt_mm``;
-    ``real1_relative_mm``; ``seconds_per_frame`` (real4). Cells of benches not run are absent.
+    ``real1_relative_mm``; ``seconds_per_frame`` (real4); ``failed_runs``, the runs that stopped on an
+    error (left out of the means). Cells of benches not run are absent.
     """
     from priortrack.experiments.tracking import THREAD_VARIABLES, environment
 
@@ -210,7 +230,7 @@ def eval_people(presets: Sequence[str] = PRESETS, people: Sequence[str] = tuple(
             progress(row)
 
     if todo:
-        _fit_priors(presets, sorted({r.person for r in todo}), cache)
+        _fit_priors(presets, sorted({r.person for r in todo}), cache, any(r.bench != "lab" for r in todo))
     if jobs == 1 or len(todo) < 2:
         for run in todo:
             done(run, run_one(run, cache))
@@ -230,6 +250,9 @@ def _table(rows: list[dict], presets: Sequence[str], people: Sequence[str]) -> d
     """Per person and preset, the cells of :func:`eval_people`."""
     def mean(selected: list[dict], key: str) -> float:
         return float(np.mean([r[key] for r in selected]))
+
+    failed = [r for r in rows if r.get("failed")]
+    rows = [r for r in rows if not r.get("failed")]
 
     table: dict[str, dict[str, dict[str, float]]] = {}
     for person in people:
@@ -254,5 +277,6 @@ def _table(rows: list[dict], presets: Sequence[str], people: Sequence[str]) -> d
             real1 = [r for r in mine if r["bench"] == "real1"]
             if real1:
                 cells["real1_relative_mm"] = mean(real1, "relative_mm")
+            cells["failed_runs"] = sum(1 for r in failed if r["person"] == person and r["preset"] == Path(preset).stem)
             table[person][Path(preset).stem] = cells
     return table

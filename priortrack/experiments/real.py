@@ -216,6 +216,9 @@ class DetectionTrack:
 RESULT_SUFFIXES = (".npz", ".csv", ".trc", ".bvh")
 #: The fewest tracked ticks a fit-check judges.
 MIN_FIT_CHECK_TICKS = 10
+#: The shipped presets whose priors a motion outside the running prior's support is checked against
+#: (:func:`better_fitting`): the walking prior and the one learned from every bundled activity.
+ALTERNATIVE_PRIORS = ("pf-lie", "pf-lie-general")
 
 
 def match_cameras(detections: Detections, calibration: Calibration,
@@ -364,10 +367,14 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible
     if result.fit_check is not None and result.fit_check["verdict"] != "in support":
+        better = result.fit_check.get("better_prior")
         log.warning("fit-check: the tracked motion is %s the %s prior's support (%.0f%% of its frames below the "
                     "1st percentile of held-out training frames); its estimate leans on a prior that does not know "
-                    "the motion: compare with pf-diffusion-local", "outside" if result.fit_check["verdict"] == "outside"
-                    else "partly in", preset.prior_kind, 100 * result.fit_check["below_p1_fraction"])
+                    "the motion: %s", "outside" if result.fit_check["verdict"] == "outside" else "partly in",
+                    preset.prior_kind, 100 * result.fit_check["below_p1_fraction"],
+                    "compare with pf-diffusion-local" if better is None else
+                    f"the {better['preset']} preset's prior fits it better ({better['verdict']}, "
+                    f"{100 * better['below_p1_fraction']:.0f}% of its frames below): track with --filter {better['preset']}")
     if result.mismatch_fraction > 0:
         log.warning("the %s prior explains %.0f%% of the frames (the others are flagged as mismatch); if the motion "
                     "is not what the prior learned, try pf-diffusion-local", preset.prior_kind,
@@ -400,7 +407,29 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[di
     found = verdict(ell, reference_values)
     implausible = np.zeros(len(ticks), dtype=bool)
     implausible[np.flatnonzero(ticks)[1:]] = ell < np.percentile(reference_values, 1)
-    return {key: found[key] for key in ("verdict", "below_p1_fraction", "median_percentile")}, implausible
+    check = {key: found[key] for key in ("verdict", "below_p1_fraction", "median_percentile")}
+    if found["verdict"] != "in support":
+        check["better_prior"] = better_fitting(motion, preset, found["below_p1_fraction"])
+    return check, implausible
+
+
+def better_fitting(motion, preset: Preset, below: float, cache=None) -> dict | None:
+    """The shipped preset of :data:`ALTERNATIVE_PRIORS` (not ``preset`` itself) whose prior finds ``motion``
+    most plausible: the smallest share of its frames below that prior's held-out 1st percentile
+    (:mod:`priortrack.priors.support`), if smaller than ``below``, the running preset's share; else None.
+    Returns {"preset", "verdict", "below_p1_fraction"}. A first call fits the alternative's prior and its
+    reference (cached like every prior)."""
+    from priortrack.priors.support import frame_log_density, reference, verdict
+
+    best = None
+    for name in ALTERNATIVE_PRIORS:
+        if name == preset.name:
+            continue
+        alternative = load_preset(name)
+        found = verdict(frame_log_density(alternative.prior(cache), motion), reference(alternative, cache))
+        if found["below_p1_fraction"] < (below if best is None else best["below_p1_fraction"]):
+            best = {"preset": name, "verdict": found["verdict"], "below_p1_fraction": found["below_p1_fraction"]}
+    return best
 
 
 def cross_view_check(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[str, ...]) -> int:

@@ -339,9 +339,14 @@ class DirectionSpace(StateSpace):
         return torch.block_diag(*(tangent_basis(pb) @ moved.transpose(-1, -2)))
 
     def signed_mean(self, x, w):
-        """Fixed point of m ← exp_m(Σ_i w_i log_m(x_i)) from x_0: x (N, 3K), w (N,) → (3K,)."""
-        return signed_mean(x[0], w, lambda m: self.boxminus(x, m.expand_as(x)),
+        """Fixed point of m ← exp_m(Σ_i w_i log_m(x_i)) from x_0: x (N, 3K), w (N,) → (3K,). Each bone
+        direction is renormalised at the end: where the iteration does not converge (sigma points
+        spread over a hemisphere, the unscented weights' W_0 ≪ 0) its last iterate had drifted off
+        the sphere (norms 0.73 seen), and every later step would have refused the state."""
+        mean = signed_mean(x[0], w, lambda m: self.boxminus(x, m.expand_as(x)),
                            lambda m, v: self.boxplus(m[None], v[None])[0])
+        spheres = self._spheres(mean)
+        return (spheres / torch.linalg.vector_norm(spheres, dim=-1, keepdim=True)).reshape(mean.shape)
 
     def tangent_noise(self, x, std, generator):
         ambient = standard_normal(x.shape, generator, x) * std

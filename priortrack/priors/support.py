@@ -63,15 +63,17 @@ def frame_log_density(prior, motion: Motion) -> np.ndarray:
 
 
 def reference(preset, cache: Path | None = None) -> np.ndarray:
-    """ℓ_t on held-out frames of the preset's training data (module docstring): two-fold cross-fits,
-    cached as ``support-<kind>-<key>.npz`` in the prior cache, verified by its digest as the priors are."""
+    """ℓ_t on held-out frames of the preset's training data (module docstring): two-fold cross-fits (with
+    the preset's defensive mixture, if it has one: the density it tracks with), cached as
+    ``support-<kind>-<key>[-defensive<ε>].npz`` in the prior cache, verified by its digest as the priors are."""
     from priortrack.experiments.presets import cache_dir, read_cached, write_cached
 
     if preset.prior_file is not None:
         raise PriortrackError(f"preset {preset.name!r} names a prior file: its training motions are not known, so "
                               f"give reference motions of its kind (--reference)")
     motions = list(preset.training_motions)
-    path = (cache_dir() if cache is None else Path(cache)) / f"support-{preset.prior_kind}-{preset.cache_key}.npz"
+    mixed = f"-defensive{preset.defensive:g}" if preset.defensive else ""
+    path = (cache_dir() if cache is None else Path(cache)) / f"support-{preset.prior_kind}-{preset.cache_key}{mixed}.npz"
     stored = read_cached(path, lambda p: read_npz(p, REFERENCE_BYTES, "support reference")["values"],
                          "support reference")
     if stored is not None:
@@ -80,6 +82,13 @@ def reference(preset, cache: Path | None = None) -> np.ndarray:
     for fit_on, held_out in _folds(motions):
         fitted = fit_prior(preset.prior_kind, fit_on, fps=preset.fps, **preset.prior_options)
         fitted = fitted if preset.annealing == 1.0 else fitted.annealed(preset.annealing)
+        if preset.defensive:                    # the density the preset tracks with: its defensive mixture
+            from priortrack.experiments.presets import DEFENSIVE_SPACES
+            from priortrack.priors.defensive import DefensiveMixture
+
+            fallback = fit_prior("diffusion-local", fit_on, fps=preset.fps,
+                                 space=DEFENSIVE_SPACES[type(fitted.space).__name__])
+            fitted = DefensiveMixture(fitted, fallback, preset.defensive)
         values += [frame_log_density(fitted, m) for m in held_out]
     values = np.concatenate(values)
     write_cached(path, lambda p: np.savez(p, values=values), "support reference")
