@@ -56,13 +56,14 @@ def test_presets_check_the_defensive_fraction():
 
 
 def test_a_slow_walk_is_held_by_the_defensive_mixture_and_the_normal_pace_is_not_worse():
-    """07_10 at 0.6x its pace, 5 px: pf-lie loses it (163-210 mm, measured), the mixture holds it
-    (51-69 mm). At its own pace, over three seeds, the mixture costs 2 % on one machine (64.4 against
-    63.3 mm) and 8 % with numba's generic code (64.8 against 60.2): single runs differ by more than
-    that between machines (their float32 kernels round differently), hence the mean."""
+    """07_10 at 0.6x its pace, 5 px: the mixture holds it (51-69 mm, measured). pf-lie lost it (163-210 mm)
+    while it learned from subjects 35 and 07 only; learned from every walking person (the slow walker 05
+    and 08's slow walk among them) it comes closer (108 mm, seed 0), still behind the mixture. At its own
+    pace, over three seeds, the mixture cost 2 % on one machine and 8 % with numba's generic code: single
+    runs differ by more than that between machines (their float32 kernels round differently), hence the mean."""
     slow, normal = (at_pace(load_motion("cmu:07_10").resample(30), p) for p in (0.6, 1.0))
     lie, defensive = (track(slow, name, "noise", 0).result["mpjpe_mm"] for name in ("pf-lie", "pf-lie-defensive"))
-    assert defensive < 80 < 1.5 * 80 < lie
+    assert defensive < 80 and defensive < lie, (defensive, lie)
 
     def mean_error(preset: str) -> float:
         return float(np.mean([track(normal, preset, "noise", seed).result["mpjpe_mm"] for seed in range(3)]))

@@ -633,3 +633,23 @@ def test_pace_augmentation_learns_each_walk_at_each_speed():
     plain = LiePrior.fit(walks, seed=0, max_components=3)
     both = LiePrior.fit(walks, seed=0, max_components=3, paces=(0.5, 1.0))
     assert abs(both.train_frames - 3 * plain.train_frames) <= 4
+
+
+def test_mirrored_directions_are_those_of_the_mirror_image():
+    """Mirror augmentation (issue 31): the bone directions of a pose mirrored left for right in the world
+    (x → −x, left and right joints swapped), normalised afresh, equal ``mirrored`` of the pose's own
+    directions, exactly; mirroring twice is the identity. A fit with ``mirror`` learns from twice the pairs."""
+    from priortrack.body.fk import joint_positions
+    from priortrack.body.normalise import normalise
+    from priortrack.data.eval15 import EVAL15_NAMES
+
+    X = joint_positions(load_motion("cmu:07_01"), "eval15")[:60]
+    swap = [EVAL15_NAMES.index({"l": "r", "r": "l"}[n[0]] + n[1:]) if n[0] in "lr" else j
+            for j, n in enumerate(EVAL15_NAMES)]
+    image = X[:, swap] * np.array([-1.0, 1.0, 1.0])
+    d = normalise(torch.as_tensor(X)).directions
+    torch.testing.assert_close(lie_module.mirrored(d), normalise(torch.as_tensor(image)).directions, atol=1e-12, rtol=0)
+    torch.testing.assert_close(lie_module.mirrored(lie_module.mirrored(d)), d, atol=0, rtol=0)
+    walks = [load_motion(n) for n in ("cmu:07_01", "cmu:07_02", "cmu:07_09")]
+    plain, both = (LiePrior.fit(walks, max_components=2, mirror=m) for m in (False, True))
+    assert both.train_frames == 2 * plain.train_frames

@@ -58,19 +58,30 @@ def test_the_verdict_counts_frames_below_the_references_first_percentile():
 
 
 def test_the_tracker_says_when_the_tracked_motion_is_outside_the_prior():
-    """Real-format input (4 cameras): a held-out walk tracked with pf-lie is in its support, a person
-    balancing on one leg is not; the GPDM's tracked motion is not judged (its pose density is in the
-    training skeleton's angles)."""
+    """Real-format input (4 cameras): a held-out walk tracked with pf-lie is in its support. A person
+    balancing on one leg is lost by it (150 mm, the arms) and flagged (the mismatch test below); the
+    fit-check of that *tracked* motion, which the prior itself shaped, read "partly" (seed 0) and "in
+    support" (seed 1) once the walking prior learned from five people, so the motion itself is checked
+    here: outside pf-lie's support, and the shipped prior that fits it better is named (issue 31). The
+    GPDM's tracked motion is not judged (its pose density is in the training skeleton's angles)."""
+    from priortrack.data.load import load_motion
+    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.real import better_fitting
     from priortrack.experiments.real_format import run_real_format
 
-    assert run_real_format("pf-lie", "cmu:07_10", seed=0)["fit_check"] == "in support"
-    assert run_real_format("pf-lie", "cmu:49_18", seed=0)["fit_check"] == "outside"
+    walk = run_real_format("pf-lie", "cmu:07_10", seed=0)
+    assert walk["fit_check"] == "in support" and walk["better_prior"] is None
+    better = better_fitting(load_motion("cmu:49_18"), load_preset("pf-lie"), below=1.0)
+    assert better["preset"] == "pf-lie-general" and better["verdict"] == "in support", better
+    assert better_fitting(load_motion("cmu:49_18"), load_preset("pf-lie"), below=0.0) is None   # none fits better
     assert run_real_format("pf-gpdm", "cmu:07_10", seed=0)["fit_check"] is None
 
 
 def test_the_mismatch_flag_needs_the_prior_to_find_the_step_implausible(tmp_path):
     """At 30 fps the likelihood alone flagged 72 % of held-out 35_29 under pf-lie; a mismatch tick
-    must now also be a step the Lie prior scores below its held-out 1st percentile. Over three seeds
+    must now also be a step the Lie prior scores below its held-out 1st percentile, or (issue 31) one
+    where the estimate has left the per-tick triangulation by LOST_MM on average (the balance, lost by
+    the walking prior at 150 mm, was flagged on 12 % of its ticks without that, 79 % with it). Over three seeds
     (detector noise and filter) the held-out walks' median flagged fraction stays low and a balance's
     high. One run is not enough: a run whose estimate goes astray is flagged at length (35_29, seed 0:
     53 % on one machine, 21 % on another, where the filter's float32 kernels round differently), so
@@ -107,7 +118,7 @@ def test_the_reference_is_cached_and_verified_like_the_priors(tmp_path, caplog):
 
     preset = load_preset("pf-diffusion-local")
     first = reference(preset, cache=tmp_path)
-    (stored,) = tmp_path.glob("support-*.npz")
+    (stored,) = tmp_path.glob("support*.npz")
     assert stored.with_suffix(".sha256").is_file()
     np.savez(stored, values=np.zeros(3))
     again = reference(preset, cache=tmp_path)

@@ -38,7 +38,9 @@
    fit-check judges, :func:`tracked_fit_check`) the prior itself scores the tracked step there below
    the 1st percentile of its held-out training steps: on data it explains badly *and* on a motion it
    does not know (the likelihood alone flagged 72 % of a held-out walk at 30 fps under pf-lie, whose
-   steps the prior finds ordinary). The ESS is reported, not
+   steps the prior finds ordinary); or, with two cameras or more, where the estimate's joints lie on average
+   ``LOST_MM`` from the per-tick triangulation for ``MISMATCH_RUN`` ticks (a lost track, whatever the
+   prior makes of its steps). The ESS is reported, not
    used: with four cameras it collapses on data the prior explains well (ESS ≈ 2 of 1000 particles
    on Pose2Sim's standing person, every joint reprojected within 10–20 px).
 """
@@ -95,6 +97,11 @@ START_TRANSLATION_STD = 0.05
 MISMATCH_NATS = 3.0
 #: … for this many ticks running.
 MISMATCH_RUN = 5
+#: With two cameras or more a tick is also a mismatch where the estimate's joints lie on average this far
+#: (mm) from the per-tick triangulation of the detections, for MISMATCH_RUN ticks: a limb a hand's width
+#: off, beyond DLT's own error (16–28 mm on the real-format bench). The likelihood flag, ANDed with the
+#: prior's own judgement of the tracked steps, let pf-lie lose a balance at 149 mm with 14 % flagged.
+LOST_MM = 100.0
 
 
 @dataclass
@@ -351,6 +358,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     estimates = run.estimates if smoothed is None else smoothed.estimates
     loglik = frame_log_likelihoods(model.likelihood, run.estimates, z[first:])
     mismatch = mismatch_flags(loglik, z[first:], model.likelihood)
+    lost = None if single else lost_flags(np.einsum("ij,tjk->tik", M, run.estimates), X[first:])
     def world(body: np.ndarray) -> np.ndarray:      # the detector's definitions, back in the world
         return np.einsum("ij,tjk->tik", M, body) @ A
 
@@ -366,6 +374,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible
+    if lost is not None:                 # … or one where the estimate has left the data's own triangulation
+        result.mismatch = result.mismatch | lost
     if result.fit_check is not None and result.fit_check["verdict"] != "in support":
         better = result.fit_check.get("better_prior")
         log.warning("fit-check: the tracked motion is %s the %s prior's support (%.0f%% of its frames below the "
@@ -390,7 +400,8 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[di
     in the training skeleton's joint angles, and the tracked body is the detector's (hips where the
     detector puts them), so every tracked walk scored "outside" (35_29 and 07_10 on real-format input);
     its runs rely on the likelihood's mismatch flag, which separates them (0 % on those walks, 100 % on
-    a balance)."""
+    a balance). The per-tick triangulation was tried as the motion judged instead (a prior-free
+    estimate): its detector noise made a held-out walk "outside"."""
     from priortrack.priors.registry import PRIOR_KINDS
     from priortrack.priors.support import frame_log_density, reference, verdict
 
@@ -530,7 +541,26 @@ def mismatch_flags(loglik: np.ndarray, z: np.ndarray, likelihood: MultiViewLikel
     weight = np.nansum(np.where(np.isfinite(z[..., 0]), z[..., 2], 0.0), axis=(1, 2))        # Σ w per tick
     with np.errstate(invalid="ignore", divide="ignore"):
         per_detection = loglik / weight
-    bad = per_detection < _expected_log_density(likelihood) - MISMATCH_NATS
+    return _in_runs(per_detection < _expected_log_density(likelihood) - MISMATCH_NATS)
+
+
+def lost_flags(estimates: np.ndarray, triangulated: np.ndarray) -> np.ndarray:
+    """(T,) bool: the ticks in runs of MISMATCH_RUN where the estimate's joints lie on average more than
+    ``LOST_MM`` from the per-tick triangulation of the detections (both (T, 15, 3) metres, in the
+    detector's joint definitions; NaN where a joint was not triangulated, a tick with none is not judged).
+    The mean, not the median: a walking prior that cannot raise the arms of a person balancing with arms
+    out is off by 0.3–0.5 m at four joints and close at the rest."""
+    distance = np.linalg.norm(estimates - triangulated, axis=-1)
+    judged = np.isfinite(distance).any(axis=1)
+    mean = np.full(len(distance), np.nan)
+    mean[judged] = np.nanmean(distance[judged], axis=1)
+    with np.errstate(invalid="ignore"):
+        return _in_runs(mean > LOST_MM / 1000)
+
+
+def _in_runs(bad: np.ndarray) -> np.ndarray:
+    """(T,) bool: the ticks of ``bad`` (T,) in runs of at least MISMATCH_RUN, the known frames never."""
+    bad = bad.copy()
     bad[:KNOWN_FRAMES] = False
     flagged = np.zeros_like(bad)
     run = 0

@@ -160,7 +160,8 @@ def run_real_format(preset: Preset | str, motion: str, seed: int = 0, calibratio
             "dlt_mm": 1000 * float(np.linalg.norm(dlt - truth, axis=-1)[has].mean()) if has.any() else float("nan"),
             "dlt_coverage": float(has.mean()), "seconds": seconds,
             "mismatch_fraction": result.mismatch_fraction,
-            "fit_check": None if result.fit_check is None else result.fit_check["verdict"]}
+            "fit_check": None if result.fit_check is None else result.fit_check["verdict"],
+            "better_prior": None if result.fit_check is None else result.fit_check.get("better_prior")}
 
 
 def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None = None, cache=None,

@@ -76,6 +76,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from priortrack.body.normalise import BONE_CHILDREN
+from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry.sphere import clamped_cosine, karcher_mean, log_map, theta_over_sin, transport
@@ -182,6 +184,18 @@ def _inverse_cdf(logits: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     """
     cdf = logits.sub_(logits.amax(dim=0)).clamp_(min=LOG_WEIGHT_FLOOR).exp_().cumsum_(dim=0)
     return (cdf < torch.rsub(u, 1).mul_(cdf[-1])).sum(dim=0)
+
+
+def mirrored(directions: torch.Tensor) -> torch.Tensor:
+    """(..., 14, 3) bone directions in the body frame → those of the mirror image: left and right bones
+    swapped, the first (left-pointing) axis negated. The body frame stays a body frame: x = y × z, with
+    z = (l − r) × (n − h) of the swapped hips (:mod:`priortrack.body.normalise`)."""
+    names = [EVAL15_NAMES[c] for c in BONE_CHILDREN]
+    other = {"l": "r", "r": "l"}
+    swap = [names.index(other[n[0]] + n[1:]) if n[0] in other and other[n[0]] + n[1:] in names else b
+            for b, n in enumerate(names)]
+    flip = torch.tensor([-1.0, 1.0, 1.0], dtype=directions.dtype, device=directions.device)
+    return directions[..., swap, :] * flip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -774,7 +788,7 @@ class LiePrior(TransitionModel):
     def fit(cls, motions: Sequence[Motion], fps: float = DEFAULT_FPS, scale: float = DEFAULT_SCALE,
             max_components: int = 30, subsample: int | None = None, seed: int = 0,
             progress: Callable[[int, float], None] | None = None, ridge: float = 1e-6,
-            tol: float = 1e-5, paces: Sequence[float] = (1.0,)) -> LiePrior:
+            tol: float = 1e-5, paces: Sequence[float] = (1.0,), mirror: bool = False) -> LiePrior:
         """Learn the prior from motions (resampled to ``fps``) by MML EM (module docstring).
 
         Samples are the pairs (x_t, v_t = s log_{x_t}(x_{t+1})) within each motion; with
@@ -783,6 +797,8 @@ class LiePrior(TransitionModel):
         ``paces``: each motion is also learned played at these speeds (time-warped before the
         velocities are taken: pace p samples it at fps / p and plays it at fps), so that a walk
         slower or faster than the training walks is not outside the conditional's reach.
+        ``mirror``: each motion is also learned mirrored left for right (:func:`mirrored`), so that one
+        person's asymmetries (a longer left stride, one arm swinging wider) are not taken for walking's.
         """
         if not paces or any(not (isinstance(p, (int, float)) and 0.2 <= p <= 5) for p in paces):
             raise PriortrackError(f"paces must be speeds in [0.2, 5], got {paces!r}")
@@ -790,9 +806,10 @@ class LiePrior(TransitionModel):
         space = DirectionSpace.fit(motions)
         xs, vs = [], []
         for m in motions:
-            frames = space.encode(m).reshape(len(m), -1, 3)
-            xs.append(frames[:-1])
-            vs.append(scale * log_map(frames[:-1], frames[1:]))
+            encoded = space.encode(m).reshape(len(m), -1, 3)
+            for frames in (encoded, mirrored(encoded)) if mirror else (encoded,):
+                xs.append(frames[:-1])
+                vs.append(scale * log_map(frames[:-1], frames[1:]))
         x, v = torch.cat(xs), torch.cat(vs)
         if subsample is not None:
             if subsample < 1:

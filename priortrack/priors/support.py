@@ -10,8 +10,9 @@
 with x the encoded states (:meth:`encode`) and, for a GPDM, ln p(y | x) = −(eq. 18's energy).
 
 **The reference.** The same figure on frames the prior was *not* fitted on, but which are of its
-kind: the preset's training motions split into two folds (alternate motions; with fewer than four,
-the first and second half of each), a prior of the same kind and options fitted on each fold, and
+kind: the preset's training motions split into two folds within each person (a person's motions
+alternate, a single motion is halved; with fewer than four motions, the halves of each), a prior of
+the same kind and options fitted on each fold, and
 ℓ_t taken on the other fold. (Frames the prior
 was fitted on would set the bar too high: the Lie prior scores them 30 nats a frame above a held-out
 walk.) The reference is cached beside the priors, keyed by the preset's cache key.
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from priortrack.data.bundled import person_of
 from priortrack.data.motion import Motion
 from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
@@ -46,6 +48,8 @@ IN_SUPPORT, OUTSIDE = 0.5, 0.85
 REFERENCE_BYTES = 8 * 10**6
 #: Training motions from which the reference's folds are whole motions (fewer: halves of each).
 MIN_MOTION_FOLDS = 4
+#: The reference's own version, part of its cache name: a change in how it is made is not read from an old file.
+REFERENCE_VERSION = 2
 #: Percentiles of the reference reported with a verdict.
 PERCENTILES = (1, 5, 25, 50, 75, 95, 99)
 
@@ -65,7 +69,7 @@ def frame_log_density(prior, motion: Motion) -> np.ndarray:
 def reference(preset, cache: Path | None = None) -> np.ndarray:
     """ℓ_t on held-out frames of the preset's training data (module docstring): two-fold cross-fits (with
     the preset's defensive mixture, if it has one: the density it tracks with), cached as
-    ``support-<kind>-<key>[-defensive<ε>].npz`` in the prior cache, verified by its digest as the priors are."""
+    ``support<version>-<kind>-<key>[-defensive<ε>].npz`` in the prior cache, verified by its digest as the priors are."""
     from priortrack.experiments.presets import cache_dir, read_cached, write_cached
 
     if preset.prior_file is not None:
@@ -73,7 +77,8 @@ def reference(preset, cache: Path | None = None) -> np.ndarray:
                               f"give reference motions of its kind (--reference)")
     motions = list(preset.training_motions)
     mixed = f"-defensive{preset.defensive:g}" if preset.defensive else ""
-    path = (cache_dir() if cache is None else Path(cache)) / f"support-{preset.prior_kind}-{preset.cache_key}{mixed}.npz"
+    path = (cache_dir() if cache is None else Path(cache)) / \
+        f"support{REFERENCE_VERSION}-{preset.prior_kind}-{preset.cache_key}{mixed}.npz"
     stored = read_cached(path, lambda p: read_npz(p, REFERENCE_BYTES, "support reference")["values"],
                          "support reference")
     if stored is not None:
@@ -96,14 +101,30 @@ def reference(preset, cache: Path | None = None) -> np.ndarray:
 
 
 def _folds(motions: list[Motion]) -> list[tuple[list[Motion], list[Motion]]]:
-    """Two (fit on, held out) splits: alternate motions when there are at least MIN_MOTION_FOLDS of them;
-    else each motion's first and second halves (two walks split by motion would leave each fold one
-    subject, a reference of another person's walk rather than of the prior's own kind)."""
-    if len(motions) >= MIN_MOTION_FOLDS:
-        folds = [[m for i, m in enumerate(motions) if i % 2 == f] for f in (0, 1)]
-    else:
-        folds = [[m[:len(m) // 2] for m in motions], [m[len(m) // 2:] for m in motions]]
-    return [(folds[0], folds[1]), (folds[1], folds[0])]
+    """Two (fit on, held out) splits within each person: a person's motions alternate between the folds,
+    and a person with one motion gives each fold a half of it; with fewer than MIN_MOTION_FOLDS motions
+    in all, every motion is halved. Every held-out frame is then of a person the other fold's prior has
+    seen: the reference is of the prior's own kind. (Alternate motions regardless of person, with five
+    walking people, left 05's only walk out of one fold's training, and its frames, another person's
+    gait, set the 1st percentile so low that a balance and a dance came out "partly" in a walking prior.)"""
+    if len(motions) < MIN_MOTION_FOLDS:
+        return _swapped([m[:len(m) // 2] for m in motions], [m[len(m) // 2:] for m in motions])
+    people: dict[str, list[Motion]] = {}
+    for m in motions:
+        people.setdefault(person_of(m.subject or ""), []).append(m)
+    folds: tuple[list[Motion], list[Motion]] = ([], [])
+    for own in people.values():
+        if len(own) == 1:
+            folds[0].append(own[0][:len(own[0]) // 2])
+            folds[1].append(own[0][len(own[0]) // 2:])
+        else:
+            for i, m in enumerate(own):
+                folds[i % 2].append(m)
+    return _swapped(*folds)
+
+
+def _swapped(a: list[Motion], b: list[Motion]) -> list[tuple[list[Motion], list[Motion]]]:
+    return [(a, b), (b, a)]
 
 
 def verdict(ell: np.ndarray, reference_values: np.ndarray) -> dict:
