@@ -759,7 +759,8 @@ def build_parser() -> argparse.ArgumentParser:
     pace.set_defaults(run=_eval_pace)
     people = evaluate.add_parser("people", help="leave one walking person out: priors refitted without them, their "
                                                 "walks tracked on the lab and the real-format benches")
-    people.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "pf-lie-defensive"])
+    people.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "pf-lie-defensive"],
+                        help="presets (names or .toml paths); the lab ratios need pf-diffusion-local among them")
     people.add_argument("--people", nargs="+", default=["07", "35", "02", "05", "08+39"],
                         help="the held-out people (08+39: CMU subjects 08 and 39, one person)")
     people.add_argument("--benches", nargs="+", default=["lab", "real4", "real1"],
