@@ -187,16 +187,19 @@ class ParticleFilter(SequentialFilter):
         self.log_weights = self.normalised(self.log_weights + log_likelihood, flags)
         return joints
 
-    def weigh(self, joints: torch.Tensor, z: torch.Tensor) -> tuple[torch.Tensor, tuple | None]:
+    def weigh(self, joints: torch.Tensor, z: torch.Tensor,
+              covariance: torch.Tensor | None = None) -> tuple[torch.Tensor, tuple | None]:
         """log p(z | s) (P,) of the particles' observed joints, and what :meth:`keep_update` needs.
 
         Sampled translation: the likelihood, and None. Marginalised: the predictive likelihood with
         t integrated out, and the Kalman update (shift, C⁺) it implies, not yet applied (the
-        annealed filter weighs several layers and keeps the last one's)."""
+        annealed filter weighs several layers and keeps the last one's), from the previous frame's
+        translation covariances ``covariance`` (P, 6, 6) (default: the filter's own)."""
         if not self.marginal:
             return self.model.log_likelihood(joints, z), None
         motion = self.model.global_motion
-        shift, C_post, log_likelihood = kalman_update(joints, self.covariance, motion.sigma[:3], motion.velocity, z,
+        previous = self.covariance if covariance is None else covariance
+        shift, C_post, log_likelihood = kalman_update(joints, previous, motion.sigma[:3], motion.velocity, z,
                                                       self.model.likelihood)
         return log_likelihood, (shift, C_post)
 
@@ -230,8 +233,7 @@ class ParticleFilter(SequentialFilter):
         scale = self.model.pose_step(s, parents)
 
         def target(candidate: torch.Tensor):
-            self.covariance = parent_covariance
-            log_likelihood, pending = self.weigh(self.model.observe(candidate), z)
+            log_likelihood, pending = self.weigh(self.model.observe(candidate), z, parent_covariance)
             return (self.model.log_transition(candidate, parents).to(torch.float64)
                     + log_likelihood.to(torch.float64)), pending
 
