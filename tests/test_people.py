@@ -96,3 +96,12 @@ def test_a_run_that_fails_is_a_counted_row_not_a_stopped_evaluation(tmp_path, mo
     assert main(["eval", "people", "--presets", "pf-diffusion-local", "pf-lie", "--people", "05", "--benches", "lab",
                  "--out", str(tmp_path)]) == 0
     assert "| 05 | pf-lie | 100 (0.50) | — | — | — | 2 |" in capsys.readouterr().out
+
+
+def test_a_preset_reading_a_prior_file_cannot_be_refitted_and_says_so(tmp_path):
+    prior = tmp_path / "walk.npz"
+    assert main(["fit", "diffusion-local", "--train", "walkjog:35_01", "--out", str(prior)]) == 0
+    preset = tmp_path / "mine.toml"
+    preset.write_text('[filter]\nkind = "pf"\n[prior]\nfile = "walk.npz"\ntrain = ["walkjog:35_01"]\n')
+    with pytest.raises(PriortrackError, match="reads its prior from .*walk.npz: eval people refits each prior"):
+        people.eval_people([str(preset)], ["05"], out=tmp_path / "runs")
