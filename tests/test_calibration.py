@@ -1,7 +1,12 @@
-"""Camera calibrations read from files other tools wrote (Pose2Sim's Calib.toml, cv2.FileStorage
-YAML), and lens distortion in the projection against cv2.projectPoints."""
+"""Camera calibrations read from files other tools wrote (Pose2Sim, anipose, caliscope, mmhuman3d,
+cv2.FileStorage YAML: ``tests/data/formats/``, whose README and SOURCE.md files say where each comes
+from), and lens distortion in the projection against cv2.projectPoints."""
 
+import csv
 import json
+import logging
+import tomllib
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -14,6 +19,176 @@ from priortrack.data.calibration import read_calibration, rodrigues
 from priortrack.geometry.camera import PinholeCamera
 
 POSE2SIM = POSE2SIM_DIR
+FORMATS = Path(__file__).parent / "data" / "formats"
+#: file → (format recognised, the translation unit its SOURCE.md gives, up).
+TOOL_FILES = {
+    "anipose/aniposelib_7cam-allen-mouse_calibration.toml": ("anipose/FreeMoCap calibration.toml", 1e-3, None),
+    "anipose/aniposelib_mouse-outdoor_calibration_right_4_10_2026_adjusted.toml":
+        ("anipose/FreeMoCap calibration.toml", 1.0, None),
+    "anipose/trackstudio_calibration.toml": ("anipose/FreeMoCap calibration.toml", 1e-3, None),
+    "caliscope/4_cam_recording_camera_array.toml": ("caliscope camera_array.toml", 1.0, None),
+    "caliscope/post_optimization_camera_array.toml": ("caliscope camera_array.toml", 1.0, None),
+    "caliscope/post_optimization_config.toml": ("caliscope config.toml", 1.0, None),
+    "mmhuman3d/calibration_chessboard_05_28_18_05_19.json": ("mmhuman3d chessboard .json", 1.0, "floor"),
+    "pose2sim/Calib_scene.toml": ("Pose2Sim Calib.toml", 1.0, "z"),
+}
+
+
+def _file_cameras(path: Path) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Each camera's (K, dist, rvec, tvec) for cv2.projectPoints, in the file's own units, read here
+    from the file by its tool's documented conventions (SOURCE.md), independently of priortrack."""
+    if path.suffix == ".json":                              # mmhuman3d: flat K and R, camera → world
+        out = []
+        for c in json.loads(path.read_text()).values():
+            rvec = cv2.Rodrigues(np.reshape(c["R"], (3, 3)).T)[0]      # cv2 takes the nearest rotation
+            out.append((np.reshape(c["K"], (3, 3)), np.asarray(c["distCoeff"], float), rvec,
+                        -cv2.Rodrigues(rvec)[0] @ np.asarray(c["T"], float)))
+        return out
+    table = tomllib.loads(path.read_text())
+    tables = table["cameras"].values() if "cameras" in table else [v for v in table.values()
+                                                                   if isinstance(v, dict) and "matrix" in v]
+    out = []
+    for c in tables:
+        rotation = np.asarray(c["rotation"], float)
+        rvec = rotation if rotation.size == 3 else cv2.Rodrigues(rotation)[0]
+        out.append((np.asarray(c["matrix"], float), np.asarray(c["distortions"], float), rvec.reshape(3),
+                    np.asarray(c["translation"], float)))
+    return out
+
+
+@pytest.mark.parametrize("name", sorted(TOOL_FILES))
+def test_every_tool_file_projects_like_cv2_with_its_own_conventions(name, caplog):
+    """Each file another tool wrote: recognised (named in the log), its unit right, and every camera
+    projecting like cv2.projectPoints with the file's own parameters and conventions (1e-6 px)."""
+    fmt, unit, up = TOOL_FILES[name]
+    with caplog.at_level(logging.INFO, logger="priortrack"):
+        calib = read_calibration(FORMATS / name)
+    assert calib.format == fmt and fmt in caplog.text
+    assert calib.units == {1.0: "m", 1e-3: "mm"}[unit]
+    raw = _file_cameras(FORMATS / name)
+    assert len(raw) == len(calib.cameras)
+    rng = np.random.default_rng(0)
+    for cam, (K, dist, rvec, tvec) in zip(calib.cameras, raw):
+        w, h = cam.size
+        depth = rng.uniform(0.5, 3.0, size=(300, 1))       # metres in front of the camera, inside the image's middle
+        xy = (rng.uniform([0.2 * w, 0.2 * h], [0.8 * w, 0.8 * h], size=(300, 2)) - cam.K[:2, 2]) / np.diag(cam.K)[:2]
+        X_c = np.column_stack([xy * depth, depth])
+        X = (X_c - cam.t) @ cam.R                           # world metres (ours), then the file's units for cv2
+        reference = cv2.projectPoints(X / unit, rvec, tvec, K, dist)[0][:, 0]
+        uv, in_front = PinholeCamera.from_calibration(cam).project(X)
+        assert in_front.all()
+        np.testing.assert_allclose(uv, reference, atol=1e-6, err_msg=f"{name} camera {cam.name}")
+    if up == "floor":                                       # measured: see test_mmhuman3d_up_is_the_floor_normal
+        assert isinstance(calib.up, np.ndarray)
+    else:
+        assert calib.up == up
+
+
+@pytest.mark.parametrize("name", ["caliscope/post_optimization_camera_array.toml",
+                                  "caliscope/post_optimization_config.toml"])
+def test_caliscope_charuco_points_project_onto_its_own_2d(name):
+    """caliscope's triangulated board corners (xyz_CHARUCO.csv), projected with our reading of its
+    calibration, land on its detected corners (xy_CHARUCO.csv) as closely as its own (1.15 px median)."""
+    calib = read_calibration(FORMATS / name)
+    with open(FORMATS / "caliscope/post_optimization_xyz_CHARUCO.csv", newline="") as f:
+        xyz = {(r["sync_index"], r["keypoint_id"]): [float(r[k]) for k in ("x_coord", "y_coord", "z_coord")]
+               for r in csv.DictReader(f)}
+    errors = []
+    with open(FORMATS / "caliscope/post_optimization_xy_CHARUCO.csv", newline="") as f:
+        for r in csv.DictReader(f):
+            X = xyz.get((r["sync_index"], r["keypoint_id"]))
+            if X is None:
+                continue
+            camera = PinholeCamera.from_calibration(calib.cameras[calib.names.index(f"cam_{r['cam_id']}")])
+            uv = camera.project(np.array([X]))[0][0]
+            errors.append(np.hypot(uv[0] - float(r["img_loc_x"]), uv[1] - float(r["img_loc_y"])))
+    assert len(errors) > 2000
+    assert np.median(errors) < 1.5 and np.percentile(errors, 90) < 3.0
+
+
+def test_mmhuman3d_up_is_the_floor_normal():
+    """The floor the six depth cameras measured, moved into the world: its points lie on one plane
+    across the cameras (within 3 cm along the up found), below every camera."""
+    path = FORMATS / "mmhuman3d/calibration_chessboard_05_28_18_05_19.json"
+    calib = read_calibration(path)
+    data = json.loads(path.read_text())
+    floor = np.array([np.reshape(c["R"], (3, 3)) @ c["floor"]["center"] + c["T"] for c in data.values()
+                      if c["floor"]["pnum"]])
+    heights = floor @ calib.up
+    assert len(floor) == 6 and np.ptp(heights) < 0.03
+    assert (calib.centres @ calib.up > heights.max() + 0.5).all()
+
+
+def test_near_rotations_are_projected_and_far_ones_refused(tmp_path, caplog):
+    """A rotation stored to 6 digits (off SO(3) by ~1e-6) is the nearest rotation, logged; one off by
+    more than 1e-3, or a reflection, is refused naming the file and camera."""
+    cam = read_calibration(POSE2SIM / "Calib.toml").cameras[0]
+    def write(R, name="lab"):
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps({"up": "z", "cameras": [{"name": "c1", "K": cam.K.tolist(), "R": R.tolist(),
+                                                            "t": cam.t.tolist(), "size": list(cam.size)}]}))
+        return path
+    rounded = np.round(cam.R, 6)
+    assert np.abs(rounded @ rounded.T - np.eye(3)).max() > 1e-7
+    with caplog.at_level(logging.INFO, logger="priortrack"):
+        read = read_calibration(write(rounded)).cameras[0]
+    assert "projected onto the nearest rotation" in caplog.text
+    np.testing.assert_allclose(read.R @ read.R.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(read.R, cv2.Rodrigues(cv2.Rodrigues(rounded)[0])[0], atol=1e-12)
+    with pytest.raises(PriortrackError, match=r"far\.json: camera 'c1': the rotation matrix is not a rotation "
+                                              r"\(max\|R Rᵀ − I\| = 0\.00"):
+        read_calibration(write(cam.R + 2e-3, "far"))
+    with pytest.raises(PriortrackError, match=r"camera 'c1': the rotation matrix has determinant -1"):
+        read_calibration(write(-cam.R))
+
+
+def test_units_stated_inferred_and_forced(tmp_path, caplog):
+    """A millimetre file is never read as metres: inferred from the layout (logged), stated in the file,
+    or forced; a Pose2Sim-layout file in millimetres is read as millimetres with a warning."""
+    calib = read_calibration(POSE2SIM / "Calib.toml")
+    toml_mm = tmp_path / "Calib_mm.toml"
+    text = (POSE2SIM / "Calib.toml").read_text()
+    for c in calib.cameras:
+        line = next(line for line in text.splitlines() if line.startswith("translation") and
+                    np.allclose(np.array(line.split("[")[1].rstrip("]").split(","), float), c.t))
+        text = text.replace(line, "translation = [ " + ", ".join(repr(1000 * float(v)) for v in c.t) + "]")
+    toml_mm.write_text(text)
+    with caplog.at_level(logging.WARNING, logger="priortrack"):
+        read = read_calibration(toml_mm)
+    assert read.units == "mm" and "read as millimetres" in caplog.text
+    np.testing.assert_allclose([c.t for c in read.cameras], [c.t for c in calib.cameras], atol=1e-12)
+    assert read_calibration(toml_mm, units="m").units == "m"
+    np.testing.assert_allclose(read_calibration(toml_mm, units="m").cameras[0].t, 1000 * calib.cameras[0].t)
+    stated = tmp_path / "stated.json"
+    stated.write_text(json.dumps({"units": "mm", "cameras": [
+        {"name": "a", "K": c.K.tolist(), "R": c.R.tolist(), "t": (1000 * c.t).tolist(), "size": list(c.size)}
+        for c in calib.cameras[:1]]}))
+    np.testing.assert_allclose(read_calibration(stated).cameras[0].t, calib.cameras[0].t)
+    with pytest.raises(PriortrackError, match="units 'feet'"):
+        read_calibration(stated, units="feet")
+
+
+def test_panoptic_and_voxelpose_layouts(tmp_path):
+    """Files in the layouts the CMU Panoptic toolbox (centimetres, distCoef, resolution) and VoxelPose
+    (fx, fy, cx, cy, k, p; T the camera centre, millimetres) document, made from the Pose2Sim cameras."""
+    calib = read_calibration(POSE2SIM / "Calib.toml")
+    panoptic = tmp_path / "calibration_171204_pose1.json"
+    panoptic.write_text(json.dumps({"calibDataSource": "171204_calib", "cameras": [
+        {"name": f"00_0{i}", "type": "hd", "resolution": list(c.size), "panel": 0, "node": i, "K": c.K.tolist(),
+         "distCoef": c.dist.tolist(), "R": c.R.tolist(), "t": (100 * c.t).reshape(3, 1).tolist()}
+        for i, c in enumerate(calib.cameras)]}))
+    voxelpose = tmp_path / "calibration_shelf.json"
+    voxelpose.write_text(json.dumps({str(i): {
+        "R": c.R.tolist(), "T": (-1000 * c.R.T @ c.t).reshape(3, 1).tolist(), "fx": c.K[0, 0], "fy": c.K[1, 1],
+        "cx": c.K[0, 2], "cy": c.K[1, 2], "k": c.dist[[0, 1, 4]].reshape(3, 1).tolist(),
+        "p": c.dist[2:4].reshape(2, 1).tolist()} for i, c in enumerate(calib.cameras)}))
+    for path, fmt in ((panoptic, "CMU Panoptic calibration.json"), (voxelpose, "VoxelPose calibration.json")):
+        read = read_calibration(path)
+        assert read.format == fmt and read.units == ("cm" if path is panoptic else "mm")
+        for a, b in zip(read.cameras, calib.cameras):
+            np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+            np.testing.assert_allclose(a.R, b.R, atol=1e-12)
+            np.testing.assert_allclose(a.dist, b.dist, atol=1e-15)
 
 
 def test_pose2sims_calib_toml():
@@ -100,7 +275,7 @@ def test_json_cameras_and_intrinsics_only(tmp_path):
     path.write_text(json.dumps({"up": "z", "cameras": [
         {"name": "side", "K": cam.K.tolist(), "dist": cam.dist[:4].tolist(), "R": cam.R.tolist(),
          "t": (1000 * cam.t).tolist(), "size": [1088, 1920]}]}))
-    read = read_calibration(path, translation_unit=0.001)
+    read = read_calibration(path, units="mm")
     assert read.names == ("side",) and read.up == "z"
     np.testing.assert_allclose(read.cameras[0].t, cam.t)
     only = tmp_path / "intrinsics.json"
@@ -109,17 +284,33 @@ def test_json_cameras_and_intrinsics_only(tmp_path):
     assert read.up == "-y" and np.array_equal(read.cameras[0].R, np.eye(3)) and not read.cameras[0].t.any()
 
 
+_K = "matrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\nsize = [10, 10]\n"
+
+
 @pytest.mark.parametrize("text, suffix, message", [
-    ('[cam_01]\nmatrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\nsize = [10, 10]\nrotation = [0, 0, 0]\n', ".toml",
-     "camera 'cam_01': field 'translation' is missing"),
-    ('[c]\nmatrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\nfisheye = true\n', ".toml", "fisheye"),
+    ('[cam_01]\n' + _K + 'rotation = [0, 0, 0]\n', ".toml", "camera 'cam_01': the translation .* is missing"),
+    ('[c]\n' + _K + 'rotation = [0, 0, 0]\ntranslation = [0, 0, 0]\nfisheye = true\n', ".toml", "'c' is a fisheye"),
     ('[c]\nmatrix = [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]\nsize = [10, 10]\nrotation = [0, 0, 0]\ntranslation = [0, 0, 0]\n',
-     ".toml", "K is not"),
-    ('[c]\nmatrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\nsize = [10, 10]\nrotation = [0, 0, nan]\n'
-     'translation = [0, 0, 0]\n', ".toml", "rvec contains NaN"),
+     ".toml", "camera 'c': the intrinsic matrix K is not"),
+    ('[c]\n' + _K + 'rotation = [0, 0, nan]\ntranslation = [0, 0, 0]\n', ".toml",
+     "camera 'c': the rotation \\(Rodrigues vector\\) contains NaN"),
+    ('[c]\n' + _K + 'rotation = [0, 0]\ntranslation = [0, 0, 0]\n', ".toml",
+     "camera 'c': the rotation matrix has shape \\(2,\\)"),
+    ('[c]\n' + _K + 'rotation = [0, 0, 0]\ntranslation = [0, 0, "x"]\n', ".toml", "camera 'c': the translation is not numeric"),
+    ('[c]\n' + _K + 'rotation = [0, 0, 0]\ntranslation = [0, 0, 1, 2]\n', ".toml",
+     "camera 'c': the translation has shape \\(4,\\)"),
+    ('[c]\nmatrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\nsize = [0, 10]\nrotation = [0, 0, 0]\ntranslation = [0, 0, 0]\n',
+     ".toml", "camera 'c': the image size must be"),
+    ('[c]\n' + _K + 'rotation = [0, 0, 0]\ntranslation = [0, 0, 0]\ndistortions = [0.1, 0.2]\n', ".toml",
+     "camera 'c': the distortion must be"),
+    ('[cameras.0]\n' + _K + 'rotation = [[1, 0, 0], [0, 1, 0], [0, 0, 2]]\ntranslation = [0, 0, 0]\n', ".toml",
+     "camera 'cam_0': the rotation matrix is not a rotation"),
+    ('[a]\n' + _K + 'rotation = [0, 0, 0]\ntranslation = [0, 0, 0]\nfisheye = false\n[b]\n' + _K +
+     'rotation = [0, 0, 0]\ntranslation = [0, 0, 0]\nname = "a"\nfisheye = false\n', ".toml", "camera names repeat: a, a"),
     ('{"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "R": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "size": [4, 4]}', ".json",
      "give both a rotation"),
     ('{"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}', ".json", "image size"),
+    ('{"up": "sky", "K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "size": [4, 4]}', ".json", "up 'sky' is neither"),
     ('[1, 2]', ".json", "expected a mapping"),
     ('{"K": [1, 2, 3]', ".json", "not valid JSON"),
     ('x: [', ".yml", "not valid YAML"),

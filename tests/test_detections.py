@@ -138,7 +138,7 @@ def test_bad_detections_name_the_file_and_field(tmp_path, files, message):
 
 def test_bad_npz_and_arguments(tmp_path):
     np.savez(tmp_path / "names.npz", keypoints=np.zeros((1, 2, 17, 3)), keypoint_names=np.array(["a"] * 17))
-    with pytest.raises(PriortrackError, match="are not the names of a layout"):
+    with pytest.raises(PriortrackError, match="are not one layout.s"):
         read_detections(tmp_path / "names.npz")
     kp = np.ones((1, 2, 17, 3))
     kp[0, 0, 0, 2] = -1

@@ -183,16 +183,59 @@ def test_coco_results(tmp_path, text):
         assert not np.isinf(detections.keypoints).any()
 
 
-@pytest.mark.parametrize("name", ["Calib.toml", "calib.json"])
+TEST_DATA = Path(__file__).parent / "data"
+#: Calibrations other tools wrote (tests/data/formats), by the name a mutated copy is written under.
+TOOL_CALIBRATIONS = {
+    "anipose.toml": TEST_DATA / "formats/anipose/trackstudio_calibration.toml",
+    "camera_array.toml": TEST_DATA / "formats/caliscope/4_cam_recording_camera_array.toml",
+    "config.toml": TEST_DATA / "formats/caliscope/post_optimization_config.toml",
+    "mmhuman3d.json": TEST_DATA / "formats/mmhuman3d/calibration_chessboard_05_28_18_05_19.json",
+}
+
+
+@pytest.mark.parametrize("name", ["Calib.toml", "calib.json", *TOOL_CALIBRATIONS])
 @given(data=st.data())
 def test_calibration(tmp_path, name, data):
     from priortrack.data.calibration import read_calibration
 
-    text = data.draw(mutated(CALIB if name.endswith(".toml") else CALIB_JSON))
-    calibration = _only_priortrack_errors(read_calibration, tmp_path / name, text)
+    original = (TOOL_CALIBRATIONS[name].read_text() if name in TOOL_CALIBRATIONS else
+                CALIB if name.endswith(".toml") else CALIB_JSON)
+    calibration = _only_priortrack_errors(read_calibration, tmp_path / name, data.draw(mutated(original)))
     if calibration is not None:
         for camera in calibration.cameras:
             assert all(np.isfinite(a).all() for a in (camera.K, camera.dist, camera.R, camera.t))
+            np.testing.assert_allclose(camera.R @ camera.R.T, np.eye(3), atol=1e-9)
+        assert calibration.up is None or isinstance(calibration.up, str) or np.isfinite(calibration.up).all()
+
+
+CALISCOPE = "\n".join((TEST_DATA / "caliscope_4cam/xy_HOLISTIC.csv").read_text().split("\n")[:400])
+
+
+@given(text=mutated(CALISCOPE))
+def test_caliscope_csv(tmp_path, text):
+    from priortrack.data.detections import read_detections
+
+    detections = _only_priortrack_errors(read_detections, tmp_path / "xy_HOLISTIC.csv", text)
+    if detections is not None:
+        assert not np.isinf(detections.keypoints).any() and (detections.fps is None or np.isfinite(detections.fps))
+        confidence = detections.keypoints[..., 2]
+        assert np.all(np.isnan(confidence) | (confidence == 1))
+
+
+@given(values=st.lists(st.sampled_from([0.0, 1.0, -1.0, 500.0, float("nan"), float("inf"), 1e300, 0.5]),
+                       min_size=2 * 3 * 33 * 3, max_size=2 * 3 * 33 * 3))
+def test_freemocap_npy(tmp_path, values):
+    from priortrack.data.detections import read_detections
+
+    path = tmp_path / "d.npy"
+    np.save(path, np.array(values).reshape(2, 3, 33, 3))
+    try:
+        detections = read_detections(path)
+    except PriortrackError:
+        return
+    assert not np.isinf(detections.keypoints).any()
+    confidence = detections.keypoints[..., 2]
+    assert np.all(np.isnan(confidence) | (confidence > 0))
 
 
 @given(keypoints=st.lists(st.sampled_from([0.0, 1.0, -1.0, 500.0, float("nan"), float("inf"), 1e300, 0.5]),

@@ -109,8 +109,14 @@ def test_bad_input_is_named(tmp_path, capsys):
         track_detections(blind, calibration, "pf-lie", fps=60)
     with pytest.raises(PriortrackError, match="do not say their frame rate; give it"):
         track_detections(detections, calibration, "pf-lie")
-    with pytest.raises(PriortrackError, match="does not say which world axis is up"):
-        track_detections(detections, Calibration(calibration.cameras, None, "c.json"), "pf-lie", fps=60)
+    one = replace(detections, keypoints=detections.keypoints[:1], camera_names=detections.camera_names[:1])
+    with pytest.raises(PriortrackError, match="c.json gives no vertical and one camera cannot triangulate"):
+        track_detections(one, Calibration(calibration.cameras[:1], None, "c.json"), "pf-lie", fps=60)
+    flip = np.diag([-1.0, 1.0, -1.0])                      # the camera turned about its y axis, at its place
+    turned = replace(calibration.cameras[1], R=flip @ calibration.cameras[1].R, t=flip @ calibration.cameras[1].t)
+    with pytest.raises(PriortrackError, match="c.toml: camera 'cam02_json': 100% of the person it detects lies behind"):
+        track_detections(detections, Calibration((calibration.cameras[0], turned) + calibration.cameras[2:], "z",
+                                                 "c.toml"), "pf-lie", fps=60)
     with pytest.raises(PriortrackError, match="no camera cam_09"):
         track_detections(detections, calibration, "pf-lie", fps=60,
                          camera_map={n: "cam_09" for n in detections.camera_names})

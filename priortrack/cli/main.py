@@ -234,7 +234,9 @@ def _track_detections(args: argparse.Namespace) -> None:
         camera_map = dict(pairs)
     skeleton = _skeleton(args.skeleton) if args.skeleton else None
     detections = read_detections(args.detections, keypoints=args.keypoints, person=args.person)
-    calibration = read_calibration(args.cameras)
+    if args.frames is not None:
+        detections = detections.head(args.frames)
+    calibration = read_calibration(args.cameras, units=args.units)
     progress = _Progress(f"track {args.filter}", "frame {0} of {1}")
     try:
         result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
@@ -638,11 +640,16 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "track its synthetic observations")
     track.add_argument("--detections", help="OpenPose JSON folder (one sub-folder per camera), COCO results "
                                             ".json or .npz of 2D keypoints")
-    track.add_argument("--cameras", help="calibration: Pose2Sim Calib.toml, OpenCV .json/.yml")
+    track.add_argument("--cameras", help="calibration, its format recognised from the content: Pose2Sim, anipose, "
+                                         "FreeMoCap or caliscope .toml; OpenCV-style, mmhuman3d, Panoptic or "
+                                         "VoxelPose .json; OpenCV .yml/.yaml")
+    track.add_argument("--units", choices=("m", "cm", "mm"),
+                       help="the calibration's translation unit, if the file does not state it and its camera "
+                            "layout misleads (else inferred and logged)")
     track.add_argument("--keypoints", help="the detections' layout: body25, body25b, coco18, coco17, mediapipe33")
     track.add_argument("--fps", type=float, help="the detections' frame rate (if their files do not say it)")
-    track.add_argument("--up", help="the calibration world's up axis (x, y, z, -x, -y, -z) if the file does "
-                                    "not say it")
+    track.add_argument("--up", help="the calibration world's up: an axis (x, y, z, -x, -y, -z) or a vector "
+                                    "X,Y,Z; else the file's, else found from the person (ankles to neck)")
     track.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
     track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
     track.add_argument("--person", type=int, help="follow this index of each frame's people list")
@@ -655,7 +662,8 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--scenario", default="clean",
                        help="NAME or NAME:key=value,... (clean, noise, dropout, occlusion, blackout, outliers)")
     track.add_argument("--seed", type=int, default=0, help="seeds the observations and the filter")
-    track.add_argument("--frames", type=int, help="track only the first N frames (at the prior's rate)")
+    track.add_argument("--frames", type=int, help="track only the first N frames (a motion: ticks at the "
+                                                  "prior's rate; --detections: the file's first N frames)")
     track.add_argument("--rrd", help="also write a rerun recording: truth, estimate, particle cloud, 2D observations")
     track.add_argument("--smooth", action="store_true",
                        help="also smooth the run: each frame's estimate given every frame (outputs the smoothed joints)")

@@ -9,9 +9,14 @@
   keypoints carries COCO-17 (MMPose, RTMPose, ViTPose, YOLO-pose) or MediaPipe output;
 - a COCO results file (``.json``: a list of ``{"image_id", "keypoints", "score"}``), one camera,
   ``image_id`` the frame number;
-- an ``.npz`` with ``keypoints`` (cameras, frames, keypoints, 3) = x, y, confidence (NaN or
-  confidence 0 = missing), ``keypoint_names`` (a layout's names, :mod:`priortrack.data.keypoints`),
-  and optional ``fps``, ``camera_names`` and ``frames``.
+- an ``.npz`` with ``keypoints`` (cameras, frames, keypoints, 3) = x, y, confidence (missing: NaN,
+  confidence 0, or the point (0, 0) as OpenPose writes it), ``keypoint_names`` (a layout's names in
+  any order, ours or the detector's own: ``LShoulder``; :func:`~priortrack.data.keypoints.layout_of_names`),
+  and optional ``fps``, ``camera_names`` and ``frames``;
+- a FreeMoCap-style ``.npy`` (cameras, frames, points, 2 or 3) of x, y[, confidence] (NaN or
+  (0, 0) missing; no confidence: 1), MediaPipe's 33 body points first (FreeMoCap's 543), cameras
+  named ``cam_0``…; the frame rate must be given;
+- a caliscope ``xy_<TRACKER>.csv`` (:mod:`priortrack.data.caliscope`: its cameras aligned by time).
 
 The layout follows from the keypoint count (``keypoints=`` names it; BODY_25 and BODY_25B both
 have 25 and must be named). Confidences must be finite and non-negative (NaN coordinates with
@@ -32,12 +37,13 @@ from __future__ import annotations
 import json
 import logging
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from priortrack.data.keypoints import LAYOUTS, layout_for, to_eval15
+from priortrack.data.caliscope import is_caliscope_csv, read_caliscope
+from priortrack.data.keypoints import LAYOUTS, layout_for, layout_of_names, to_eval15
 from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
 
@@ -52,6 +58,8 @@ REACQUIRE = 10
 MAX_FRAMES, MAX_CAMERAS = 1_000_000, 64
 #: The most an NPZ of detections may hold, bytes.
 MAX_NPZ_BYTES = 4 << 30
+#: FreeMoCap's MediaPipe points per frame: 33 body, 21 + 21 hands, 468 face.
+FREEMOCAP_POINTS = 543
 
 
 @dataclass(frozen=True)
@@ -80,6 +88,12 @@ class Detections:
     def keypoint_names(self) -> tuple[str, ...]:
         return LAYOUTS[self.layout]
 
+    def head(self, n: int) -> "Detections":
+        """The first ``n`` frames (all of them if there are fewer)."""
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise PriortrackError(f"frames must be a positive count, got {n!r}")
+        return replace(self, keypoints=self.keypoints[:, :n], frames=self.frames[:n])
+
     def eval15(self, min_confidence: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
         """(C, T, 15, 2) eval15 pixels, NaN where missing or below ``min_confidence``, and their
         confidences (C, T, 15) (:func:`priortrack.data.keypoints.to_eval15`)."""
@@ -97,11 +111,17 @@ def read_detections(path: str | Path, keypoints: str | None = None, person: int 
         return _read_openpose(path, keypoints, person)
     if not path.is_file():
         raise PriortrackError(f"detections {path} do not exist")
-    if path.suffix.lower() == ".npz":
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
         return _read_npz(path, keypoints)
-    if path.suffix.lower() == ".json":
+    if suffix == ".json":
         return _read_coco_results(path, keypoints, person)
-    raise PriortrackError(f"{path}: detections are a folder of OpenPose JSON files, a COCO results .json or an .npz")
+    if suffix == ".npy":
+        return _read_npy(path, keypoints)
+    if suffix == ".csv" and is_caliscope_csv(path):
+        return read_caliscope(path, keypoints)
+    raise PriortrackError(f"{path}: detections are a folder of OpenPose JSON files, a COCO results .json, an .npz, "
+                          f"a FreeMoCap-style .npy or a caliscope xy_*.csv")
 
 
 # ---- OpenPose folders --------------------------------------------------------------------------
@@ -178,7 +198,7 @@ def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Det
         raise PriortrackError(f"{path}: people have different keypoint counts ({sorted(counts)})")
     layout = layout_for(keypoints, counts.pop(), str(path))
     frames = np.array(sorted(set().union(*(frames.keys() for frames in per_camera))))
-    _check_frames(frames, str(path))
+    check_frames(frames, str(path))
     K = len(LAYOUTS[layout])
     out = np.full((len(folders), len(frames), K, 3), np.nan)
     switches = []
@@ -189,7 +209,7 @@ def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Det
     return Detections(out, layout, tuple(f.name for f in folders), frames, None, str(path), tuple(switches))
 
 
-def _check_frames(frames: np.ndarray, where: str) -> None:
+def check_frames(frames: np.ndarray, where: str) -> None:
     if len(frames) > MAX_FRAMES:
         raise PriortrackError(f"{where}: {len(frames)} frames (at most {MAX_FRAMES})")
     if len(frames) < 1:
@@ -267,7 +287,7 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
         raise PriortrackError(f"{path}: entries have different keypoint counts ({sorted(counts)})")
     layout = layout_for(keypoints, counts.pop(), str(path))
     frames = np.array(sorted(by_frame))
-    _check_frames(frames, str(path))
+    check_frames(frames, str(path))
     followed, switches = _follow([by_frame[int(n)] for n in frames], person, path.stem)
     return Detections(followed[None], layout, (path.stem,), frames, None, str(path), (switches,))
 
@@ -284,14 +304,13 @@ def _read_npz(path: Path, keypoints: str | None) -> Detections:
     C, T, K, _ = kp.shape
     if not 1 <= C <= MAX_CAMERAS or T < 1:
         raise PriortrackError(f"{path}: keypoints has {C} cameras and {T} frames")
-    names = tuple(str(n).lower() for n in arrays["keypoint_names"].reshape(-1))
-    layout = next((k for k, v in LAYOUTS.items() if v == names), None)
-    if layout is None:
-        raise PriortrackError(f"{path}: keypoint_names ({len(names)}: {', '.join(names[:5])}, …) are not the names "
-                              f"of a layout ({', '.join(LAYOUTS)}); see priortrack.data.keypoints")
-    if keypoints is not None:
-        layout_for(keypoints, K, str(path))
-    kp = kp.astype(np.float64)
+    names = tuple(str(n) for n in arrays["keypoint_names"].reshape(-1))
+    if len(names) != K:
+        raise PriortrackError(f"{path}: {len(names)} keypoint_names for {K} keypoints")
+    layout, order = layout_of_names(names, str(path))
+    if keypoints is not None and layout_for(keypoints, K, str(path)) != layout:
+        raise PriortrackError(f"{path}: keypoint_names are layout {layout}, not {keypoints}")
+    kp = kp[:, :, order].astype(np.float64)
     conf = kp[..., 2]
     bad = np.isfinite(conf) & (conf < 0)
     if bad.any():
@@ -299,7 +318,8 @@ def _read_npz(path: Path, keypoints: str | None) -> Detections:
     if np.isinf(kp).any():
         raise PriortrackError(f"{path}: keypoints has inf (first at {np.argwhere(np.isinf(kp))[0].tolist()}); "
                               f"NaN marks a missing keypoint")
-    kp[np.isnan(conf) | (conf == 0) | np.isnan(kp[..., :2]).any(axis=-1)] = np.nan
+    kp[np.isnan(conf) | (conf == 0) | np.isnan(kp[..., :2]).any(axis=-1) |
+       (kp[..., :2] == 0).all(axis=-1)] = np.nan                 # (0, 0, c): OpenPose's "not found"
     frames = arrays.get("frames", np.arange(T))
     if frames.shape != (T,) or frames.dtype.kind not in "iu" or np.any(np.diff(frames) <= 0):
         raise PriortrackError(f"{path}: frames must be {T} increasing integers")
@@ -311,3 +331,39 @@ def _read_npz(path: Path, keypoints: str | None) -> Detections:
     if len(names_c) != C:
         raise PriortrackError(f"{path}: {len(names_c)} camera_names for {C} cameras")
     return Detections(kp, layout, names_c, frames.astype(int), fps, str(path), (0,) * C)
+
+
+def _read_npy(path: Path, keypoints: str | None) -> Detections:
+    """FreeMoCap-style 2D: an array (cameras, frames, points, 2 or 3) of x, y[, confidence], NaN (or
+    (0, 0, 0)) where missing; MediaPipe's 33 body points first (FreeMoCap's 543 = body, hands, face)."""
+    from priortrack.data.npz import read_npy
+
+    kp = read_npy(path, MAX_NPZ_BYTES, "detections array")
+    if kp.ndim != 4 or kp.shape[-1] not in (2, 3) or kp.dtype.kind not in "fiu":
+        raise PriortrackError(f"{path}: an array of shape {kp.shape} ({kp.dtype}); expected (cameras, frames, points, "
+                              f"2 or 3) numbers")
+    C, T, P, D = kp.shape
+    if not 1 <= C <= MAX_CAMERAS or T < 1:
+        raise PriortrackError(f"{path}: {C} cameras and {T} frames")
+    if keypoints is not None:
+        key = keypoints.lower().replace("_", "").replace("-", "")
+        layout = layout_for(keypoints, len(LAYOUTS[key]) if key in LAYOUTS else -1, str(path))
+    elif P == FREEMOCAP_POINTS or any(len(v) == P for v in LAYOUTS.values()):
+        layout = "mediapipe33" if P == FREEMOCAP_POINTS else layout_for(None, P, str(path))
+    else:
+        raise PriortrackError(f"{path}: {P} points per frame fit no layout (FreeMoCap's MediaPipe: 33 or "
+                              f"{FREEMOCAP_POINTS}); say which with --keypoints ({', '.join(LAYOUTS)})")
+    K = len(LAYOUTS[layout])
+    if P < K:
+        raise PriortrackError(f"{path}: {P} points per frame, fewer than layout {layout}'s {K}")
+    kp = kp[:, :, :K].astype(np.float64)
+    if D == 2:
+        log.warning("%s: no confidence in the array; every point is taken at confidence 1", path)
+        kp = np.concatenate([kp, np.ones(kp.shape[:-1] + (1,))], axis=-1)
+    if np.isinf(kp).any():
+        raise PriortrackError(f"{path}: inf at {np.argwhere(np.isinf(kp))[0].tolist()}; NaN marks a missing point")
+    if (kp[..., 2] < 0).any():
+        raise PriortrackError(f"{path}: negative confidences (first at {np.argwhere(kp[..., 2] < 0)[0].tolist()})")
+    missing = np.isnan(kp).any(axis=-1) | (kp[..., 2] == 0) | (kp[..., :2] == 0).all(axis=-1)
+    kp[missing] = np.nan
+    return Detections(kp, layout, tuple(f"cam_{c}" for c in range(C)), np.arange(T), None, str(path), (0,) * C)

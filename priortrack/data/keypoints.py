@@ -7,6 +7,10 @@ One table per layout names its keypoints in the detector's order:
   ViTPose, YOLO-pose); ``mediapipe33``: MediaPipe Pose's landmarks, named as its ``PoseLandmark``
   in lower case.
 
+Keypoint names in a file may be ours or the detector's own, in any order (:func:`layout_of_names`):
+OpenPose's ``LShoulder``, ``RBigToe``, ``MidHip`` (BODY_25B's ``Neck`` and ``Head`` are its
+``upper_neck`` and ``head_top``), MediaPipe's ``LEFT_SHOULDER``, COCO's ``left_shoulder``.
+
 The eval15 joints are taken from keypoints of the same name (shoulders, elbows, wrists, hips,
 knees, ankles), and the three a detector lacks are derived, the same way for every layout:
 
@@ -23,6 +27,8 @@ an approximation, a few centimetres low).
 """
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 
@@ -61,6 +67,35 @@ EVAL15_PARTS: dict[str, tuple[tuple[str, ...], ...]] = {
     "head": (("head_top",), ("left_ear", "right_ear")),
     **{f"{side[0]}{part}": ((f"{side}_{part}",),) for side in ("left", "right") for part in _LR},
 }
+
+
+#: Per layout, the detector's own names that are not ours after :func:`_snake` (BODY_25B as Pose2Sim
+#: names it: "Neck" is the upper neck, "Head" the head top).
+_DETECTOR_NAMES = {"body25b": {"neck": "upper_neck", "head": "head_top"}}
+
+
+def _snake(name: str) -> str:
+    """A detector's keypoint name in ours: "LShoulder" → "left_shoulder", "RBigToe" →
+    "right_big_toe", "MidHip" → "mid_hip", "LEFT_SHOULDER" → "left_shoulder"."""
+    name = str(name).strip()
+    name = re.sub(r"^([LR])(?=[A-Z][a-z])", lambda m: {"L": "Left", "R": "Right"}[m.group(1)], name)
+    name = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name)
+    return re.sub(r"[\s-]+", "_", name).lower()
+
+
+def layout_of_names(names: tuple[str, ...], where: str) -> tuple[str, np.ndarray]:
+    """The layout whose keypoints ``names`` are, in any order and in ours or the detector's spelling,
+    and the (K,) index putting a file's keypoints in the layout's order."""
+    spelled = [_snake(n) for n in names]
+    for layout, ours in LAYOUTS.items():
+        aliases = _DETECTOR_NAMES.get(layout, {})
+        mine = [aliases.get(n, n) if n not in ours else n for n in spelled]
+        if len(mine) == len(ours) and sorted(mine) == sorted(ours):
+            position = {n: i for i, n in enumerate(mine)}
+            return layout, np.array([position[n] for n in ours])
+    raise PriortrackError(f"{where}: keypoint names ({len(names)}: {', '.join(map(str, names[:5]))}, …) are not one "
+                          f"layout's ({', '.join(f'{k}: {len(v)}' for k, v in LAYOUTS.items())}); names are ours "
+                          f"(left_shoulder) or the detector's (LShoulder, LEFT_SHOULDER); see priortrack.data.keypoints")
 
 
 def detector_map() -> np.ndarray:

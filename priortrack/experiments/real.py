@@ -4,9 +4,11 @@
 
 1. **Cameras.** The detection cameras (folders) are matched to the calibration's in order (both
    as listed: folders sorted by name, calibration cameras in file order, as Pose2Sim does), or by
-   ``camera_map`` (folder → calibration name). The calibration's world, whose up axis the file
-   gives (Pose2Sim: Z) or ``up`` does, is turned Y-up for the priors, which learned from Y-up mocap
-   (:func:`priortrack.geometry.frames.to_y_up`); results are turned back.
+   ``camera_map`` (folder → calibration name). The calibration's world, whose up the file gives
+   (Pose2Sim: Z; mmhuman3d: its floor) or ``up`` does (an axis or a vector), is turned Y-up for the
+   priors, which learned from Y-up mocap (:func:`priortrack.geometry.frames.to_y_up`); results are
+   turned back. Where neither gives a vertical (anipose, caliscope, FreeMoCap: camera 1's frame),
+   up is found from the person (:func:`priortrack.geometry.frames.up_from_person`) and logged.
 2. **Time.** The prior steps at its own rate (30 fps for the bundled presets), not the data's: tick
    k is at time k / fps_prior from the first frame, and consumes the detection frame nearest to it
    if one lies within half a data frame (60 fps data: every other frame; 25 fps data: some ticks have
@@ -59,7 +61,7 @@ import torch
 
 from priortrack.body.ik import fitted_skeleton, inverse_kinematics, inverse_kinematics_2d, scaled_to_height
 from priortrack.data.bundled import cmu_skeleton
-from priortrack.data.calibration import Calibration, CameraCalibration
+from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
 from priortrack.data.motion import Motion
 from priortrack.data.skeleton import Skeleton
@@ -71,7 +73,7 @@ from priortrack.errors import PriortrackError
 from priortrack.experiments.presets import Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.geometry.frames import in_working_frame, to_y_up
+from priortrack.geometry.frames import in_working_frame, to_y_up, up_from_person, up_vector
 from priortrack.geometry.triangulation import triangulate
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation.multiview import DEFAULT_NU, DEFAULT_SIGMA_PX, MultiViewLikelihood
@@ -135,9 +137,9 @@ class DetectionTrack:
     reprojection_px: np.ndarray
     filter: str
     seconds: float
-    #: The calibration world's up axis, and A (3, 3) with world rows = working-frame rows @ A (the
-    #: snapshots' particles are in the Y-up working frame).
-    up: str = "y"
+    #: The calibration world's up (an axis name or a (3,) unit vector), and A (3, 3) with world rows =
+    #: working-frame rows @ A (the snapshots' particles are in the Y-up working frame).
+    up: str | np.ndarray = "y"
     working_to_world: np.ndarray = field(default_factory=lambda: np.eye(3), repr=False)
     #: The body the filter tracked (the scaled skeleton) and its eval15 joints per tick (T, 15, 3) in the
     #: Y-up working frame, in the body's own definitions (for the BVH).
@@ -194,7 +196,7 @@ class DetectionTrack:
     def save_trc(self, path: str | Path) -> Path:
         """The joints as a TRC file (:mod:`priortrack.data.trc`: Y-up, Pose2Sim's axes for a Z-up world;
         a world with another up axis is written in the Y-up working frame)."""
-        if self.up in ("y", "z"):
+        if isinstance(self.up, str) and self.up in ("y", "z"):
             return write_trc(path, self.joints, EVAL15_NAMES, self.fps, self.up, int(max(self.frames[0], 0)))
         return write_trc(path, self.joints @ self.working_to_world.T, EVAL15_NAMES, self.fps, "y",
                          int(max(self.frames[0], 0)))
@@ -272,8 +274,39 @@ def schedule(frames: np.ndarray, data_fps: float, prior_fps: float) -> np.ndarra
     return index
 
 
+def _check_in_front(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[str, ...], source: str) -> None:
+    """Refuse a camera that the person it detects (z: (T, C, 15, 3)), triangulated by every camera,
+    lies behind: its pose is not the calibration's convention (camera → world read as world →
+    camera, or a flipped axis)."""
+    if len(cameras) < 2:
+        return
+    X = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(z[..., 2]).transpose(1, 0, 2))
+    for c, camera in enumerate(cameras):
+        seen = np.isfinite(X).all(axis=-1) & np.isfinite(z[:, c, :, 0])
+        if seen.sum() < 10:
+            continue
+        behind = ~camera.project(np.where(seen[..., None], X, 0.0))[1][seen]
+        if behind.mean() > 0.9:
+            raise PriortrackError(f"{source}: camera {names[c]!r}: {100 * behind.mean():.0f}% of the person it detects "
+                                  f"lies behind it once triangulated; its rotation and translation are not world → "
+                                  f"camera as read (a camera → world file, or a wrong sign?)")
+
+
+def _up_from_detections(cameras: list[PinholeCamera], uv: np.ndarray, confidence: np.ndarray,
+                        source: str) -> np.ndarray:
+    """The world's up found from the person (:func:`priortrack.geometry.frames.up_from_person`) over
+    the detections' frames triangulated in the calibration's world; logged."""
+    if len(cameras) < 2:
+        raise PriortrackError(f"{source} gives no vertical and one camera cannot triangulate the person to find "
+                              f"it; give it (--up: an axis or a vector X,Y,Z)")
+    up, what, frames = up_from_person(triangulate(cameras, uv, confidence))
+    log.info("%s gives no vertical: up %s found from the person (%s, median over %d frames)", source,
+             np.round(up, 3).tolist(), what, frames)
+    return up
+
+
 def track_detections(detections: Detections, calibration: Calibration, preset: Preset | str,
-                     fps: float | None = None, up: str | None = None, camera_map: dict[str, str] | None = None,
+                     fps: float | None = None, up: str | np.ndarray | None = None, camera_map: dict[str, str] | None = None,
                      min_confidence: float = 0.3, seed: int = 0, cache=None, keep_snapshots: bool = False,
                      height: float = 1.7, skeleton: Skeleton | None = None,
                      progress: Callable[[int, int], None] | None = None, smooth: bool = False,
@@ -291,14 +324,15 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         raise PriortrackError(f"{detections.source}: the detections do not say their frame rate; give it (--fps)")
     if not 0 < data_fps < 1e4:
         raise PriortrackError(f"fps must be a positive frame rate, got {data_fps}")
-    up = up or calibration.up
-    if up is None:
-        raise PriortrackError(f"{calibration.source} does not say which world axis is up; give it (--up)")
-    A = to_y_up(up)
     calibrated = match_cameras(detections, calibration, camera_map)
     world_cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
-    cameras = [in_working_frame(c, A) for c in world_cameras]
     uv, confidence = detections.eval15(min_confidence)                           # (C, T, 15, 2), (C, T, 15)
+    up = up if up is not None else calibration.up
+    if up is None:
+        up = _up_from_detections(world_cameras, uv, confidence, calibration.source)
+    up = up if isinstance(up, str) and up in UP_AXES else up_vector(up)
+    A = to_y_up(up)
+    cameras = [in_working_frame(c, A) for c in world_cameras]
     for c, name in enumerate(detections.camera_names):
         if not (confidence[c] > 0).any():
             raise PriortrackError(f"camera {name} sees none of the detections (no joint above confidence "
@@ -309,6 +343,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     used = index >= 0
     z[used, :, :, :2] = uv[:, index[used]].transpose(1, 0, 2, 3)
     z[used, :, :, 2] = confidence[:, index[used]].transpose(1, 0, 2)
+    _check_in_front(cameras, z, detections.camera_names, calibration.source)
     rejected = cross_view_check(cameras, z, detections.camera_names)
     single = len(cameras) == 1
     if single:                                     # joints detected per tick; else triangulated per tick

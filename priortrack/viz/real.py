@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from priortrack.geometry.frames import nearest_axis
 from priortrack.viz.recording import Recording
 
 from priortrack.viz.logger import ESTIMATE_COLOR
@@ -25,7 +26,7 @@ FILTERED_COLOR = (150, 150, 150)
 def record_detections(result, path: str | Path) -> Path:
     """Write ``result`` (a DetectionTrack, with its snapshots for the cloud) to the ``.rrd`` file ``path``."""
     snapshots = {s.frame: s for s in result.snapshots or []}
-    with Recording(path, up=result.up) as rec:
+    with Recording(path, up=nearest_axis(result.up)) as rec:
         for name, camera in zip(result.camera_names, result.cameras):
             rec.camera(camera, name)
         for t, joints in enumerate(result.joints):

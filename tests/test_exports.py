@@ -1,0 +1,61 @@
+"""The exports read by the tools that read them: a tracked run's .trc by OpenSim (its own
+TRCFileAdapter, as OpenSim 4.6 ships it) and its .bvh by Blender's BVH importer (bpy 4.x), each
+with the conventions docs/formats.md states: TRC Y-up in metres, (X, Y, Z) = (Y, Z, X) of a Z-up
+world; BVH Y-up in centimetres, imported at scale 0.01 into Blender's Z-up world."""
+
+import numpy as np
+import pytest
+
+from priortrack.body.fk import ForwardKinematics
+from priortrack.cli.main import main
+from priortrack.data.bundled import POSE2SIM_DIR
+from priortrack.data.bvh import read_bvh
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """The real Pose2Sim trial (Z-up world) tracked by pf-lie, written as .npz, .trc and .bvh."""
+    folder = tmp_path_factory.mktemp("exports")
+    assert main(["track", "--detections", str(POSE2SIM_DIR / "pose"), "--cameras", str(POSE2SIM_DIR / "Calib.toml"),
+                 "--keypoints", "body25b", "--fps", "60", "--filter", "pf-lie", "--out", str(folder / "r.npz"),
+                 "--out", str(folder / "r.trc"), "--out", str(folder / "r.bvh")]) == 0
+    with np.load(folder / "r.npz") as z:
+        return folder, z["joints"], [str(n) for n in z["joint_names"]]
+
+
+def test_opensim_reads_the_trc_y_up_in_metres(run):
+    import opensim
+
+    folder, joints, names = run
+    table = opensim.TimeSeriesTableVec3(str(folder / "r.trc"))
+    assert table.getNumRows() == len(joints) and list(table.getColumnLabels()) == names
+    assert table.getTableMetaDataAsString("Units") == "m" and float(table.getTableMetaDataAsString("DataRate")) == 30
+    np.testing.assert_allclose(list(table.getIndependentColumn()), np.arange(len(joints)) / 30, atol=1e-12)
+    markers = np.array([[[table.getRowAtIndex(t)[j].get(k) for k in range(3)] for j in range(len(names))]
+                        for t in range(len(joints))])
+    np.testing.assert_allclose(markers, joints[..., [1, 2, 0]], atol=1e-12)      # Pose2Sim's zup2yup
+    head, ankles = names.index("head"), [names.index("lankle"), names.index("rankle")]
+    assert (markers[:, head, 1] - markers[:, ankles, 1].max(axis=1) > 1.3).all()  # Y is OpenSim's vertical
+
+
+def test_blender_imports_the_bvh_at_scale_0_01_to_our_joints(run):
+    """Blender's importer (scale 0.01: the file is in centimetres; BVH's Y up turned to Blender's Z
+    up) puts every bone's head where our reader's kinematics put the joint, in the calibration's Z-up
+    world, to 1e-6 m; the tracked head stands 1.3 m above the ankles along Blender's Z."""
+    import bpy
+
+    folder, joints, names = run
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.import_anim.bvh(filepath=str(folder / "r.bvh"), global_scale=0.01, axis_forward="-Z", axis_up="Y")
+    armature = bpy.context.selected_objects[0]
+    motion = read_bvh(folder / "r.bvh")
+    ours = ForwardKinematics(motion.skeleton)(motion.channels).double().numpy()     # (T, J, 3) Y-up metres
+    bones = [b.name for b in armature.pose.bones]                  # every joint but the end sites
+    assert sorted(bones) == sorted(n for n in motion.skeleton.names if not n.endswith("_end"))
+    index = [motion.skeleton.names.index(b) for b in bones]
+    for t in range(len(ours)):
+        bpy.context.scene.frame_set(t + 1)
+        heads = np.array([list(armature.matrix_world @ armature.pose.bones[b].head) for b in bones])
+        np.testing.assert_allclose(heads, ours[t][index][:, [0, 2, 1]] * [1, -1, 1], atol=1e-6)
+        np.testing.assert_allclose(heads.mean(axis=0)[:2], joints[t].mean(axis=0)[:2], atol=0.1)  # where we tracked
+        assert np.ptp(heads[:, 2]) > 1.3 > max(np.ptp(heads[:, 0]), np.ptp(heads[:, 1]))          # standing along Z
