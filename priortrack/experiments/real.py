@@ -300,7 +300,7 @@ def _up_from_detections(cameras: list[PinholeCamera], uv: np.ndarray, confidence
         raise PriortrackError(f"{source} gives no vertical and one camera cannot triangulate the person to find "
                               f"it; give it (--up: an axis or a vector X,Y,Z)")
     up, what, frames = up_from_person(triangulate(cameras, uv, confidence))
-    log.info("%s gives no vertical: up %s found from the person (%s, median over %d frames)", source,
+    log.info("%s gives no vertical: up %s found from the person (%s, robust mean over %d frames)", source,
              np.round(up, 3).tolist(), what, frames)
     return up
 

@@ -5,13 +5,14 @@ whose up is ``up`` (an axis "x", "y", "z", "-x", "-y", "-z", or a direction vect
 working frame (X_work = A X); a camera X_c = R X + t becomes X_c = (R Aᵀ) X_work + t.
 
 Where a calibration gives no vertical (anipose's, caliscope's, FreeMoCap's world is camera 1's
-frame), :func:`up_from_person` finds it from the person: the median direction from the ankles'
+frame), :func:`up_from_person` finds it from the person: the robust mean direction from the ankles'
 midpoint to the neck over the trial's triangulated frames,
 
-    up = normalise(median_t normalise(neck_t − ½ (lankle_t + rankle_t))),
+    up = normalise(Σ_t∈S normalise(neck_t − ½ (lankle_t + rankle_t))),
 
-(the component-wise median, robust to the frames a detector puts a foot on the wrong side); from
-the pelvis (mid-hips) to the neck where the person sits (the thighs' median direction more than
+S the frames within 30° of the previous estimate (three trims from the plain mean: robust to the
+frames a detector puts a foot on the wrong side, and the same in any turned world); from
+the pelvis (mid-hips) to the neck where the person sits (the thighs' mean direction more than
 :data:`SEATED_DEGREES` from the torso's: the feet are then forward of the body, ankles to neck
 leans 20–30°) or fewer than :data:`MIN_UP_FRAMES` frames have both ankles.
 """
@@ -29,9 +30,10 @@ from priortrack.geometry.camera import PinholeCamera
 log = logging.getLogger(__name__)
 
 _AXES = {"x": np.array([1.0, 0, 0]), "y": np.array([0, 1.0, 0]), "z": np.array([0, 0, 1.0])}
-#: The fewest triangulated frames "up" is taken from.
+#: The fewest triangulated frames "up" is taken from; the robust mean's trims and their cone.
 MIN_UP_FRAMES = 10
-#: A person whose thighs (knee → hip, median direction) are further than this from the torso's
+TRIM_STEPS, TRIM_DEGREES = 3, 30.0
+#: A person whose thighs (knee → hip, robust mean direction) are further than this from the torso's
 #: (pelvis → neck) sits or crouches: up is the torso's direction, not the ankles'.
 SEATED_DEGREES = 45.0
 
@@ -75,13 +77,24 @@ def to_y_up(up: str | np.ndarray) -> np.ndarray:
     return np.eye(3) + sin * cross + (1 - cos) * cross @ cross
 
 
-def _median_direction(d: np.ndarray) -> tuple[np.ndarray | None, int]:
-    """The normalised component-wise median of the (N, 3) directions' unit vectors (NaN rows skipped)."""
+def _robust_direction(d: np.ndarray) -> tuple[np.ndarray | None, int]:
+    """The robust mean direction of the (N, 3) directions (NaN rows skipped; module docstring): the
+    normalised mean of their unit vectors, recomputed :data:`TRIM_STEPS` times over those within
+    :data:`TRIM_DEGREES` of it. None where fewer than :data:`MIN_UP_FRAMES` rows are usable."""
     ok = np.isfinite(d).all(axis=1) & (np.linalg.norm(np.nan_to_num(d), axis=1) > 1e-6)
     if ok.sum() < MIN_UP_FRAMES:
         return None, int(ok.sum())
-    m = np.median(d[ok] / np.linalg.norm(d[ok], axis=1, keepdims=True), axis=0)
-    return (m / np.linalg.norm(m) if np.linalg.norm(m) > 1e-6 else None), int(ok.sum())
+    u = d[ok] / np.linalg.norm(d[ok], axis=1, keepdims=True)
+    keep = np.ones(len(u), dtype=bool)
+    for _ in range(TRIM_STEPS + 1):
+        m = u[keep].mean(axis=0)
+        if np.linalg.norm(m) < 1e-6:
+            return None, int(ok.sum())
+        m /= np.linalg.norm(m)
+        keep = u @ m > np.cos(np.radians(TRIM_DEGREES))
+        if keep.sum() < MIN_UP_FRAMES:
+            break
+    return m, int(ok.sum())
 
 
 def up_from_person(X: np.ndarray) -> tuple[np.ndarray, str, int]:
@@ -90,14 +103,14 @@ def up_from_person(X: np.ndarray) -> tuple[np.ndarray, str, int]:
     and the number of frames it was taken over."""
     index = {n: i for i, n in enumerate(EVAL15_NAMES)}
     neck, pelvis = X[:, index["neck"]], X[:, index["pelvis"]]
-    torso, frames = _median_direction(neck - pelvis)
-    thighs = [_median_direction(X[:, index[f"{s}hip"]] - X[:, index[f"{s}knee"]])[0] for s in "lr"]
+    torso, frames = _robust_direction(neck - pelvis)
+    thighs = [_robust_direction(X[:, index[f"{s}hip"]] - X[:, index[f"{s}knee"]])[0] for s in "lr"]
     thighs = [t for t in thighs if t is not None]
     seated = torso is not None and thighs and np.degrees(np.arccos(np.clip(np.mean(thighs, axis=0) @ torso
                                                                             / np.linalg.norm(np.mean(thighs, axis=0)),
                                                                             -1, 1))) > SEATED_DEGREES
     if not seated:
-        whole, n = _median_direction(neck - 0.5 * (X[:, index["lankle"]] + X[:, index["rankle"]]))
+        whole, n = _robust_direction(neck - 0.5 * (X[:, index["lankle"]] + X[:, index["rankle"]]))
         if whole is not None:
             return whole, "ankles to neck", n
     if torso is not None:
