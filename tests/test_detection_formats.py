@@ -151,6 +151,7 @@ def test_caliscope_recording_tracks_from_its_own_files(tmp_path, caplog, capsys)
     assert code == 0
     assert "caliscope config.toml" in caplog.text and "found from the person (pelvis to neck" in caplog.text
     summary = json.loads(capsys.readouterr().out)
+    assert len(summary["up"]) == 3 and abs(np.linalg.norm(summary["up"]) - 1) < 1e-9
     assert max(summary["reprojection_px"].values()) < 30 and np.median(list(summary["reprojection_px"].values())) < 15
     result = np.load(tmp_path / "caliscope.npz")
     assert 50 <= len(result["frames"]) <= 60 and result["frames"].max() < 60

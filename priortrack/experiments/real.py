@@ -164,12 +164,14 @@ class DetectionTrack:
         return float(self.mismatch[KNOWN_FRAMES:].mean()) if len(self.mismatch) > KNOWN_FRAMES else 0.0
 
     def summary(self) -> dict:
-        """The JSON summary: frames, seconds, median reprojection error per camera, mismatch fraction."""
+        """The JSON summary: frames, seconds, median reprojection error per camera, mismatch fraction, the
+        world's up (an axis, or the vector given or found from the person)."""
         return {"filter": self.filter, "frames": int(len(self.joints)), "fps": self.fps, "seconds": self.seconds,
                 "reprojection_px": {n: float(e) for n, e in zip(self.camera_names, self.reprojection_px)},
                 "mismatch_fraction": self.mismatch_fraction, "cross_view_rejections": self.cross_view_rejections,
                 "mean_ess": float(np.nanmean(self.ess)) if np.isfinite(self.ess).any() else None,
-                "smoothed": self.filtered_joints is not None, "lag": self.lag, "fit_check": self.fit_check}
+                "smoothed": self.filtered_joints is not None, "lag": self.lag, "fit_check": self.fit_check,
+                "up": self.up if isinstance(self.up, str) else [float(v) for v in self.up]}
 
     def save_npz(self, path: str | Path) -> Path:
         """``joints`` (T, 15, 3) float64 metres in the calibration's world, ``joint_names``, ``fps``,
