@@ -154,9 +154,9 @@ def test_tiny_rotation_order_matters(tmp_path):
 
 def test_length_unit_and_fps_snap(tmp_path):
     text = TINY.replace("Frame Time: 0.04", "Frame Time: 0.00833333")
-    motion = read_bvh(_write(tmp_path, text), length_unit=1.0)
+    motion = read_bvh(_write(tmp_path, text), length_unit=0.1)
     assert motion.fps == 120.0
-    np.testing.assert_allclose(motion.skeleton.offsets[1], [0, 10, 0])
+    np.testing.assert_allclose(motion.skeleton.offsets[1], [0, 1, 0])
     ntsc = read_bvh(_write(tmp_path, TINY.replace("0.04", "0.0333667")))
     assert ntsc.fps == pytest.approx(1 / 0.0333667, rel=1e-15)          # not near an integer: kept
 

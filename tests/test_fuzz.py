@@ -75,6 +75,21 @@ def test_asf(tmp_path, text):
     skeleton = _only_priortrack_errors(read_asf, tmp_path / "07.asf", text)
     if skeleton is not None:
         assert np.isfinite(skeleton.offsets).all() and np.isfinite(skeleton.rot_axes).all()
+        _assert_a_human_body(skeleton)
+
+
+def _assert_a_human_body(skeleton, channels=None):
+    """No absurd body loads: bones, rest pose and root within a human's bounds (skeleton.py)."""
+    from priortrack.data.skeleton import MAX_BONE_M, MAX_EXTENT_M, MAX_ROOT_M
+
+    assert np.linalg.norm(skeleton.offsets[1:], axis=1).max() <= MAX_BONE_M
+    rest = np.zeros((skeleton.num_joints, 3))
+    for j in range(1, skeleton.num_joints):
+        rest[j] = rest[skeleton.parents[j]] + skeleton.offsets[j]
+    assert np.linalg.norm(rest.max(axis=0) - rest.min(axis=0)) <= MAX_EXTENT_M
+    if channels is not None:
+        root = skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0]
+        assert np.abs(channels[:, root]).max(initial=0.0) <= MAX_ROOT_M
 
 
 @given(text=mutated(AMC))
@@ -85,6 +100,7 @@ def test_amc(tmp_path, text):
     channels = _only_priortrack_errors(lambda p: read_amc(p, cmu_skeleton("07")), tmp_path / "07_01.amc", text)
     if channels is not None:
         assert np.isfinite(channels).all()
+        _assert_a_human_body(cmu_skeleton("07"), channels)
 
 
 @pytest.fixture(scope="module")
@@ -104,6 +120,7 @@ def test_bvh(tmp_path, bvh_text, data):
     motion = _only_priortrack_errors(read_bvh, tmp_path / "walk.bvh", data.draw(mutated(bvh_text)))
     if motion is not None:
         assert np.isfinite(motion.channels).all() and np.isfinite(motion.skeleton.offsets).all()
+        _assert_a_human_body(motion.skeleton, motion.channels)
 
 
 @given(text=mutated(OPENPOSE))

@@ -241,3 +241,31 @@ def test_filters_give_finite_estimates_at_the_ends_of_the_noise_range(preset, ob
         assert "robust_nu" in observation and "robust_nu" in str(error)
         return
     assert np.isfinite(run.track.estimates).all()
+
+
+def test_absurd_bodies_are_refused_naming_the_unit(tmp_path):
+    """A body 10x too large or too small (a file in another unit than read), a bone metres long, or a
+    root a thousand kilometres away loads as nothing absurd: each is refused by name."""
+    from priortrack.data.amc import read_amc
+    from priortrack.data.bundled import ASF_AMC_DIR, cmu_skeleton
+    from priortrack.data.bvh import write_bvh
+    from priortrack.data.load import load_motion
+
+    with pytest.raises(PriortrackError, match=r"07.asf: bone '.*' is [\d.]+ m long, more than a human body's 1.5 m"):
+        _asf(tmp_path, "length 0.45", "length 0.09")()           # CMU: a unit is 1/0.45 inch
+    walk = load_motion("cmu:07_01")[:3]
+    path = tmp_path / "walk_mm.bvh"
+    write_bvh(walk, path, length_unit=0.001)                    # written in millimetres, read as centimetres
+    with pytest.raises(PriortrackError, match=f"{path.name}: bone .* is [\\d.]+ m long.*is the file in another unit"):
+        read_bvh(path)
+    from priortrack.body.fk import joint_positions
+
+    np.testing.assert_allclose(joint_positions(read_bvh(path, length_unit=0.001)), joint_positions(walk), atol=1e-9)
+    amc = "\n".join((ASF_AMC_DIR / "07_01.amc").read_text().split("\n")[:3 + 3 * 30])
+    lines = amc.split("\n")
+    root = next(i for i, line in enumerate(lines) if line.startswith("root"))
+    words = lines[root].split()
+    lines[root] = " ".join([words[0], "9e7"] + words[2:])
+    (tmp_path / "far.amc").write_text("\n".join(lines))
+    with pytest.raises(PriortrackError, match="far.amc: frame 0 puts the root [\\d.e+]+ m from the origin"):
+        read_amc(tmp_path / "far.amc", cmu_skeleton("07"))

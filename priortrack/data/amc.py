@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from priortrack.data.skeleton import Skeleton
+from priortrack.data.skeleton import Skeleton, check_root
 from priortrack.data.asf import _Lines
 
 
@@ -67,4 +67,6 @@ def read_amc(path: str | Path, skeleton: Skeleton) -> np.ndarray:
     if current is None:
         raise lines.fail(lines.items[-1][0] if lines.items else 1, "no frames")
     close(lines.items[-1][0])
-    return np.stack(frames) * skeleton.channel_scale()
+    channels = np.stack(frames) * skeleton.channel_scale()
+    check_root(skeleton, channels, str(path))
+    return channels

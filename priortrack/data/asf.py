@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from priortrack.data.skeleton import SLOTS, Skeleton
+from priortrack.data.skeleton import SLOTS, Skeleton, check_body
 from priortrack.errors import PriortrackError
 
 INCH = 0.0254
@@ -250,7 +250,7 @@ def _build(name, bones, children, root_order, root_axis, root_position, root_ori
     unreached = [b for b in bones if b not in visited]
     if unreached:
         raise lines.fail(bones[unreached[0]].line, f"bones not in the hierarchy: {unreached}")
-    return Skeleton(
+    skeleton = Skeleton(
         name=name,
         names=tuple(names),
         parents=np.array(parents),
@@ -263,3 +263,5 @@ def _build(name, bones, children, root_order, root_axis, root_position, root_ori
         length_unit=length_unit,
         angle_unit=angle_scale,
     )
+    check_body(skeleton, str(lines.path))
+    return skeleton

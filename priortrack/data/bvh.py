@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from priortrack.data.skeleton import SLOTS, Skeleton
+from priortrack.data.skeleton import SLOTS, Skeleton, check_body, check_root
 from priortrack.data.asf import _Lines
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
@@ -369,11 +369,14 @@ def read_bvh(path: str | Path, length_unit: float = 0.01) -> Motion:
     statements, motion_start = _statements(lines)
     joints = _parse_hierarchy(lines, statements)
     skeleton = _skeleton(path.stem, joints, length_unit)
+    check_body(skeleton, str(path))
     values, frame_time = _parse_motion(lines, motion_start, skeleton.num_channels, statements[-1][0])
     fps = 1.0 / frame_time
     if abs(fps - round(fps)) <= _FPS_SNAP * fps:
         fps = float(round(fps))
-    return Motion(skeleton, values * skeleton.channel_scale(), fps, path.stem, "")
+    channels = values * skeleton.channel_scale()
+    check_root(skeleton, channels, str(path))
+    return Motion(skeleton, channels, fps, path.stem, "")
 
 
 def _number(value: float) -> str:

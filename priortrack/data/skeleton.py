@@ -29,6 +29,39 @@ from priortrack.errors import PriortrackError
 
 #: Rotation slots per joint (three Euler angles at most).
 SLOTS = 3
+#: A human body, generously: no bone longer, no rest pose wider (its bounding box's diagonal), no
+#: root further from the origin in any frame (metres). Small bodies are not refused (toy skeletons).
+MAX_BONE_M, MAX_EXTENT_M, MAX_ROOT_M = 1.5, 4.0, 1000.0
+
+
+def check_body(skeleton: "Skeleton", where: str) -> None:
+    """Refuse an absurd body (:data:`MAX_BONE_M`, :data:`MAX_EXTENT_M`): a bone metres long or a
+    rest pose kilometres across, as a file in another unit, or a corrupted one, gives. The message
+    names the bone and the unit read."""
+    lengths = np.linalg.norm(skeleton.offsets[1:], axis=1)
+    unit = f"(lengths read in units of {skeleton.length_unit:g} m; is the file in another unit?)"
+    if len(lengths) and lengths.max() > MAX_BONE_M:
+        j = 1 + int(np.argmax(lengths))
+        raise PriortrackError(f"{where}: bone {skeleton.names[j]!r} is {lengths.max():.3g} m long, more than a "
+                              f"human body's {MAX_BONE_M} m {unit}")
+    rest = np.zeros((skeleton.num_joints, 3))
+    for j in range(1, skeleton.num_joints):
+        rest[j] = rest[skeleton.parents[j]] + skeleton.offsets[j]
+    extent = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0)))
+    if extent > MAX_EXTENT_M:
+        raise PriortrackError(f"{where}: the body at rest spans {extent:.3g} m, more than a human's "
+                              f"{MAX_EXTENT_M} m {unit}")
+
+
+def check_root(skeleton: "Skeleton", channels: np.ndarray, where: str) -> None:
+    """Refuse a motion whose root leaves :data:`MAX_ROOT_M` of the origin (channels (T, C), metres)."""
+    columns = skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0]
+    if len(columns) and len(channels):
+        far = np.abs(channels[:, columns]).max(axis=1)
+        if far.max() > MAX_ROOT_M:
+            t = int(np.argmax(far))
+            raise PriortrackError(f"{where}: frame {t} puts the root {far[t]:.3g} m from the origin (more than "
+                                  f"{MAX_ROOT_M:g} m: a corrupted value, or a file in another unit)")
 
 
 @dataclass(frozen=True, eq=False)
