@@ -57,6 +57,9 @@ class Snapshot:
     #: tangent coordinates at it; None where the filter has none.
     mean: torch.Tensor | None = None
     covariance: torch.Tensor | None = None
+    #: (points,) bool: the observed points (a joint in one camera, in the observation's order:
+    #: cameras, joints) the unscented filter's validation gate held out; None for other filters.
+    held_out: np.ndarray | None = None
 
     def translation_spread(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The weighted mean t̄ (3,) and covariance (3, 3), metres, of the body's translation t_t

@@ -400,6 +400,9 @@ class UnscentedFilter(SequentialFilter):
         self.gate_probability = gate_probability
         self.initialised = False
         self.frame, self.gated_frames = 0, 0
+        #: (points,) the observed points (a joint in one camera, the observation's order) the last
+        #: step's validation gate held out; None where the step had nothing to gate.
+        self.held_out: np.ndarray | None = None
 
     @property
     def mean(self) -> torch.Tensor:
@@ -447,7 +450,7 @@ class UnscentedFilter(SequentialFilter):
         if count:
             flags.append("outlier-gated")
             z = gated.numpy()
-        kf.repairs = 0
+        kf.repairs, self.held_out = 0, None
         t0 = time.perf_counter()
         kf.P, repaired = repaired_covariance(kf.P)
         kf.repairs += repaired
@@ -467,7 +470,7 @@ class UnscentedFilter(SequentialFilter):
         return Snapshot(self.frame, sigmas, torch.from_numpy(kf.Wm.copy()), float(len(sigmas)), None,
                         estimate.cpu().numpy(), estimate.cpu().numpy(), joints, flags,
                         {"predict": t1 - t0, "weight": t2 - t1, "estimate": t3 - t2},
-                        mean=self.mean, covariance=self.covariance)
+                        mean=self.mean, covariance=self.covariance, held_out=self.held_out)
 
     def _update(self, z: np.ndarray, R: np.ndarray, flags: list[str]) -> None:
         """The measurement update with z (m,) and R (m, m) on the observed coordinates that every sigma
@@ -486,7 +489,9 @@ class UnscentedFilter(SequentialFilter):
             flags.append("no-observation")
             kf.update(None)
             return
-        usable = self._validated(z, R, predicted, usable, flags)
+        kept = self._validated(z, R, predicted, usable, flags)
+        self.held_out = (usable & ~kept).reshape(-1, self.unscented.measurement_block).any(axis=1)
+        usable = kept
         if not usable.any():
             kf.update(None)
             return

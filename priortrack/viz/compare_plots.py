@@ -20,13 +20,12 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.=-]+", "-", name)
 
 
-def _pyplot():
-    import matplotlib
+def _figure(**size):
+    """A figure drawn without pyplot (its own Agg canvas): the caller's backend (a notebook's inline
+    one) is left alone."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return Figure(**size)
 
 
 def _mean_over_runs(values: np.ndarray) -> np.ndarray:
@@ -39,16 +38,18 @@ def _mean_over_runs(values: np.ndarray) -> np.ndarray:
 def write_plots(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], folder: Path) -> list[Path]:
     """Write the plots of ``rows`` (the CSV rows) with their per-frame ``series`` (by config hash)
     into ``folder``; returns the files written."""
-    plt = _pyplot()
+    from matplotlib import colormaps
+
     folder.mkdir(parents=True, exist_ok=True)
     filters = list(dict.fromkeys(r["filter"] for r in rows))
     scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
     motions = list(dict.fromkeys(r["motion"] for r in rows))
-    colours = {f: plt.get_cmap("tab10")(i % 10) for i, f in enumerate(filters)}
+    colours = {f: colormaps["tab10"](i % 10) for i, f in enumerate(filters)}
     written = []
     for scenario in scenarios:
         for key, ylabel, stem in (("error_mm", "world MPJPE (mm)", "error"), ("ess", "ESS", "ess")):
-            figure, axes = plt.subplots(1, len(motions), figsize=(5 * len(motions), 3.5), squeeze=False)
+            figure = _figure(figsize=(5 * len(motions), 3.5))
+            axes = figure.subplots(1, len(motions), squeeze=False)
             drawn = False
             for ax, motion in zip(axes[0], motions):
                 runs = [r for r in rows if r["scenario"] == scenario and r["motion"] == motion]
@@ -64,16 +65,15 @@ def write_plots(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], 
                 ax.set_xlabel("frame")
                 ax.set_ylabel(ylabel)
             if not drawn:                     # no filter of the grid keeps particles: no ESS plot
-                plt.close(figure)
                 continue
             axes[0][0].legend(fontsize=7)
             figure.suptitle(f"{scenario} (shaded: joints missing)", fontsize=10)
             figure.tight_layout()
             path = folder / f"{stem}_{_safe(scenario)}.png"
             figure.savefig(path, dpi=100)
-            plt.close(figure)
             written.append(path)
-    figure, ax = plt.subplots(figsize=(max(5, 1.6 * len(scenarios) * max(1, len(filters)) / 2), 3.8))
+    figure = _figure(figsize=(max(5, 1.6 * len(scenarios) * max(1, len(filters)) / 2), 3.8))
+    ax = figure.subplots()
     width = 0.8 / len(filters)
     for i, name in enumerate(filters):
         stats = [[r["mpjpe_mm"] for r in rows if r["filter"] == name and r["scenario"] == s] for s in scenarios]
@@ -87,6 +87,5 @@ def write_plots(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], 
     figure.tight_layout()
     path = folder / "summary.png"
     figure.savefig(path, dpi=100)
-    plt.close(figure)
     written.append(path)
     return written

@@ -10,29 +10,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.backend_bases import FigureCanvasBase
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
-
-from priortrack.output import output_path  # noqa: E402
-from priortrack.priors.gpdm import GPDM  # noqa: E402
+from priortrack.output import output_path
+from priortrack.priors.gpdm import GPDM
 
 
-def plot_latent(model: GPDM, path: str | Path, n: int = 80) -> Path:
-    """Write a PNG (or any format matplotlib infers from ``path``) of ``model``'s latent
-    trajectories (dims 0 and 1) over its log reconstruction-variance map on an n × n grid
-    (other latent dims at their training mean). Returns the path; a suffix matplotlib cannot
-    write is a ``PriortrackError``, raised before anything is drawn."""
-    path = output_path(path, "plot", suffixes=(f".{f}" for f in FigureCanvasBase.get_supported_filetypes()))
+def draw_latent(model: GPDM, ax, n: int = 80) -> None:
+    """Draw ``model``'s latent trajectories (dims 0 and 1) over its log reconstruction-variance map
+    on an n × n grid (other latent dims at their training mean) into the matplotlib axes ``ax``
+    (a notebook's, inline)."""
     gx, gy, logvar = (t.numpy() for t in model.log_variance_grid(n=n))
     X = model.X.numpy()
-    fig, ax = plt.subplots(figsize=(6.4, 5.6), dpi=110)
     image = ax.pcolormesh(gx, gy, logvar, cmap="gray_r", shading="auto")
-    fig.colorbar(image, ax=ax, label="ln σ²(x)  (reconstruction variance)")
-    colours = plt.get_cmap("tab10")
+    ax.figure.colorbar(image, ax=ax, label="ln σ²(x)  (reconstruction variance)")
+    colours = colormaps["tab10"]
     ends = np.cumsum(model.lengths)
     for s, (start, end) in enumerate(zip(ends - np.asarray(model.lengths), ends)):
         c = colours(s % 10)
@@ -43,7 +38,15 @@ def plot_latent(model: GPDM, path: str | Path, n: int = 80) -> Path:
     ax.set_ylabel("x1")
     ax.set_aspect("equal", adjustable="box")
     ax.set_title(f"{model.kind}: N = {len(X)} frames, D = {model.D}, d = {model.d}, {len(model.lengths)} sequences")
+
+
+def plot_latent(model: GPDM, path: str | Path, n: int = 80) -> Path:
+    """Write :func:`draw_latent`'s figure as a PNG (or any format matplotlib infers from ``path``),
+    without pyplot (the caller's backend is left alone). Returns the path; a suffix matplotlib cannot
+    write is a ``PriortrackError``, raised before anything is drawn."""
+    path = output_path(path, "plot", suffixes=(f".{f}" for f in FigureCanvasBase.get_supported_filetypes()))
+    fig = Figure(figsize=(6.4, 5.6), dpi=110)
+    draw_latent(model, fig.subplots(), n)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return path
