@@ -1,0 +1,111 @@
+"""``priortrack bench …``: timings against a reference run side by side."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from priortrack.cli.common import print_json
+
+
+def _bench_fk(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.fk import bench_fk
+
+    result = bench_fk(batch=args.batch, repeats=args.repeats, threads=args.threads)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"FK at batch {result['batch']} (float32, {result['threads']} threads): priortrack "
+              f"{result['priortrack_ms']:.1f} ms, pytorch-kinematics {result['pytorch_kinematics_ms']:.1f} ms "
+              f"({result['ratio']:.1f}x); max |difference| in float64 {result['max_abs_err_m']:.1e} m")
+
+
+def _bench_gpdm_fit(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.gpdm_fit import bench_gpdm_fit
+
+    print_json(bench_gpdm_fit(frames=args.frames, threads=args.threads))
+
+
+def _bench_lie_sample(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.lie_sample import bench_lie_sample
+
+    print_json(bench_lie_sample(n=args.n, threads=args.threads))
+
+
+def _bench_ukf(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.ukf import bench_ukf
+
+    print_json(bench_ukf(repeats=args.repeats, seed=args.seed, threads=args.threads))
+
+
+def _bench_pf(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.pf import bench_pf
+
+    print_json(bench_pf(particles=args.particles, steps=args.steps, seed=args.seed, threads=args.threads,
+                         dtype=args.dtype, translation=args.translation))
+
+
+def _bench_real_track(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.real_track import bench_real_track
+
+    print_json(bench_real_track(frames=args.frames, preset=args.filter, seed=args.seed))
+
+
+def _bench_smooth(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.smooth import bench_smooth
+
+    print_json(bench_smooth(args.presets, frames=args.frames, trajectories=args.trajectories, seed=args.seed))
+
+
+def add_parsers(verbs) -> None:
+    """Register this family's verbs on the ``priortrack`` sub-parsers."""
+    bench = verbs.add_parser("bench", help="benchmarks against a reference").add_subparsers(dest="what", required=True)
+    fk = bench.add_parser("fk", help="our FK against pytorch-kinematics")
+    fk.add_argument("--batch", type=int, default=10_000, help="poses per call (default %(default)s)")
+    fk.add_argument("--repeats", type=int, default=9, help="repetitions of each timing, the median reported (default %(default)s)")
+    fk.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
+    fk.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    fk.set_defaults(run=_bench_fk)
+    gpdm_fit = bench.add_parser("gpdm-fit", help="time a balanced GPDM fit to convergence")
+    gpdm_fit.add_argument("--frames", type=int, default=300, help="training frames the GPDM is fitted on (default %(default)s)")
+    gpdm_fit.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
+    gpdm_fit.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    gpdm_fit.set_defaults(run=_bench_gpdm_fit)
+    lie_sample = bench.add_parser("lie-sample", help="Lie prior conditional samples per second vs scikit-learn")
+    lie_sample.add_argument("--n", type=int, default=200_000, help="samples per timing")
+    lie_sample.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
+    lie_sample.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    lie_sample.set_defaults(run=_bench_lie_sample)
+
+    ukf = bench.add_parser("ukf", help="one UKF step, batched sigma points vs filterpy's per-point loop")
+    ukf.add_argument("--repeats", type=int, default=9, help="repetitions of each timing, the median reported (default %(default)s)")
+    ukf.add_argument("--threads", type=int, default=1, help="torch threads (default %(default)s)")
+    ukf.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
+    ukf.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    ukf.set_defaults(run=_bench_ukf)
+    pf = bench.add_parser("pf", help="particle-steps per second of the particle filter with each prior")
+    pf.add_argument("--particles", type=int, default=10_000, help="particles (default %(default)s)")
+    pf.add_argument("--steps", type=int, default=20, help="timed steps per prior")
+    pf.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
+    pf.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+                    help="the particles' dtype (the particle-filter presets run float32)")
+    pf.add_argument("--translation", choices=("marginalised", "sampled"), default="marginalised",
+                    help="the body's translation integrated out per particle (as the presets run) or sampled")
+    pf.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
+    pf.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    pf.set_defaults(run=_bench_pf)
+
+    real_track = bench.add_parser("real-track", help="the whole track --detections command on real-format input "
+                                                     "(4 cameras), beside DLT of the same input")
+    real_track.add_argument("--frames", type=int, default=100, help="frames of the synthetic 4-camera input, 3 to 240 (default %(default)s)")
+    real_track.add_argument("--filter", default="pf-lie", help="the preset (its particles: 1000 for pf-lie)")
+    real_track.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
+    real_track.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    real_track.set_defaults(run=_bench_real_track)
+    smooth = bench.add_parser("smooth", help="the smoother's time against the forward pass it smooths")
+    smooth.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-gpdm"], help="preset names or .toml files (default: %(default)s)")
+    smooth.add_argument("--frames", type=int, default=100, help="frames tracked, then smoothed (default %(default)s)")
+    smooth.add_argument("--trajectories", type=int, default=100, help="smoothed trajectories drawn (default %(default)s)")
+    smooth.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
+    smooth.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    smooth.set_defaults(run=_bench_smooth)

@@ -1,0 +1,281 @@
+"""``priortrack eval …``: the papers' experiments and our own benches on bundled data."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from priortrack.cli.common import print_json
+from priortrack.errors import PriortrackError
+
+
+def _eval_fill_in(args: argparse.Namespace) -> None:
+    from priortrack.experiments.reproductions.fill_in import eval_fill_in
+
+    result = eval_fill_in(seed=args.seed)
+    if args.json:
+        print_json(result)
+        return
+    print("missing-frame fill-in (Wang et al. PAMI 2008, Table 2 protocol): mean RMS per frame, degrees "
+          "(the paper's own figures, in its units, beside)")
+    rows = (("bgpdm", "B-GPDM", "49.31"), ("gpdm", "GPDM (MAP)", "73.87"),
+            ("knn_paper", f"paper's KNN, least squares, K = {result['knn_paper_k']} picked on the test data", "55.62"),
+            ("knn15", "window-KNN-15 (ours, a stronger baseline)", "—"), ("spline", "cubic spline", "93.34"))
+    for key, label, paper in rows:
+        print(f"  {label:<62} {result[key]:8.2f}   paper {paper}")
+
+
+def _eval_loglik(args: argparse.Namespace) -> None:
+    from priortrack.experiments.reproductions.loglik import eval_loglik
+
+    result = eval_loglik(train=args.train, test=args.test, seed=args.seed)
+    if args.json:
+        print_json(result)
+        return
+    print("mean log p(v_t | x_t) per frame (higher is better)")
+    for model in ("lie", "lie_defensive", "diffusion_local", "diffusion_global"):
+        print(f"  {model:<17} train {result[model]['train']:9.2f}   test {result[model]['test']:9.2f}")
+
+
+def _eval_real_format(args: argparse.Namespace) -> None:
+    from priortrack.experiments.real_format import eval_real_format
+
+    result = eval_real_format(args.presets, args.motions, args.seeds, cameras=args.cameras, smooth=args.smooth)
+    if args.json:
+        print_json(result)
+        return
+    if args.smooth:
+        print(f"real-format input ({result['cameras']} cameras), smoothed vs filtered, world MPJPE shoulders to ankles "
+              f"(mm) and jitter (mean joint acceleration, mm per tick²), mean over {len(args.motions)} walks × "
+              f"{args.seeds} seeds")
+        print("| preset | smoothed | filtered | ratio | jitter smoothed | filtered | mocap truth |")
+        print("|---|---|---|---|---|---|---|")
+        for name, row in result["table"].items():
+            print(f"| {name} | {row['mpjpe_mm']:.1f} | {row['filtered_mm']:.1f} | {row['mpjpe_mm'] / row['filtered_mm']:.2f} "
+                  f"| {row['jitter_mm']:.2f} | {row['filtered_jitter_mm']:.2f} | {row['truth_jitter_mm']:.2f} |")
+        return
+    print(f"real-format input ({result['cameras']} of the Pose2Sim demo's cameras, detector errors), world MPJPE "
+          f"shoulders to ankles, mm, mean over {len(args.motions)} walks × {args.seeds} seeds")
+    print("| preset | tracker | relative to the hips | per-frame DLT | ratio | s per run |")
+    print("|---|---|---|---|---|---|")
+    for name, row in result["table"].items():
+        print(f"| {name} | {row['mpjpe_mm']:.1f} | {row['relative_mm']:.1f} | {row['dlt_mm']:.1f} | {row['ratio']:.2f} "
+              f"| {row['seconds']:.1f} |")
+
+
+def _eval_fit_check(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    from priortrack.data.load import load_motion
+    from priortrack.experiments.presets import load_preset
+    from priortrack.priors.base import load_prior
+    from priortrack.priors.support import frame_log_density, reference, verdict
+
+    motion = load_motion(args.motion)
+    given = [load_motion(m) for m in args.reference or []]
+    if Path(args.prior).suffix.lower() == ".npz":
+        prior = load_prior(args.prior)
+        if not given:
+            raise PriortrackError(f"{args.prior} is a prior file: its training motions are not known; give "
+                                  f"--reference MOTION… (motions of its kind that it was not fitted on)")
+        reference_values = None
+    else:
+        preset = load_preset(args.prior)
+        prior = preset.prior()
+        reference_values = None if given else reference(preset)
+    if reference_values is None:
+        import numpy as np
+
+        reference_values = np.concatenate([frame_log_density(prior, m) for m in given])
+    result = {"prior": args.prior, "kind": prior.kind, "motion": args.motion,
+              **verdict(frame_log_density(prior, motion), reference_values)}
+    if args.json:
+        print_json(result)
+        return
+    p = result["reference_percentiles"]
+    print(f"{args.motion} under {args.prior} ({prior.kind}): {result['verdict']}. "
+          f"{100 * result['below_p1_fraction']:.0f}% of its frames score below the 1st percentile of frames the prior "
+          f"was not fitted on ({p['1']:.1f}); median log-density {result['median_log_density']:.1f} per frame, at the "
+          f"{result['median_percentile']:.0f}th percentile (reference median {p['50']:.1f})")
+
+
+def _eval_pace(args: argparse.Namespace) -> None:
+    from priortrack.experiments.pace import eval_pace
+
+    result = eval_pace(args.presets, args.motions, args.paces, args.scenarios, args.seeds)
+    if args.json:
+        print_json(result)
+        return
+    walks = list(next(iter(result["table"].values())))
+    print(f"world MPJPE (mm), mean over {args.seeds} seeds; a walk@p is played at p x its speed")
+    for scenario in args.scenarios:
+        print(f"\n{scenario}")
+        print("| preset | " + " | ".join(walks) + " |")
+        print("|---|" + "---|" * len(walks))
+        for preset, cells in result["table"].items():
+            print(f"| {preset} | " + " | ".join(f"{cells[w][scenario]:.0f}" for w in walks) + " |")
+
+
+def _eval_people(args: argparse.Namespace) -> None:
+    from priortrack.experiments.people import LAB_SCENARIOS, eval_people
+
+    result = eval_people(args.presets, args.people, args.seeds, args.benches, args.out, jobs=args.jobs)
+    if args.json:
+        print_json(result)
+        return
+    columns = [(f"{s.split(':')[0]}_mm", f"{s.split(':')[0]}_ratio") for s in LAB_SCENARIOS] + \
+        [("real4_mm", "real4_dlt_ratio"), ("real1_relative_mm", None)]
+    print(f"leave one walking person out, mean over the person's walks and {args.seeds} seeds: lab world MPJPE mm "
+          f"(x pf-diffusion-local), 4 cameras shoulders-ankles mm (x DLT), 1 camera relative to hips mm")
+    print("| held out | preset | clean | blackout | 4 cameras | 1 camera | failed runs |")
+    print("|---|---|---|---|---|---|---|")
+    for person, presets in result["table"].items():
+        for preset, cells in presets.items():
+            text = [(f"{cells[value]:.0f}" + (f" ({cells[ratio]:.2f})" if ratio in cells else "")) if value in cells
+                    else "—" for value, ratio in columns]
+            print(f"| {person} | {preset} | " + " | ".join(text) + f" | {cells['failed_runs']} |")
+
+
+def _eval_smoothing(args: argparse.Namespace) -> None:
+    from priortrack.experiments.smoothing import eval_smoothing
+
+    result = eval_smoothing(args.presets, args.motions, args.seeds)
+    if args.json:
+        print_json(result)
+        return
+    print(f"smoothed vs filtered, {result['scenario']}, world MPJPE (mm), mean over {len(args.motions)} held-out "
+          f"walks × {args.seeds} seeds (ratio = smoothed / filtered; worst = the worst walk's blackout ratio)")
+    print("| preset | blackout filtered | smoothed | ratio | worst | clean filtered | smoothed | ratio | "
+          "s forward | s smoothing |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, r in result["table"].items():
+        print(f"| {name} | {r['filtered_blackout_mm']:.1f} | {r['smoothed_blackout_mm']:.1f} | {r['blackout_ratio']:.2f} "
+              f"| {r['worst_blackout_ratio']:.2f} | {r['filtered_clean_mm']:.1f} | {r['smoothed_clean_mm']:.1f} "
+              f"| {r['clean_ratio']:.2f} | {r['forward_seconds']:.1f} | {r['smoothing_seconds']:.1f} |")
+
+
+def _eval_leave_one_out(args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from priortrack.experiments.real_format import leave_one_camera_out
+
+    rows = [leave_one_camera_out(p, c) for p in args.presets for c in range(4)]
+    if args.json:
+        print_json(rows)
+        return
+    print("real detections (Pose2Sim demo): tracked from 3 cameras, median pixel error in the 4th (shoulders to "
+          "ankles, confidence > 0.3)")
+    print("| preset | " + " | ".join(r["held_out"] for r in rows[:4]) + " | mean |")
+    print("|---|" + "---|" * 5)
+    for p in args.presets:
+        mine = [r for r in rows if r["preset"] == p]
+        print(f"| {p} | " + " | ".join(f"{r['tracker_px']:.1f}" for r in mine)
+              + f" | {np.mean([r['tracker_px'] for r in mine]):.1f} |")
+    print("| 3-camera DLT | " + " | ".join(f"{r['dlt_px']:.1f}" for r in rows[:4])
+          + f" | {np.mean([r['dlt_px'] for r in rows[:4]]):.1f} |")
+
+
+def _eval_tracking(args: argparse.Namespace) -> None:
+    from priortrack.experiments.tracking import TABLE_MOTIONS, TABLE_PRESETS, TABLE_SCENARIOS, TABLE_SEEDS, eval_tracking
+
+    def show(row: dict) -> None:
+        logging.getLogger("priortrack.track").info("%s %s %s seed %d: %.1f mm", row["filter"], row["motion"],
+                                                    row["scenario"], row["seed"], row["mpjpe_mm"])
+
+    presets, scenarios = args.presets or list(TABLE_PRESETS), args.scenarios or list(TABLE_SCENARIOS)
+    motions, seeds = args.motions or list(TABLE_MOTIONS), TABLE_SEEDS if args.seeds is None else args.seeds
+    result = eval_tracking(presets, scenarios, motions, seeds, progress=show, jobs=args.jobs)
+    if args.json:
+        print_json(result)
+        return
+    for key, label in (("mpjpe_mm", "MPJPE"), ("mpjpe_root_rel_mm", "root-relative MPJPE")):
+        print(f"{label} (mm), mean ± std over {len(motions)} motions × {seeds} seeds; "
+              f"ratio to pf-diffusion-local in brackets")
+        print("| preset | " + " | ".join(scenarios) + " |")
+        print("|---|" + "---|" * len(scenarios))
+        for name, row in result["table"].items():
+            cells = []
+            for s in scenarios:
+                ratio = result["ratios"].get(key, {}).get(name, {}).get(s)
+                cells.append(f"{row[s][key]:.0f} ± {row[s][key + '_std']:.0f}" + (f" ({ratio:.2f})" if ratio else ""))
+            print(f"| {name} | " + " | ".join(cells) + " |")
+        print()
+
+
+def add_parsers(verbs) -> None:
+    """Register this family's verbs on the ``priortrack`` sub-parsers."""
+    evaluate = verbs.add_parser("eval", help="the papers' experiments on bundled data").add_subparsers(
+        dest="experiment", required=True)
+    fill_in = evaluate.add_parser("fill-in", help="GPDM missing-frame fill-in (Wang et al. 2008, Table 2)")
+    fill_in.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
+    fill_in.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    fill_in.set_defaults(run=_eval_fill_in)
+    loglik = evaluate.add_parser("loglik", help="held-out log-likelihood of the Lie prior and the diffusions")
+    loglik.add_argument("--train", nargs="+", help="training motions (default: leave one subject out)")
+    loglik.add_argument("--test", nargs="+", help="test motions")
+    loglik.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
+    loglik.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    loglik.set_defaults(run=_eval_loglik)
+    real = evaluate.add_parser("real-format", help="held-out walks written as OpenPose JSON through the Pose2Sim "
+                                                   "cameras, tracked without truth, against the mocap and DLT")
+    real.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "apf-diffusion-local", "pf-gpdm", "pf-lie",
+                                                       "ukf-diffusion-local", "ukf-gpdm", "map-gpdm", "ukf-real"], help="preset names or .toml files (default: %(default)s)")
+    real.add_argument("--motions", nargs="+", default=["walkjog:35_29", "cmu:07_10", "cmu:07_11"], help="bundled names (cmu:07_10, walkjog:35_29), .amc or .bvh files (default: %(default)s)")
+    real.add_argument("--seeds", type=int, default=1, help="seeds per motion (default %(default)s)")
+    real.add_argument("--cameras", type=int, nargs="+", help="indices of the calibration's cameras to use (all 4)")
+    real.add_argument("--smooth", action="store_true", help="smooth each run: smoothed vs filtered error and jitter "
+                                                            "(the particle and unscented presets)")
+    real.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    real.set_defaults(run=_eval_real_format)
+    fit_check = evaluate.add_parser("fit-check", help="is a motion in a prior's support? its per-frame log-density "
+                                                      "against frames held out from the prior's training data")
+    fit_check.add_argument("prior", help="a preset name or .toml, or a prior file (.npz, with --reference)")
+    fit_check.add_argument("motion", help="bundled name, .amc or .bvh file")
+    fit_check.add_argument("--reference", nargs="+", help="motions of the prior's kind it was not fitted on (default "
+                                                          "for a preset: two-fold cross-fits of its training motions)")
+    fit_check.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    fit_check.set_defaults(run=_eval_fit_check)
+    pace = evaluate.add_parser("pace", help="filters on held-out walks played slower and faster than the training walks")
+    pace.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-lie", "pf-lie-defensive", "pf-gpdm"], help="preset names or .toml files (default: %(default)s)")
+    pace.add_argument("--motions", nargs="+", default=["walkjog:35_29", "cmu:07_10", "cmu:07_11"], help="bundled names (cmu:07_10, walkjog:35_29), .amc or .bvh files (default: %(default)s)")
+    pace.add_argument("--paces", type=float, nargs="+", default=[0.6, 1.0, 1.4], help="playback speeds, 1 = as recorded (default: %(default)s)")
+    pace.add_argument("--scenarios", nargs="+", default=["noise", "blackout:sigma_px=5"], help="NAME or NAME:key=value,... (clean, noise, dropout, occlusion, blackout, outliers; default: %(default)s)")
+    pace.add_argument("--seeds", type=int, default=2, help="seeds per motion (default %(default)s)")
+    pace.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    pace.set_defaults(run=_eval_pace)
+    people = evaluate.add_parser("people", help="leave one walking person out: priors refitted without them, their "
+                                                "walks tracked on the lab and the real-format benches")
+    people.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "pf-lie-defensive"],
+                        help="presets (names or .toml paths); the lab ratios need pf-diffusion-local among them")
+    people.add_argument("--people", nargs="+", default=["07", "35", "02", "05", "08+39"],
+                        help="the held-out people (08+39: CMU subjects 08 and 39, one person)")
+    people.add_argument("--benches", nargs="+", default=["lab", "real4", "real1"],
+                        help="lab (synthetic side camera), real4 (OpenPose-style JSON, 4 cameras), real1 (1 camera)")
+    people.add_argument("--seeds", type=int, default=2, help="seeds per motion (default %(default)s)")
+    people.add_argument("--out", help="the run cache: a rerun does no work, an interrupted one resumes "
+                                      "(default: people/ beside the prior cache)")
+    people.add_argument("--jobs", type=int, default=1, help="runs in this many worker processes (the same numbers)")
+    people.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    people.set_defaults(run=_eval_people)
+    smoothing = evaluate.add_parser("smoothing", help="smoothed vs filtered through a blackout on held-out walks")
+    smoothing.add_argument("--presets", nargs="+",
+                           default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-diffusion-local", "ukf-gpdm"], help="preset names or .toml files (default: %(default)s)")
+    smoothing.add_argument("--motions", nargs="+", default=["walkjog:35_29", "cmu:07_10", "cmu:07_11"], help="bundled names (cmu:07_10, walkjog:35_29), .amc or .bvh files (default: %(default)s)")
+    smoothing.add_argument("--seeds", type=int, default=1, help="seeds per motion (default %(default)s)")
+    smoothing.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    smoothing.set_defaults(run=_eval_smoothing)
+    loo = evaluate.add_parser("leave-one-out", help="real detections: track from 3 cameras, reproject into the 4th")
+    loo.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "apf-diffusion-local", "pf-gpdm", "pf-lie",
+                                                      "ukf-diffusion-local", "ukf-gpdm", "map-gpdm", "ukf-real"], help="preset names or .toml files (default: %(default)s)")
+    loo.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    loo.set_defaults(run=_eval_leave_one_out)
+    tracking = evaluate.add_parser("tracking", help="the accuracy table: every preset x scenario over seeds")
+    tracking.add_argument("--presets", nargs="+", help="default: the table's nine presets")
+    tracking.add_argument("--scenarios", nargs="+", help="default: clean, occlusion and blackout at 5 px")
+    tracking.add_argument("--motions", nargs="+", help="held-out motions to track (default: 35_29, 07_10, 07_11)")
+    tracking.add_argument("--seeds", type=int, help="seeds per motion (default 5)")
+    tracking.add_argument("--jobs", type=int, default=1,
+                          help="runs in this many worker processes (the same numbers; the MAP and unscented "
+                               "filters run on one thread each, so 2 jobs about halve their rows' time)")
+    tracking.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    tracking.set_defaults(run=_eval_tracking)

@@ -1,0 +1,168 @@
+"""``priortrack track``: a motion's synthetic observations, or real detections from calibrated cameras."""
+
+from __future__ import annotations
+
+import argparse
+
+from priortrack.cli.common import Progress, print_json
+from priortrack.errors import PriortrackError
+from priortrack.output import output_path
+
+
+def _track(args: argparse.Namespace) -> None:
+    if args.detections is not None or args.motion is None:
+        _track_detections(args)
+        return
+    from priortrack.experiments.tracking import track
+    from priortrack.viz.replay import replay
+
+    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "skeleton"):   # (--height has a default)
+        if getattr(args, name):
+            raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
+    if args.rrd:
+        output_path(args.rrd, "rerun recording")
+    progress = Progress(f"track {args.filter}", "frame {0} of {1}")
+    try:
+        run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd),
+                    progress=progress, frames=args.frames, **_smoothing(args))
+    finally:
+        progress.close()
+    if args.rrd:
+        from priortrack.experiments.presets import load_preset
+
+        replay(run.motion, run.observations, args.rrd, track=run.track,
+               smoothed=None if run.smoothed is None else run.smoothed.estimates,
+               likelihood=load_preset(args.filter).likelihood(run.observations.camera),
+               name=f"{args.filter} · {run.motion.name} · {args.scenario} · seed {args.seed}")
+    if args.json:
+        print_json(run.result)
+        return
+    r = run.result
+    lag = "" if r.get("lag") is None else f" (lag {r['lag']})"
+    smoothed = f" smoothed{lag}, filtered {r['filtered_mpjpe_mm']:.1f} mm" if "filtered_mpjpe_mm" in r else ""
+    print(f"{r['filter']} on {r['motion']} ({r['frames']} frames, scenario {r['scenario']}, seed {r['seed']}): "
+          f"MPJPE {r['mpjpe_mm']:.1f} mm{smoothed}, root-relative {r['mpjpe_root_rel_mm']:.1f} mm, 2D {r['err2d_px']:.1f} px, "
+          f"{1000 * r['seconds_per_frame']:.0f} ms/frame"
+          + (f", mean ESS {r['mean_ess']:.0f}" if r["mean_ess"] is not None else "")
+          + (f"; wrote {args.rrd}" if args.rrd else ""))
+
+
+def _smoothing(args: argparse.Namespace) -> dict:
+    """track's smoothing arguments: --smooth, or a --lag (which implies it), and --trajectories."""
+    if args.lag is not None and args.lag < 0:
+        raise PriortrackError(f"--lag must be a whole number of frames ≥ 0, got {args.lag}")
+    if args.trajectories is not None and args.trajectories < 1:
+        raise PriortrackError(f"--trajectories must be positive, got {args.trajectories}")
+    chosen = {"trajectories": args.trajectories} if args.trajectories is not None else {}
+    return {"smooth": args.smooth or args.lag is not None, "lag": args.lag, **chosen}
+
+
+def _skeleton(path: str):
+    """The skeleton of an ASF file or of a BVH file's hierarchy."""
+    from pathlib import Path
+
+    from priortrack.data.asf import read_asf
+    from priortrack.data.bvh import read_bvh
+
+    suffix = Path(path).suffix.lower()
+    if suffix == ".asf":
+        return read_asf(path)
+    if suffix == ".bvh":
+        return read_bvh(path).skeleton
+    raise PriortrackError(f"--skeleton {path}: give an .asf or .bvh file")
+
+
+def _track_detections(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    from priortrack.data.calibration import read_calibration
+    from priortrack.data.detections import read_detections
+    from priortrack.experiments.real import RESULT_SUFFIXES, track_detections
+
+    if args.motion is not None:
+        raise PriortrackError("give a motion or --detections, not both")
+    if args.detections is None or args.cameras is None:
+        raise PriortrackError("track needs a MOTION (synthetic observations) or --detections with --cameras")
+    for path in args.out or []:
+        if Path(path).suffix.lower() not in RESULT_SUFFIXES:
+            raise PriortrackError(f"--out {path}: results are written as {', '.join(RESULT_SUFFIXES)}")
+        output_path(path, "result file")
+    if args.rrd:
+        output_path(args.rrd, "rerun recording")
+    camera_map = None
+    if args.camera_map:
+        pairs = [item.split("=", 1) for item in args.camera_map.split(",")]
+        if any(len(p) != 2 or not p[0] or not p[1] for p in pairs):
+            raise PriortrackError(f"--camera-map must be FOLDER=CAMERA,…, got {args.camera_map!r}")
+        camera_map = dict(pairs)
+    skeleton = _skeleton(args.skeleton) if args.skeleton else None
+    detections = read_detections(args.detections, keypoints=args.keypoints, person=args.person)
+    if args.frames is not None:
+        detections = detections.head(args.frames)
+    calibration = read_calibration(args.cameras, units=args.units)
+    progress = Progress(f"track {args.filter}", "frame {0} of {1}")
+    try:
+        result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
+                                  camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
+                                  keep_snapshots=bool(args.rrd), progress=progress, height=args.height,
+                                  skeleton=skeleton, **_smoothing(args))
+    finally:
+        progress.close()
+    written = [str(result.save(path)) for path in args.out or []]
+    if args.rrd:
+        from priortrack.viz.real import record_detections
+
+        written.append(str(record_detections(result, args.rrd)))
+    summary = {**result.summary(), "written": written}
+    if args.json:
+        print_json(summary)
+        return
+    errors = ", ".join(f"{n} {e:.1f} px" for n, e in summary["reprojection_px"].items())
+    print(f"{result.filter}: {summary['frames']} frames at {result.fps:g} fps in {summary['seconds']:.1f} s; "
+          f"median reprojection {errors}; mismatch {100 * summary['mismatch_fraction']:.0f}% of frames"
+          + (f"; wrote {', '.join(written)}" if written else ""))
+
+
+def add_parsers(verbs) -> None:
+    """Register this family's verbs on the ``priortrack`` sub-parsers."""
+    track = verbs.add_parser("track", help="track detections from calibrated cameras, or a motion's synthetic "
+                                           "2D observations, with a filter preset")
+    track.add_argument("motion", nargs="?", help="bundled name (cmu:07_10, walkjog:35_29), .amc or .bvh file: "
+                                                 "track its synthetic observations")
+    track.add_argument("--detections", help="OpenPose JSON folder (one sub-folder per camera), COCO results "
+                                            ".json or .npz of 2D keypoints")
+    track.add_argument("--cameras", help="calibration, its format recognised from the content: Pose2Sim, anipose, "
+                                         "FreeMoCap or caliscope .toml; OpenCV-style, mmhuman3d, Panoptic or "
+                                         "VoxelPose .json; OpenCV .yml/.yaml")
+    track.add_argument("--units", choices=("m", "cm", "mm"),
+                       help="the calibration's translation unit, if the file does not state it and its camera "
+                            "layout misleads (else inferred and logged)")
+    track.add_argument("--keypoints", help="the detections' layout: body25, body25b, coco18, coco17, mediapipe33")
+    track.add_argument("--fps", type=float, help="the detections' frame rate (if their files do not say it)")
+    track.add_argument("--up", help="the calibration world's up: an axis (x, y, z, -x, -y, -z) or a vector "
+                                    "X,Y,Z; else the file's, else found from the person (ankles to neck)")
+    track.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
+    track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
+    track.add_argument("--person", type=int, help="follow this index of each frame's people list")
+    track.add_argument("--skeleton", help="the person's own body (.asf, or a .bvh's hierarchy) instead of the "
+                                         "template scaled to the detections")
+    track.add_argument("--height", type=float, default=1.7,
+                       help="the person's standing height, metres (one camera: the body's size and depth; 1.7)")
+    track.add_argument("--out", action="append",
+                       help="write the result by suffix: .npz (joints, spread, ESS, log-likelihood, flags), .csv, "
+                            ".trc (Y up, metres: OpenSim) or .bvh (Y up, centimetres: Blender); may repeat "
+                            "(docs/formats.md)")
+    track.add_argument("--filter", required=True, help="a preset name (priortrack presets) or a .toml file")
+    track.add_argument("--scenario", default="clean",
+                       help="NAME or NAME:key=value,... (clean, noise, dropout, occlusion, blackout, outliers)")
+    track.add_argument("--seed", type=int, default=0, help="seeds the observations and the filter")
+    track.add_argument("--frames", type=int, help="track only the first N frames (a motion: ticks at the "
+                                                  "prior's rate; --detections: the file's first N frames)")
+    track.add_argument("--rrd", help="also write a rerun recording: truth, estimate, particle cloud, 2D observations")
+    track.add_argument("--smooth", action="store_true",
+                       help="also smooth the run: each frame's estimate given every frame (outputs the smoothed joints)")
+    track.add_argument("--lag", type=int, help="fixed-lag smoothing: frame t − LAG estimated at frame t (implies --smooth)")
+    track.add_argument("--trajectories", type=int,
+                       help="smoothed trajectories a particle smoother draws (default 100)")
+    track.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    track.set_defaults(run=_track)
