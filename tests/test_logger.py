@@ -1,4 +1,5 @@
-"""RerunLogger (issue 20, item 3): a user's own filter loop written to a recording, read back."""
+"""RerunLogger (issue 20, item 3): a user's own filter loop written to a recording, read back with its
+layout (issue 30: labels off, one time-series view per quantity, events, the 3D view framed)."""
 
 import numpy as np
 import rerun as rr
@@ -30,12 +31,19 @@ def test_a_users_loop_is_recorded_with_its_scalars_flags_and_occlusions(tmp_path
     rows = {}
     for chunk in chunks:
         rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
-    assert rows["/world/truth"] == rows["/world/estimate"] == rows["/metrics/error_mm"] == rows["/metrics/ess"] == 18
+    assert rows["/world/truth"] == rows["/world/estimate"] == rows["/metrics/error_mm"] == rows["/metrics/ess_fraction"] == 18
     assert rows["/metrics/loglik"] == 17                                  # not on the frame with nothing seen
     assert rows["/events"] >= 1 and rows["/world/estimate/cloud"] == 18
     texts = [t for c in chunks if str(c.entity_path) == "/events"
              for t in c.to_record_batch().column("TextLog:text").to_pylist()]
-    assert any("frame 12: no-observation" in str(t) for t in texts)
+    assert any("frame 12: nothing observed" in str(t) for t in texts)
+    assert any("resampled" in str(t) for t in texts)
+    fractions = [v for c in chunks if str(c.entity_path) == "/metrics/ess_fraction"
+                 for v in c.to_record_batch().column("Scalars:scalars").to_pylist()]
+    assert all(0 < f[0] <= 1 for f in fractions)
+    labels = [c.to_record_batch().column("Points3D:show_labels").to_pylist() for c in chunks
+              if str(c.entity_path) == "/world/estimate"]
+    assert labels and all(row == [False] for batch in labels for row in batch)
     colours = [c.to_record_batch().column("Points3D:colors").to_pylist() for c in chunks
                if str(c.entity_path) == "/world/truth"]
     colours = [row for batch in colours for row in batch]                # one row of 15 colours per frame
@@ -51,16 +59,65 @@ def _rgba(rgb) -> int:
     return (r << 24) | (g << 16) | (b << 8) | 0xFF
 
 
-def test_the_recording_carries_its_default_layout(tmp_path):
-    """The blueprint (3D view, camera image, time series, events) is stored in the .rrd beside the data."""
-    import subprocess
-    import sys
-    from pathlib import Path
+def _views(path) -> list[tuple[str, str, str]]:
+    """The (kind, name, origin) of every view of a recording's blueprint, read back from the .rrd."""
+    reader = rr.chunk.RrdReader(str(path))
+    views = []
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = chunk.to_record_batch()
+        if "ViewBlueprint:class_identifier" in batch.schema.names:
+            views.append(tuple(batch.column(f"ViewBlueprint:{k}").to_pylist()[0][0]
+                               for k in ("class_identifier", "display_name", "space_origin")))
+    return views
+
+
+def test_the_recording_carries_its_layout(tmp_path):
+    """The blueprint stored in the .rrd: the 3D world (its eye on the person, beyond the camera), the
+    camera's image, one time series per quantity named with its unit, the events; a valid entry name."""
+    from priortrack.viz.recording import QUANTITIES, Recording, entry_name
 
     camera = default_camera(np.zeros((1, 15, 3)) + [0, 1, 0])
-    with RerunLogger(tmp_path / "b.rrd", camera, name="layout") as logger:
-        logger.log(0, observation=np.full((15, 2), 500.0), truth=np.zeros((15, 3)) + [0, 1, 0])
-    rerun = Path(sys.executable).with_name("rerun")
-    printed = subprocess.run([str(rerun), "rrd", "print", str(tmp_path / "b.rrd")], capture_output=True, text=True,
-                             check=True).stdout
-    assert "Blueprint" in printed and "Recording" in printed
+    with RerunLogger(tmp_path / "b.rrd", camera, name="pf-lie · 07_10 · occlusion:sigma_px=5") as logger:
+        logger.log(0, observation=np.full((15, 2), 500.0), truth=np.zeros((15, 3)) + [0, 1, 0],
+                   estimate=np.zeros((15, 3)) + [0, 1.01, 0], mismatch=True)
+    views = sorted(_views(tmp_path / "b.rrd"))
+    assert views == sorted([("3D", "3D", "world"), ("2D", "camera", "world/camera/image"),
+                            ("TimeSeries", QUANTITIES["error_mm"], "metrics/error_mm"),
+                            ("TimeSeries", QUANTITIES["mismatch"], "metrics/mismatch"),
+                            ("TextLog", "events", "events")])
+    reader = rr.chunk.RrdReader(str(tmp_path / "b.rrd"))
+    assert {s.application_id for s in reader.recordings()} == {"priortrack"}
+    assert entry_name("pf-lie_cmu-07_10_occlusion-sigma_px=5_seed0") == "pf-lie_cmu-07_10_occlusion-sigma_px-5_seed0"
+    with Recording(tmp_path / "c.rrd", up="z") as rec:                     # the eye looks at the person
+        rec.camera(camera, "side")
+        rec.skeleton("truth", np.zeros((15, 3)) + [2.0, 3.0, 1.0])
+    reader = rr.chunk.RrdReader(str(tmp_path / "c.rrd"))
+    eye = next(c.to_record_batch() for c in reader.stream(store=reader.blueprints()[0]).to_chunks()
+               if str(c.entity_path).endswith("/EyeControls3D"))
+    target, position, up = (np.array(eye.column(f"EyeControls3D:{k}").to_pylist()[0][0])
+                            for k in ("look_target", "position", "eye_up"))
+    np.testing.assert_allclose(target, [2.0, 3.0, 1.0]) and np.testing.assert_allclose(up, [0, 0, 1])
+    centre = camera.center.numpy()
+    assert np.linalg.norm(position - target) > np.linalg.norm(centre - target)   # the camera in view, behind the eye's target
+    assert (position - target) @ (centre - target) > 0                           # looking from the camera's side
+
+
+def test_step_events_name_what_happened():
+    """Resampling, gating (with the count held out), the gate reopening, nothing observed and mismatch
+    become events, each once, with its level."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from priortrack.viz.logger import step_events
+
+    snap = SimpleNamespace(ancestors=torch.arange(4), ess=1.5, weights=torch.ones(4) / 4,
+                           flags=["innovation-gated", "gate-reopened"], held_out=np.array([True, False, True]))
+    events = step_events(7, snap, mismatch=True, observed=True)
+    assert events == [("frame 7: resampled (ESS 2 of 4)", "DEBUG"),
+                      ("frame 7: the gate held out detections the prediction cannot explain (2 points)", "INFO"),
+                      ("frame 7: the gate reopened: every detection had failed it too long", "WARN"),
+                      ("frame 7: mismatch: the prior does not explain this frame", "WARN")]
+    quiet = SimpleNamespace(ancestors=None, ess=4.0, weights=torch.ones(4) / 4, flags=["no-observation"])
+    assert step_events(8, quiet, observed=False) == [("frame 8: nothing observed: the prediction stands", "WARN")]
+    assert step_events(9, None, observed=False) == [("frame 9: missing: nothing observed", "WARN")]

@@ -80,7 +80,7 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
     assert error.mean() < 0.006 and error.max() < 0.08 and len(bvh) == 6 and bvh.fps == 30.0
     entities = {str(c.entity_path) for c in rr.chunk.RrdReader(folder / "r.rrd").stream().to_chunks()}
     assert {"/world/estimate", "/world/cam02_json/image/detections", "/world/cam02_json/image/estimate",
-            "/metrics/ess", "/metrics/reprojection_px/cam03_json", "/metrics/mismatch"} <= entities
+            "/metrics/ess_fraction", "/metrics/reprojection_px/cam03_json", "/metrics/mismatch"} <= entities
 
 
 def test_schedule_steps_at_the_priors_rate():

@@ -269,8 +269,10 @@ def _on_dask(pending: list[RunConfig], cache: str, rrd: bool, workers: int | Non
 
 
 def _recording_path(out: Path, config: RunConfig) -> Path:
-    safe = "_".join(str(part).replace("/", "-").replace(":", "-") for part in
-                    (config.filter, Path(config.motion).name, config.scenario, f"seed{config.seed}"))
+    from priortrack.viz.recording import entry_name
+
+    safe = "_".join(entry_name(part) for part in (config.filter, Path(config.motion).name, config.scenario,
+                                                  f"seed{config.seed}"))
     return out / "recordings" / f"{safe}.rrd"
 
 

@@ -4,11 +4,11 @@
 Per frame (:meth:`RerunLogger.log`): the truth skeleton (joints missing from that frame's
 observation drawn grey), the 2D observations and the estimate's reprojection in the camera's image,
 the estimate (and smoothed) skeletons, the particle cloud or sigma points coloured by weight, the
-translation's 1σ ellipsoid; the scalars ``metrics/error_mm`` (against the truth), ``metrics/ess``,
-``metrics/loglik`` (the observation model's log-likelihood of the estimate), ``metrics/mismatch``
-and ``metrics/resampled``; and the step's flags ("outlier-gated", "no-observation", …) as text at
-``events``. The recording opens on a default layout: the 3D view, the camera's image and the
-time series.
+translation's 1σ ellipsoid; the quantities ``metrics/error_mm`` (against the truth),
+``metrics/ess_fraction`` (ESS / particles), ``metrics/loglik`` (the observation model's
+log-likelihood of the estimate) and ``metrics/mismatch``, each in its own time-series view; and text
+events at ``events`` (:func:`step_events`). The recording opens on the layout of
+:meth:`~priortrack.viz.recording.Recording.layout`.
 
 Example::
 
@@ -22,8 +22,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
 import torch
 
 from priortrack.geometry.camera import PinholeCamera
@@ -31,16 +29,36 @@ from priortrack.viz.recording import Recording
 
 TRUTH_COLOR, OCCLUDED_COLOR = (60, 160, 255), (150, 150, 150)
 ESTIMATE_COLOR, SMOOTHED_COLOR = (255, 90, 60), (120, 230, 90)
+OBSERVATION_COLOR = (40, 200, 255)
 
 
-def default_blueprint(camera: str = "camera") -> rrb.Blueprint:
-    """The 3D world beside the camera's image, the per-frame scalars below."""
-    return rrb.Blueprint(rrb.Vertical(
-        rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3D"),
-                       rrb.Spatial2DView(origin=f"world/{camera}/image", name=camera)),
-        rrb.Horizontal(rrb.TimeSeriesView(origin="metrics", name="per frame"),
-                       rrb.TextLogView(origin="events", name="events")),
-        row_shares=[3, 1]), collapse_panels=True)
+#: A step's flags as events: (text, level).
+FLAG_EVENTS = {"innovation-gated": ("the gate held out detections the prediction cannot explain", "INFO"),
+               "outlier-gated": ("detections far off the body left out", "INFO"),
+               "gate-reopened": ("the gate reopened: every detection had failed it too long", "WARN"),
+               "no-observation": ("nothing observed: the prediction stands", "WARN"),
+               "weights-underflow": ("every particle's likelihood underflowed: weights reset", "WARN"),
+               "covariance-repaired": ("covariance repaired to positive definite", "DEBUG"),
+               "behind-camera": ("some sigma points behind a camera", "DEBUG")}
+
+
+def step_events(frame: int, snapshot=None, mismatch: bool | None = None, observed: bool = True) -> list[tuple[str, str]]:
+    """The text events of one frame, (text, level): resampling, the flags of :data:`FLAG_EVENTS`
+    (a held-out count where the step says it), mismatch, a frame with nothing observed."""
+    events = []
+    if snapshot is not None:
+        if snapshot.ancestors is not None:
+            events.append((f"frame {frame}: resampled (ESS {snapshot.ess:.0f} of {len(snapshot.weights)})", "DEBUG"))
+        for flag in snapshot.flags:
+            text, level = FLAG_EVENTS.get(flag, (flag, "INFO"))
+            held = getattr(snapshot, "held_out", None)
+            count = f" ({int(held.sum())} points)" if flag == "innovation-gated" and held is not None else ""
+            events.append((f"frame {frame}: {text}{count}", level))
+    if mismatch:
+        events.append((f"frame {frame}: mismatch: the prior does not explain this frame", "WARN"))
+    if not observed and not (snapshot is not None and "no-observation" in snapshot.flags):
+        events.append((f"frame {frame}: missing: nothing observed", "WARN"))
+    return events
 
 
 class RerunLogger:
@@ -56,7 +74,6 @@ class RerunLogger:
 
     def __init__(self, path: str | Path, camera: PinholeCamera, name: str | None = None, likelihood=None):
         self.recording = Recording(path, name=name)
-        self.recording.stream.send_blueprint(default_blueprint())
         self.recording.camera(camera)
         self.camera, self.likelihood = camera, likelihood
 
@@ -91,7 +108,7 @@ class RerunLogger:
         rec.frame(frame)
         seen = None if observation is None else np.isfinite(np.asarray(observation)).all(axis=-1)
         if observation is not None:
-            rec.points_2d("observations", observation)
+            rec.points_2d("observations", observation, color=OBSERVATION_COLOR)
         if truth is not None:
             colours = np.tile(TRUTH_COLOR, (len(truth), 1))
             if seen is not None:
@@ -104,10 +121,7 @@ class RerunLogger:
             if spread is not None:
                 rec.ellipsoid("estimate/translation", *spread, color=ESTIMATE_COLOR)
             if snapshot.covariance is None:                   # a particle set (a Gaussian filter's has no ESS)
-                rec.scalar("ess", snapshot.ess)
-                rec.scalar("resampled", float(snapshot.ancestors is not None))
-            if snapshot.flags:
-                rec.stream.log("events", rr.TextLog(f"frame {frame}: {', '.join(snapshot.flags)}", level="WARN"))
+                rec.scalar("ess_fraction", snapshot.ess / len(snapshot.weights))
         if estimate is not None and np.isfinite(estimate).all():
             rec.skeleton("estimate", estimate, color=ESTIMATE_COLOR)
             uv, _ = self.camera.project(torch.as_tensor(estimate))
@@ -122,3 +136,5 @@ class RerunLogger:
             rec.skeleton("smoothed", smoothed, color=SMOOTHED_COLOR)
         if mismatch is not None:
             rec.scalar("mismatch", float(mismatch))
+        for text, level in step_events(frame, snapshot, mismatch, observation is None or bool(seen.any())):
+            rec.event(text, level)

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from priortrack.geometry.frames import nearest_axis
+from priortrack.geometry.frames import nearest_axis, up_vector
 from priortrack.viz.recording import Recording
 
-from priortrack.viz.logger import ESTIMATE_COLOR
+from priortrack.viz.logger import ESTIMATE_COLOR, step_events
 
 DETECTION_COLOR, MISMATCH_COLOR = (60, 200, 255), (255, 0, 200)
 FILTERED_COLOR = (150, 150, 150)
@@ -26,7 +26,8 @@ FILTERED_COLOR = (150, 150, 150)
 def record_detections(result, path: str | Path) -> Path:
     """Write ``result`` (a DetectionTrack, with its snapshots for the cloud) to the ``.rrd`` file ``path``."""
     snapshots = {s.frame: s for s in result.snapshots or []}
-    with Recording(path, up=nearest_axis(result.up)) as rec:
+    with Recording(path, up=nearest_axis(result.up), up_vector=up_vector(result.up),
+                   name=f"{result.filter} · detections") as rec:
         for name, camera in zip(result.camera_names, result.cameras):
             rec.camera(camera, name)
         for t, joints in enumerate(result.joints):
@@ -48,7 +49,12 @@ def record_detections(result, path: str | Path) -> Path:
                     if seen.any():
                         rec.scalar(f"reprojection_px/{name}",
                                    float(np.median(np.linalg.norm(uv.numpy()[seen] - z[seen, :2], axis=-1))))
-            rec.scalar("ess", result.ess[t])
+            snapshot = snapshots.get(t)
+            if snapshot is not None and snapshot.covariance is None:     # particles (sigma points have no ESS)
+                rec.scalar("ess_fraction", snapshot.ess / len(snapshot.weights))
             rec.scalar("loglik", result.loglik[t])
             rec.scalar("mismatch", float(result.mismatch[t]))
+            observed = bool((np.isfinite(result.observations[t, ..., 0]) & (np.nan_to_num(result.observations[t, ..., 2]) > 0)).any())
+            for text, level in step_events(int(result.frames[t]), snapshot, bool(result.mismatch[t]), observed):
+                rec.event(text, level)
     return Path(path)
