@@ -8,6 +8,8 @@ A development tool (selenium is not a dependency of priortrack); the PNGs beside
 """
 
 import argparse
+import os
+import signal
 import socket
 import subprocess
 import sys
@@ -27,7 +29,7 @@ def screenshot(rrd: Path, out: Path, seconds: float = 25.0, size=(1600, 1000)) -
     web, grpc = _free_port(), _free_port()
     rerun = Path(sys.executable).with_name("rerun")
     server = subprocess.Popen([str(rerun), str(rrd), "--web-viewer", "--web-viewer-port", str(web), "--port", str(grpc)],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         time.sleep(4)
         options = webdriver.ChromeOptions()
@@ -43,8 +45,8 @@ def screenshot(rrd: Path, out: Path, seconds: float = 25.0, size=(1600, 1000)) -
             driver.save_screenshot(str(out))
         finally:
             driver.quit()
-    finally:
-        server.terminate()
+    finally:                                   # the rerun wrapper and the viewer binary it starts
+        os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=10)
 
 
