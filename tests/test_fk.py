@@ -155,3 +155,20 @@ def test_pruned_skeleton_places_the_kept_joints_exactly():
     channels = _poses(motion, n=32)
     full = ForwardKinematics(motion.skeleton)(channels)[:, keep]
     torch.testing.assert_close(ForwardKinematics(small)(channels)[:, index], full, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", SUBJECTS)
+def test_float64_positions_by_the_fused_kernel_match_the_torch_path(name):
+    """float64 positions (the unscented filter's sigma points) come from the fused kernel too, with
+    the C library's sine and cosine: within 1e-12 m of the torch path (asked for rotations, it
+    computes the positions itself), angles up to ±40 rad included, for chosen joints and one pose."""
+    motion = load_bundled(name)
+    channels = _poses(motion, n=300)
+    channels[:8, 3:] = np.random.default_rng(2).uniform(-40, 40, (8, motion.skeleton.num_channels - 3))
+    fk = ForwardKinematics(motion.skeleton)
+    fused = fk(channels)
+    reference, _ = fk(channels, rotations=True)
+    assert fused.dtype == torch.float64 and fused.shape == reference.shape
+    assert (fused - reference).abs().max().item() < 1e-12
+    assert torch.equal(fk(channels, joints=[0, 7, 20]), fused[:, [0, 7, 20]])
+    assert torch.equal(fk(channels[3]), fused[3])

@@ -105,19 +105,15 @@ def test_the_recording_carries_its_layout(tmp_path):
 def test_step_events_name_what_happened():
     """Resampling, gating (with the count held out), the gate reopening, nothing observed and mismatch
     become events, each once, with its level."""
-    from types import SimpleNamespace
-
-    import torch
-
+    from priortrack.filters.snapshot import StepRecord
     from priortrack.viz.logger import step_events
 
-    snap = SimpleNamespace(ancestors=torch.arange(4), ess=1.5, weights=torch.ones(4) / 4,
-                           flags=["innovation-gated", "gate-reopened"], held_out=np.array([True, False, True]))
-    events = step_events(7, snap, mismatch=True, observed=True)
+    step = StepRecord(7, 1.5, 4, True, ("innovation-gated", "gate-reopened"), 2)
+    events = step_events(7, step, mismatch=True, observed=True)
     assert events == [("frame 7: resampled (ESS 2 of 4)", "DEBUG"),
                       ("frame 7: the gate held out detections the prediction cannot explain (2 points)", "INFO"),
                       ("frame 7: the gate reopened: every detection had failed it too long", "WARN"),
                       ("frame 7: mismatch: the prior does not explain this frame", "WARN")]
-    quiet = SimpleNamespace(ancestors=None, ess=4.0, weights=torch.ones(4) / 4, flags=["no-observation"])
+    quiet = StepRecord(8, 4.0, 4, False, ("no-observation",))
     assert step_events(8, quiet, observed=False) == [("frame 8: nothing observed: the prediction stands", "WARN")]
     assert step_events(9, None, observed=False) == [("frame 9: missing: nothing observed", "WARN")]

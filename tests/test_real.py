@@ -153,6 +153,28 @@ def test_the_unscented_and_map_filters_take_several_cameras(preset):
     assert np.isfinite(result.joints).all() and all(e < 35 for e in result.reprojection_px)
 
 
+def test_a_run_keeps_a_record_a_tick_not_its_point_sets():
+    """Without a recording or the whole run's smoother, a detections run keeps no snapshot (its memory a
+    few numbers a tick), yet every tick's spread and step record; a recording's clouds every k-th tick;
+    a fixed lag smooths as the filter goes (no snapshot kept) and moves the estimate; an unscented
+    run has no ESS (NaN, and none in the summary)."""
+    detections, calibration = read_detections(POSE, keypoints="body25b"), read_calibration(CALIB)
+    plain = track_detections(detections, calibration, "pf-lie", fps=60)
+    T = len(plain.joints)
+    assert plain.snapshots is None and [s.frame for s in plain.steps] == list(range(2, T))
+    assert np.isfinite(plain.spread[2:]).all() and (plain.spread[2:] > 0).all()
+    assert np.isfinite(plain.ess[2:]).all() and plain.summary()["mean_ess"] > 0
+    every = track_detections(detections, calibration, "pf-lie", fps=60, keep_snapshots=True, snapshot_every=3)
+    assert [s.frame for s in every.snapshots] == list(range(2, T, 3))
+    np.testing.assert_array_equal(every.joints, plain.joints)
+    lagged = track_detections(detections, calibration, "pf-lie", fps=60, smooth=True, lag=2)
+    assert lagged.snapshots is None and lagged.lag == 2
+    np.testing.assert_array_equal(lagged.filtered_joints, plain.joints)
+    assert np.isfinite(lagged.joints).all() and np.abs(lagged.joints - plain.joints)[2:].max() > 1e-4
+    ukf = track_detections(detections, calibration, "ukf-real", fps=60)
+    assert np.isnan(ukf.ess).all() and ukf.summary()["mean_ess"] is None
+
+
 def test_a_camera_following_someone_else_is_left_out_at_those_ticks():
     """Camera 3's person replaced by another (shifted 400 px) in ticks 2–4: the other three cameras'
     triangulation disagrees with it there, and only there."""
@@ -243,3 +265,17 @@ def test_the_exported_spread_is_the_posteriors_spread(preset, tmp_path):
         if last.translation_spread() is not None:
             reference = reference + float(np.trace(last.translation_spread()[1]))
         assert np.allclose(_spread(last), reference.sqrt().numpy(), atol=1e-9)
+
+
+def test_a_recording_draws_the_cloud_every_kth_tick(tmp_path, capsys):
+    """--rrd-every 2: the particle cloud at ticks 2 and 4 of the six, the skeleton and the scalars at every
+    tick; --rrd-every 0 refused by name."""
+    argv = ["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
+            "--filter", "pf-lie", "--rrd", str(tmp_path / "r.rrd")]
+    assert main(argv + ["--rrd-every", "2"]) == 0
+    rows = {}
+    for chunk in rr.chunk.RrdReader(str(tmp_path / "r.rrd")).stream().to_chunks():
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    assert rows["/world/estimate/cloud"] == 2 and rows["/world/estimate"] == 6 and rows["/metrics/loglik"] == 6
+    assert main(argv + ["--rrd-every", "0"]) == 2
+    assert "--rrd-every must be a whole number of ticks ≥ 1, got 0" in capsys.readouterr().err

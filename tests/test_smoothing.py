@@ -171,6 +171,42 @@ def test_fixed_lag_releases_the_whole_run_smoother_of_the_frames_so_far(tmp_path
     assert np.allclose(smooth(filt, track, z, lag=100).estimates, smooth(filt, track, z).estimates)
 
 
+def test_fixed_lag_smoothing_as_the_filter_runs(tmp_path):
+    """A FixedLagSmoother fed by the run's on_step (pf-gpdm, lag 3), holding the last L + 1 steps only,
+    releases what each window t − L … t smoothed from the run's kept steps gives, drawn in the same order
+    from a generator of the same seed: the first frame of every window, then the rest of the last one."""
+    from priortrack.filters.smoothing import MOVES, FixedLagSmoother
+    from priortrack.filters.snapshot import KNOWN_FRAMES
+
+    run = _tracked("pf-gpdm", "occlusion:sigma_px=5", tmp_path, frames=16)
+    filt, _ = _filter("pf-gpdm", run, tmp_path)
+    z = run.observations.uv
+    online = FixedLagSmoother(filt, 3, trajectories=20, seed=5)
+    track = filt.run(z, run.motion, keep_snapshots=True, on_step=lambda s: online.push(s, z[s.frame]))
+    assert len(online.window) == 4
+    lagged = online.result(track.estimates[:KNOWN_FRAMES])
+    generator = torch.Generator().manual_seed(5)
+    steps, data = track.snapshots, z[KNOWN_FRAMES:]
+    windows = [filt.smooth_window(steps[t - 3:t + 1], data[t - 3:t + 1], generator, trajectories=20, moves=MOVES)
+               for t in range(3, len(steps))]
+    expected = np.concatenate([w[0][:1] for w in windows] + [windows[-1][0][1:]])
+    assert np.allclose(lagged.estimates[KNOWN_FRAMES:], expected, atol=1e-12)
+    assert np.array_equal(lagged.estimates, smooth(filt, track, z, trajectories=20, lag=3, seed=5).estimates)
+
+
+def test_a_run_keeps_every_kth_snapshot_and_every_steps_record(tmp_path):
+    run = _tracked("pf-gpdm", "clean", tmp_path, frames=12)
+    filt, _ = _filter("pf-gpdm", run, tmp_path)
+    seen = []
+    track = filt.run(run.observations.uv, run.motion, keep_snapshots=True, snapshot_every=4, on_step=seen.append)
+    assert filt.run(run.observations.uv, run.motion).snapshots is None
+    assert [s.frame for s in track.snapshots] == [2, 6, 10] and [s.frame for s in seen] == list(range(2, 12))
+    assert [r.frame for r in track.steps] == list(range(2, 12)) and all(r.points == 1000 for r in track.steps)
+    assert [r.resampled for r in track.steps] == [s.ancestors is not None for s in seen]
+    with pytest.raises(PriortrackError, match="snapshot_every must be"):
+        filt.run(run.observations.uv, run.motion, keep_snapshots=True, snapshot_every=0)
+
+
 def test_what_cannot_be_smoothed_says_why(tmp_path):
     run = _tracked("ukf-gpdm", "clean", tmp_path, frames=8)
     filt, track = _filter("ukf-gpdm", run, tmp_path)

@@ -24,9 +24,11 @@ frame changes and four multiply-adds apply the k-th rotation of every segment th
 Tensors are batch-last, a matrix as its columns (3, 3, B), so that every elementwise
 operation runs over the contiguous batch.
 
-float32 positions on the CPU (no rotations asked, no gradient needed) are computed instead by
-the fused kernel of :mod:`priortrack.body.fk_kernel`, joint by joint in one pass over the rows
-(about 5× this path's speed there); this path is its reference in the tests.
+Positions on the CPU in float32 or float64 (no rotations asked, no gradient needed) are computed
+instead by the fused kernel of :mod:`priortrack.body.fk_kernel`, joint by joint in one pass over
+the rows (about 5× this path's speed at 10⁴ float32 rows; for the unscented filter's 125 float64
+sigma points, the torch path's per-operation overhead is most of its time); this path is its
+reference in the tests.
 """
 
 from __future__ import annotations
@@ -152,11 +154,12 @@ class ForwardKinematics:
         self._trans_used = as_t((skeleton.trans_channels >= 0)[:, :, None], dtype=dtype)   # (J, 3, 1)
         self._position_node = as_t(row[first] + place[first])                      # (J,) rows of all nodes
         self._frame_node = as_t(frame_row[last])                                   # (J,) rows of kept H
-        # float32 positions on the CPU: the fused kernel of priortrack.body.fk_kernel, on these arrays
+        # positions on the CPU: the fused kernel of priortrack.body.fk_kernel, on these arrays
         self._kernel = None
-        if self.dtype == torch.float32 and self.device.type == "cpu":
-            self._kernel = (skeleton.parents.astype(np.int64), skeleton.offsets.astype(np.float32),
-                            skeleton.rot_axes.astype(np.float32), skeleton.rot_channels.astype(np.int64),
+        if self.dtype in (torch.float32, torch.float64) and self.device.type == "cpu":
+            real = np.float32 if self.dtype == torch.float32 else np.float64
+            self._kernel = (skeleton.parents.astype(np.int64), skeleton.offsets.astype(real),
+                            skeleton.rot_axes.astype(real), skeleton.rot_channels.astype(np.int64),
                             skeleton.trans_channels.astype(np.int64))
 
     def _as_batch(self, channels) -> torch.Tensor:
@@ -239,11 +242,11 @@ class ForwardKinematics:
 
     def _fused(self, channels: torch.Tensor, chosen: np.ndarray) -> torch.Tensor:
         """Positions (B, K, 3) of the ``chosen`` joints by :func:`priortrack.body.fk_kernel.positions`
-        (float32, CPU): the same FK in one pass, equal to the torch path to float32 rounding; with
+        (float32 or float64, CPU): the same FK in one pass, equal to the torch path to the dtype's rounding; with
         torch on T > 1 threads, the rows are split among T workers (:func:`priortrack.threads.split_rows`)."""
         from priortrack.body.fk_kernel import positions
 
-        out = torch.empty(channels.shape[0], len(chosen), 3, dtype=torch.float32)
+        out = torch.empty(channels.shape[0], len(chosen), 3, dtype=self.dtype)
         rows, wanted, result = channels.contiguous().numpy(), chosen.astype(np.int64), out.numpy()
         split_rows(len(rows), lambda r: positions(rows[r], *self._kernel, wanted, result[r]))
         return out

@@ -1,4 +1,4 @@
-"""Forward kinematics as one fused CPU kernel (numba), for float32 channels.
+"""Forward kinematics as one fused CPU kernel (numba), for float32 and float64 channels.
 
 :class:`priortrack.body.fk.ForwardKinematics` computes, for every joint j (parents first),
 
@@ -16,6 +16,9 @@ calls, ten times slower).
 π/2 split in two parts so that q π/2 is exact to float32 for |θ| < 2¹⁰) and evaluates Taylor
 polynomials of sin r and cos r, whose truncation errors (r¹¹/11!, r¹²/12!) are below 1e-8 there;
 the result is accurate to about 1e-7, float32's rounding. Joint angles are radians of order π.
+float64 channels take the C library's sin and cos (:func:`sin_cos` picks by the angle's type when
+the kernel is compiled): the unscented filter's 2n + 1 sigma points are float64, and there the
+call's overhead, not the sines, is what the torch path spends (about 50 operations a level).
 
 The torch path serves other dtypes and devices, global rotations and local rotations, and is the
 reference this kernel is tested against (tests/test_fk.py). Compiled on first use (about a
@@ -26,6 +29,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numba import types
+from numba.extending import overload
 
 #: Rows per tile of :func:`positions`.
 TILE = 256
@@ -55,20 +60,33 @@ def _sin_cos(theta):
     return sin_t, cos_t
 
 
+def sin_cos(theta):
+    """(sin θ, cos θ) in θ's own precision: float32 by :func:`_sin_cos`, float64 by the C library."""
+    return np.sin(theta), np.cos(theta)
+
+
+@overload(sin_cos, inline="always")
+def _sin_cos_of_type(theta):
+    if theta == types.float32:
+        return lambda theta: _sin_cos(theta)
+    return lambda theta: (np.sin(theta), np.cos(theta))
+
+
 @numba.njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
 def positions(channels, parents, offsets, axes, rot_channels, trans_channels, wanted, out):
-    """Joint positions of ``wanted`` joints into ``out`` (n, K, 3) for channels (n, C), float32.
+    """Joint positions of ``wanted`` joints into ``out`` (n, K, 3) for channels (n, C), float32 or
+    float64 (``out``, ``offsets`` and ``axes`` of the same dtype: the kernel is compiled for each).
 
     Skeleton arrays (as :class:`priortrack.data.skeleton.Skeleton`): parents (J,) int64, offsets
-    (J, 3) and axes (J, 3, 3) float32, rot_channels (J, 3) and trans_channels (J, 3) int64 (−1:
+    (J, 3) and axes (J, 3, 3), rot_channels (J, 3) and trans_channels (J, 3) int64 (−1:
     unused); wanted (K,) int64.
     """
     n, C, J = channels.shape[0], channels.shape[1], parents.shape[0]
-    planar = np.empty((C, TILE), dtype=np.float32)              # the tile's channels, rows along i
-    G = np.empty((J, 9, TILE), dtype=np.float32)                # row-major 3 × 3 per row of the tile
-    P = np.empty((J, 3, TILE), dtype=np.float32)
-    shift = np.empty((3, TILE), dtype=np.float32)
-    zero, one = np.float32(0.0), np.float32(1.0)
+    planar = np.empty((C, TILE), dtype=out.dtype)               # the tile's channels, rows along i
+    G = np.empty((J, 9, TILE), dtype=out.dtype)                 # row-major 3 × 3 per row of the tile
+    P = np.empty((J, 3, TILE), dtype=out.dtype)
+    shift = np.empty((3, TILE), dtype=out.dtype)
+    zero, one = np.zeros(1, dtype=out.dtype)[0], np.ones(1, dtype=out.dtype)[0]
     for start in range(0, n, TILE):
         m = min(TILE, n - start)
         for i in range(m):
@@ -107,7 +125,7 @@ def positions(channels, parents, offsets, axes, rot_channels, trans_channels, wa
                 x, y, z = axes[j, k, 0], axes[j, k, 1], axes[j, k, 2]
                 g = G[j]
                 for i in range(m):
-                    s, c = _sin_cos(planar[ch, i])
+                    s, c = sin_cos(planar[ch, i])
                     t = one - c
                     r00, r01, r02 = c + t * x * x, t * x * y - s * z, t * x * z + s * y
                     r10, r11, r12 = t * x * y + s * z, c + t * y * y, t * y * z - s * x

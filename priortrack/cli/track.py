@@ -89,6 +89,8 @@ def _track_detections(args: argparse.Namespace) -> None:
         output_path(path, "result file")
     if args.rrd:
         output_path(args.rrd, "rerun recording")
+    if args.rrd_every < 1:
+        raise PriortrackError(f"--rrd-every must be a whole number of ticks ≥ 1, got {args.rrd_every}")
     camera_map = None
     if args.camera_map:
         pairs = [item.split("=", 1) for item in args.camera_map.split(",")]
@@ -104,7 +106,8 @@ def _track_detections(args: argparse.Namespace) -> None:
     try:
         result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
                                   camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
-                                  keep_snapshots=bool(args.rrd), progress=progress, height=args.height,
+                                  keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every,
+                                  progress=progress, height=args.height,
                                   skeleton=skeleton, **_smoothing(args))
     finally:
         progress.close()
@@ -159,6 +162,9 @@ def add_parsers(verbs) -> None:
     track.add_argument("--frames", type=int, help="track only the first N frames (a motion: ticks at the "
                                                   "prior's rate; --detections: the file's first N frames)")
     track.add_argument("--rrd", help="also write a rerun recording: truth, estimate, particle cloud, 2D observations")
+    track.add_argument("--rrd-every", type=int, default=1, metavar="K",
+                       help="--detections: the recording's particle cloud at every K-th tick only (a long run's "
+                            "memory; skeletons, scalars and events at every tick; default 1)")
     track.add_argument("--smooth", action="store_true",
                        help="also smooth the run: each frame's estimate given every frame (outputs the smoothed joints)")
     track.add_argument("--lag", type=int, help="fixed-lag smoothing: frame t − LAG estimated at frame t (implies --smooth)")

@@ -66,7 +66,7 @@ from priortrack.data.detections import Detections
 from priortrack.data.motion import Motion
 from priortrack.data.skeleton import Skeleton
 from priortrack.data.trc import write_trc
-from priortrack.filters.smoothing import TRAJECTORIES, joint_spread, smooth as smooth_run
+from priortrack.filters.smoothing import TRAJECTORIES, FixedLagSmoother, joint_spread, smooth as smooth_run
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
@@ -148,7 +148,10 @@ class DetectionTrack:
     #: The cameras in the calibration's world, and the observations per tick (T, C, 15, 3).
     cameras: list[PinholeCamera] = field(default_factory=list, repr=False)
     observations: np.ndarray | None = field(default=None, repr=False)
+    #: The filter's snapshots where kept (``keep_snapshots``: every ``snapshot_every``-th tick's), and the
+    #: compact record of every tick's step (:class:`~priortrack.filters.snapshot.StepRecord`).
     snapshots: list | None = field(default=None, repr=False)
+    steps: list | None = field(default=None, repr=False)
     #: Camera-ticks whose person disagreed with the other cameras' (left out).
     cross_view_rejections: int = 0
     #: Smoothed runs (``smooth=True``): ``joints``, ``spread`` and the BVH's body joints are the
@@ -312,13 +315,18 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                      min_confidence: float = 0.3, seed: int = 0, cache=None, keep_snapshots: bool = False,
                      height: float = 1.7, skeleton: Skeleton | None = None,
                      progress: Callable[[int, int], None] | None = None, smooth: bool = False,
-                     lag: int | None = None, trajectories: int = TRAJECTORIES) -> DetectionTrack:
+                     lag: int | None = None, trajectories: int = TRAJECTORIES,
+                     snapshot_every: int = 1) -> DetectionTrack:
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
     (module docstring). ``fps``: the detections' frame rate (if the file does not say it); ``height``:
     the person's standing height in metres, which sets the body's size and depth from one camera;
     ``skeleton``: the person's own body (an ASF or BVH skeleton) instead of the scaled template;
     ``smooth``: also smooth the run (with a fixed ``lag``, or over the whole run) and give the smoothed
-    joints (:mod:`priortrack.filters.smoothing`)."""
+    joints (:mod:`priortrack.filters.smoothing`); ``keep_snapshots``: keep the filter's steps (a
+    recording's particle clouds), every ``snapshot_every``-th tick's.
+
+    Memory: each tick's spread and step record are taken as the filter goes; its point sets are let go
+    unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
     start_time = time.perf_counter()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     data_fps = fps if fps is not None else detections.fps
@@ -384,12 +392,24 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     filt = preset.filter_for(model, seed)
     torch.manual_seed(seed)
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
-    run = filt.run(z[first:], known, keep_snapshots=True, progress=progress, **initial)
     T = len(index) - first
     spread = np.full((T, 15), np.nan)
-    for s in run.snapshots:
-        spread[s.frame] = _spread(s)
-    smoothed = smooth_run(filt, run, z[first:], trajectories, lag, seed) if smooth else None
+    whole = smooth and lag is None                 # the whole run's smoother needs every step's point set
+    online = FixedLagSmoother(filt, lag, trajectories, seed) if smooth and lag is not None else None
+
+    def on_step(snapshot) -> None:
+        spread[snapshot.frame] = _spread(snapshot)
+        if online is not None:
+            online.push(snapshot, z[first + snapshot.frame])
+
+    run = filt.run(z[first:], known, keep_snapshots=keep_snapshots or whole, progress=progress,
+                   snapshot_every=1 if whole else snapshot_every, on_step=on_step, **initial)
+    smoothed = (online.result(run.estimates[:KNOWN_FRAMES]) if online is not None else
+                smooth_run(filt, run, z[first:], trajectories, None, seed) if whole else None)
+    snapshots = run.snapshots if keep_snapshots else None
+    if snapshots is not None and whole and snapshot_every > 1:
+        snapshots = snapshots[::snapshot_every]
+    run.snapshots = None
     if smoothed is not None:
         spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
     estimates = run.estimates if smoothed is None else smoothed.estimates
@@ -400,13 +420,15 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         return np.einsum("ij,tjk->tik", M, body) @ A
 
     joints = world(estimates)
+    # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
+    ess = np.asarray(run.ess, dtype=float) if preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
     reprojection = np.array([median_reprojection(cam, joints, uv[c, index[first:]], confidence[c, index[first:]])
                              for c, cam in enumerate(world_cameras)])
     result = DetectionTrack(joints, np.where(index[first:] >= 0, detections.frames[np.maximum(index[first:], 0)], -1),
-                            float(prior.fps), spread, np.asarray(run.ess, dtype=float), loglik, mismatch,
+                            float(prior.fps), spread, ess, loglik, mismatch,
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
                             up, A, skeleton, estimates, world_cameras, z[first:],
-                            run.snapshots if keep_snapshots else None, rejected,
+                            snapshots, run.steps, rejected,
                             None if smoothed is None else world(run.estimates), lag if smooth else None)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible

@@ -15,7 +15,7 @@ import numpy as np
 
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.filters.snapshot import KNOWN_FRAMES, Track
+from priortrack.filters.snapshot import KNOWN_FRAMES, Snapshot, StepRecord, Track
 from priortrack.body.fk import joint_positions
 
 
@@ -23,14 +23,20 @@ class SequentialFilter:
     """The ``run`` loop over ``initialise`` and ``step``, which subclasses provide."""
 
     def run(self, observations, motion: Motion, keep_snapshots: bool = False,
-            progress: Callable[[int, int], None] | None = None, **initial) -> Track:
+            progress: Callable[[int, int], None] | None = None, snapshot_every: int = 1,
+            on_step: Callable[[Snapshot], None] | None = None, **initial) -> Track:
         """Initialise on the first two frames of ``motion`` and filter the rest.
+
+        Memory: without kept snapshots the run holds its estimates and a :class:`StepRecord` a frame,
+        not the steps' point sets; ``on_step`` sees each step's snapshot before it is let go.
 
         Args:
             observations: (T, *model.observation_shape) at the prior's frame rate, NaN where missing.
             motion: the known motion whose first two frames start the filter.
-            keep_snapshots: keep every step's Snapshot in the Track.
+            keep_snapshots: keep the steps' Snapshots in the Track …
+            snapshot_every: … every k-th filtered frame's (1: every one).
             progress: called as progress(t, T) after each frame.
+            on_step: called with each step's Snapshot (to reduce it as the run goes).
             initial: further arguments of the filter's ``initialise`` (the particle filter's
                 ``translation_std``, for a start that is itself an estimate).
         """
@@ -40,6 +46,8 @@ class SequentialFilter:
         if observations.shape[1:] != shape or T < KNOWN_FRAMES + 1:
             raise PriortrackError(f"observations have shape {observations.shape}; expected (T ≥ 3, "
                                   f"{', '.join(map(str, shape))})")
+        if isinstance(snapshot_every, bool) or not isinstance(snapshot_every, int) or snapshot_every < 1:
+            raise PriortrackError(f"snapshot_every must be a whole number ≥ 1, got {snapshot_every!r}")
         start = time.perf_counter()
         self.initialise(motion, **initial)
         fps = self.model.prior.fps
@@ -49,13 +57,16 @@ class SequentialFilter:
         estimates[:KNOWN_FRAMES] = given
         ess = np.full(T, np.nan)
         flags: list[list[str]] = [[] for _ in range(KNOWN_FRAMES)]
-        snapshots = []
+        snapshots, steps = [], []
         for t in range(KNOWN_FRAMES, T):
             snap = self.step(observations[t])
             estimates[t], ess[t] = snap.estimate, snap.ess
             flags.append(snap.flags)
-            if keep_snapshots:
+            steps.append(StepRecord.of(snap))
+            if on_step is not None:
+                on_step(snap)
+            if keep_snapshots and (t - KNOWN_FRAMES) % snapshot_every == 0:
                 snapshots.append(snap)
             if progress:
                 progress(t, T)
-        return Track(estimates, ess, flags, time.perf_counter() - start, snapshots if keep_snapshots else None)
+        return Track(estimates, ess, flags, time.perf_counter() - start, snapshots if keep_snapshots else None, steps)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,9 +71,86 @@ def joint_spread(joints: torch.Tensor, centre: torch.Tensor, weights: torch.Tens
     return torch.einsum("m,mwj->wj", weights.to(sq), sq).clamp(min=0).sqrt().cpu().numpy()
 
 
+def _check(filt, trajectories: int, moves: int | None, lag: int | None) -> None:
+    """Refuse a filter without a smoother and malformed smoothing arguments, naming them."""
+    if not hasattr(filt, "smooth_window"):
+        raise PriortrackError(f"{type(filt).__name__} has no smoother (the particle filters and the unscented filter "
+                              f"have one; the MAP tracker is itself a sliding-window smoother)")
+    if isinstance(trajectories, bool) or not isinstance(trajectories, int) or trajectories < 1:
+        raise PriortrackError(f"trajectories must be a positive whole number, got {trajectories!r}")
+    if moves is not None and (isinstance(moves, bool) or not isinstance(moves, int) or moves < 0):
+        raise PriortrackError(f"moves must be a whole number ≥ 0 or None (the exact draw), got {moves!r}")
+    if lag is not None and (isinstance(lag, bool) or not isinstance(lag, int) or lag < 0):
+        raise PriortrackError(f"lag must be a whole number of frames ≥ 0, got {lag!r}")
+
+
+class FixedLagSmoother:
+    """Fixed-lag smoothing as the filter runs (module docstring), holding only the last L + 1 steps:
+    :meth:`push` each step's snapshot with its observation, as the filter makes them, then
+    :meth:`result`. The windows are those of a whole run smoothed afterwards with the same lag, in the
+    same order from the same generator: the same numbers.
+
+    Args:
+        filt: the running filter (a ParticleFilter or UnscentedFilter).
+        lag: L, in frames (≥ 0).
+        trajectories, seed, moves: as :func:`smooth`.
+    """
+
+    def __init__(self, filt, lag: int, trajectories: int = TRAJECTORIES, seed: int = 0, moves: int | None = MOVES):
+        _check(filt, trajectories, moves, lag)
+        if lag is None:
+            raise PriortrackError("a fixed-lag smoother needs a lag (whole frames ≥ 0)")
+        self.filt, self.lag, self.trajectories, self.moves = filt, lag, trajectories, moves
+        self.generator = torch.Generator().manual_seed(seed)
+        self.window: deque = deque(maxlen=lag + 1)             # (snapshot, observation) of the last L + 1 frames
+        self.released: list[tuple] = []                       # per released frame: (estimate, spread, distinct)
+        self.last: tuple | None = None                         # the last window smoothed
+        self.seconds = 0.0
+
+    def _smoothed(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        start = time.perf_counter()
+        snapshots, data = zip(*self.window)
+        part = self.filt.smooth_window(list(snapshots), np.stack(data), self.generator,
+                                       trajectories=self.trajectories, moves=self.moves)
+        self.seconds += time.perf_counter() - start
+        return part
+
+    def push(self, snapshot, observation) -> None:
+        """Add the filter's step of frame t and its observation; frame t − L is released once L + 1 are in."""
+        self.window.append((snapshot, np.asarray(observation, dtype=float)))
+        if len(self.window) == self.window.maxlen:
+            self.last = self._smoothed()
+            self.released.append(tuple(None if p is None else p[0] for p in self.last))
+
+    def result(self, known: np.ndarray) -> Smoothed:
+        """The smoothed run: the frames still in the window from the last window smoothed (or, for a run
+        no longer than the lag, the whole run's smoother), after the ``known`` (KNOWN_FRAMES, J, 3) frames."""
+        if not self.window:
+            raise PriortrackError("nothing to smooth: no step was pushed")
+        last = self.last if self.last is not None else self._smoothed()
+        skip = 1 if self.last is not None else 0
+        rows = self.released + [tuple(None if p is None else p[i] for p in last) for i in range(skip, len(last[0]))]
+        estimates, spread = np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows])
+        distinct = None if rows[0][2] is None else np.array([r[2] for r in rows])
+        return _assembled(known, estimates, spread, distinct, self.lag, self.seconds, self.trajectories)
+
+
+def _assembled(known: np.ndarray, estimates: np.ndarray, spread: np.ndarray, distinct: np.ndarray | None,
+               lag: int | None, seconds: float, trajectories: int) -> Smoothed:
+    """The Smoothed run from the smoothed filtered frames, after the known ones (warning where the
+    particle smoother's trajectories coalesced)."""
+    if distinct is not None and len(distinct) > 1 and np.median(distinct) < COALESCED * trajectories:
+        log.warning("the %d smoothed trajectories pass through a median of %d distinct particles a frame: the "
+                    "transition is narrow next to the particle cloud, the smoother follows few paths and its "
+                    "spread understates the uncertainty", trajectories, int(np.median(distinct)))
+    return Smoothed(np.concatenate([known, estimates]), np.concatenate([np.zeros(known.shape[:2]), spread]), lag,
+                    seconds, None if distinct is None else np.concatenate([np.zeros(KNOWN_FRAMES, int), distinct]))
+
+
 def smooth(filt, track: Track, observations, trajectories: int = TRAJECTORIES, lag: int | None = None,
            seed: int = 0, moves: int | None = MOVES) -> Smoothed:
-    """The smoothed estimates of a finished run (module docstring).
+    """The smoothed estimates of a finished run (module docstring); with a ``lag``, by
+    :class:`FixedLagSmoother` over the run's steps.
 
     Args:
         filt: the filter that made ``track`` (a ParticleFilter or UnscentedFilter), as it was
@@ -86,43 +164,22 @@ def smooth(filt, track: Track, observations, trajectories: int = TRAJECTORIES, l
             genealogy's ancestor, (K + 1) M densities a frame; None: the exact draw, M N densities
             a frame (:mod:`priortrack.filters.backward_simulation`).
     """
-    if not hasattr(filt, "smooth_window"):
-        raise PriortrackError(f"{type(filt).__name__} has no smoother (the particle filters and the unscented filter "
-                              f"have one; the MAP tracker is itself a sliding-window smoother)")
+    _check(filt, trajectories, moves, lag)
     if track.snapshots is None:
         raise PriortrackError("smoothing needs the filter's steps: run it with keep_snapshots=True")
-    if isinstance(trajectories, bool) or not isinstance(trajectories, int) or trajectories < 1:
-        raise PriortrackError(f"trajectories must be a positive whole number, got {trajectories!r}")
-    if moves is not None and (isinstance(moves, bool) or not isinstance(moves, int) or moves < 0):
-        raise PriortrackError(f"moves must be a whole number ≥ 0 or None (the exact draw), got {moves!r}")
-    if lag is not None and (isinstance(lag, bool) or not isinstance(lag, int) or lag < 0):
-        raise PriortrackError(f"lag must be a whole number of frames ≥ 0, got {lag!r}")
     snapshots = track.snapshots
     observations = np.asarray(observations, dtype=float)
     if len(observations) != KNOWN_FRAMES + len(snapshots):
         raise PriortrackError(f"{len(observations)} frames of observations for a run of "
                               f"{KNOWN_FRAMES + len(snapshots)} frames")
-    start = time.perf_counter()
-    generator = torch.Generator().manual_seed(seed)
-    data = observations[KNOWN_FRAMES:]
-
-    def window(first: int, last: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        return filt.smooth_window(snapshots[first:last + 1], data[first:last + 1], generator,
-                                  trajectories=trajectories, moves=moves)
-
-    n = len(snapshots)
-    if lag is None or lag >= n - 1:
-        estimates, spread, distinct = window(0, n - 1)
-    else:
-        parts = [window(t - lag, t) for t in range(lag, n)]
-        estimates, spread, distinct = (
-            None if parts[0][k] is None else np.concatenate([p[k][:1] for p in parts] + [parts[-1][k][1:]])
-            for k in range(3))
-    if distinct is not None and len(distinct) > 1 and np.median(distinct) < COALESCED * trajectories:
-        log.warning("the %d smoothed trajectories pass through a median of %d distinct particles a frame: the "
-                    "transition is narrow next to the particle cloud, the smoother follows few paths and its "
-                    "spread understates the uncertainty", trajectories, int(np.median(distinct)))
     known = track.estimates[:KNOWN_FRAMES]
-    return Smoothed(np.concatenate([known, estimates]), np.concatenate([np.zeros(known.shape[:2]), spread]), lag,
-                    time.perf_counter() - start,
-                    None if distinct is None else np.concatenate([np.zeros(KNOWN_FRAMES, int), distinct]))
+    if lag is not None:
+        online = FixedLagSmoother(filt, lag, trajectories, seed, moves)
+        for snapshot, z in zip(snapshots, observations[KNOWN_FRAMES:]):
+            online.push(snapshot, z)
+        return online.result(known)
+    start = time.perf_counter()
+    estimates, spread, distinct = filt.smooth_window(snapshots, observations[KNOWN_FRAMES:],
+                                                     torch.Generator().manual_seed(seed),
+                                                     trajectories=trajectories, moves=moves)
+    return _assembled(known, estimates, spread, distinct, None, time.perf_counter() - start, trajectories)

@@ -80,9 +80,38 @@ class Snapshot:
         return mean.numpy(), covariance.numpy()
 
 
+@dataclass(frozen=True)
+class StepRecord:
+    """What a run keeps of every step, whether or not it keeps the step's :class:`Snapshot` (a few
+    numbers a frame, so that a long run's memory does not grow with its point sets).
+
+    Attributes:
+        frame: index of the observation the step consumed.
+        ess: the step's effective sample size (the unscented filter: its sigma-point count).
+        points: particles (or sigma points, or window states) in the step's set.
+        resampled: whether the particle set was resampled after the step.
+        flags: the step's flags (:class:`Snapshot`).
+        held_out: points the unscented filter's validation gate held out, None for other filters.
+    """
+
+    frame: int
+    ess: float
+    points: int
+    resampled: bool
+    flags: tuple[str, ...]
+    held_out: int | None = None
+
+    @classmethod
+    def of(cls, snapshot: Snapshot) -> "StepRecord":
+        return cls(snapshot.frame, float(snapshot.ess), len(snapshot.weights), snapshot.ancestors is not None,
+                   tuple(snapshot.flags), None if snapshot.held_out is None else int(snapshot.held_out.sum()))
+
+
 @dataclass
 class Track:
-    """A whole run: per-frame estimates (T, J, 3), ESS (T,), flags and timings.
+    """A whole run: per-frame estimates (T, J, 3), ESS (T,), flags and timings; ``steps`` the
+    :class:`StepRecord` of every filtered frame; ``snapshots`` the steps' snapshots where the run
+    kept them (every one, or every k-th: ``SequentialFilter.run``'s ``snapshot_every``).
 
     Frames before the filter started (the known initial frames) hold the given poses.
     """
@@ -92,6 +121,7 @@ class Track:
     flags: list[list[str]]
     seconds: float
     snapshots: list[Snapshot] | None = None
+    steps: list[StepRecord] = field(default_factory=list)
 
     @property
     def seconds_per_frame(self) -> float:

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from priortrack.filters.snapshot import StepRecord
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.viz.recording import Recording
 
@@ -42,21 +43,21 @@ FLAG_EVENTS = {"innovation-gated": ("the gate held out detections the prediction
                "behind-camera": ("some sigma points behind a camera", "DEBUG")}
 
 
-def step_events(frame: int, snapshot=None, mismatch: bool | None = None, observed: bool = True) -> list[tuple[str, str]]:
+def step_events(frame: int, step: StepRecord | None = None, mismatch: bool | None = None,
+                observed: bool = True) -> list[tuple[str, str]]:
     """The text events of one frame, (text, level): resampling, the flags of :data:`FLAG_EVENTS`
     (a held-out count where the step says it), mismatch, a frame with nothing observed."""
     events = []
-    if snapshot is not None:
-        if snapshot.ancestors is not None:
-            events.append((f"frame {frame}: resampled (ESS {snapshot.ess:.0f} of {len(snapshot.weights)})", "DEBUG"))
-        for flag in snapshot.flags:
+    if step is not None:
+        if step.resampled:
+            events.append((f"frame {frame}: resampled (ESS {step.ess:.0f} of {step.points})", "DEBUG"))
+        for flag in step.flags:
             text, level = FLAG_EVENTS.get(flag, (flag, "INFO"))
-            held = getattr(snapshot, "held_out", None)
-            count = f" ({int(held.sum())} points)" if flag == "innovation-gated" and held is not None else ""
+            count = f" ({step.held_out} points)" if flag == "innovation-gated" and step.held_out is not None else ""
             events.append((f"frame {frame}: {text}{count}", level))
     if mismatch:
         events.append((f"frame {frame}: mismatch: the prior does not explain this frame", "WARN"))
-    if not observed and not (snapshot is not None and "no-observation" in snapshot.flags):
+    if not observed and not (step is not None and "no-observation" in step.flags):
         events.append((f"frame {frame}: missing: nothing observed", "WARN"))
     return events
 
@@ -136,5 +137,6 @@ class RerunLogger:
             rec.skeleton("smoothed", smoothed, color=SMOOTHED_COLOR)
         if mismatch is not None:
             rec.scalar("mismatch", float(mismatch))
-        for text, level in step_events(frame, snapshot, mismatch, observation is None or bool(seen.any())):
+        step = None if snapshot is None else StepRecord.of(snapshot)
+        for text, level in step_events(frame, step, mismatch, observation is None or bool(seen.any())):
             rec.event(text, level)

@@ -24,8 +24,10 @@ FILTERED_COLOR = (150, 150, 150)
 
 
 def record_detections(result, path: str | Path) -> Path:
-    """Write ``result`` (a DetectionTrack, with its snapshots for the cloud) to the ``.rrd`` file ``path``."""
+    """Write ``result`` (a DetectionTrack; the particle cloud at the ticks whose snapshots it kept) to the
+    ``.rrd`` file ``path``."""
     snapshots = {s.frame: s for s in result.snapshots or []}
+    steps = {s.frame: s for s in result.steps or []}
     with Recording(path, up=nearest_axis(result.up), up_vector=up_vector(result.up),
                    name=f"{result.filter} · detections") as rec:
         for name, camera in zip(result.camera_names, result.cameras):
@@ -49,12 +51,12 @@ def record_detections(result, path: str | Path) -> Path:
                     if seen.any():
                         rec.scalar(f"reprojection_px/{name}",
                                    float(np.median(np.linalg.norm(uv.numpy()[seen] - z[seen, :2], axis=-1))))
-            snapshot = snapshots.get(t)
-            if snapshot is not None and snapshot.covariance is None:     # particles (sigma points have no ESS)
-                rec.scalar("ess_fraction", snapshot.ess / len(snapshot.weights))
+            step = steps.get(t)
+            if step is not None and np.isfinite(result.ess[t]):           # particles (sigma points have no ESS)
+                rec.scalar("ess_fraction", step.ess / step.points)
             rec.scalar("loglik", result.loglik[t])
             rec.scalar("mismatch", float(result.mismatch[t]))
             observed = bool((np.isfinite(result.observations[t, ..., 0]) & (np.nan_to_num(result.observations[t, ..., 2]) > 0)).any())
-            for text, level in step_events(int(result.frames[t]), snapshot, bool(result.mismatch[t]), observed):
+            for text, level in step_events(int(result.frames[t]), step, bool(result.mismatch[t]), observed):
                 rec.event(text, level)
     return Path(path)
