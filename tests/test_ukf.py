@@ -270,3 +270,27 @@ def test_robust_likelihood_is_refused(walks):
     model, _, _ = tracking_model(prior, train[:2], motion[:10], robust_nu=4.0)
     with pytest.raises(PriortrackError, match="Student-t"):
         UnscentedFilter(model)
+
+
+def test_a_step_runs_on_one_thread_and_gives_the_count_back(linear):
+    """The step's small operations run on STEP_THREADS torch threads (splitting them cost 2.8× on two
+    idle cores); the caller's thread count is restored after it, also when the step refuses its input."""
+    from priortrack.filters.ukf import STEP_THREADS
+
+    model = linear
+    ukf = UnscentedFilter(model)
+    ukf.initialise_states(np.zeros(3), np.eye(3))
+    seen = []
+    measure = model.measure
+    model.measure = lambda states: (seen.append(torch.get_num_threads()), measure(states))[1]
+    previous = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        ukf.step(np.zeros(model.observation_shape))
+        assert seen and set(seen) == {STEP_THREADS} and torch.get_num_threads() == 2
+        with pytest.raises(PriortrackError, match="observation has shape"):
+            ukf.step(np.zeros(7))
+        model.measure = measure
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(previous)

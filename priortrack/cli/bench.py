@@ -57,6 +57,13 @@ def _bench_smooth(args: argparse.Namespace) -> None:
     print_json(bench_smooth(args.presets, frames=args.frames, trajectories=args.trajectories, seed=args.seed))
 
 
+def _bench_long(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.long import bench_long
+
+    print_json(bench_long(frames=args.frames, presets=args.presets, smooth=args.smooth,
+                          reference_frames=args.reference_frames, seed=args.seed))
+
+
 def add_parsers(verbs) -> None:
     """Register this family's verbs on the ``priortrack`` sub-parsers."""
     bench = verbs.add_parser("bench", help="benchmarks against a reference").add_subparsers(dest="what", required=True)
@@ -109,3 +116,12 @@ def add_parsers(verbs) -> None:
     smooth.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
     smooth.add_argument("--json", action="store_true", help="(the output is always JSON)")
     smooth.set_defaults(run=_bench_smooth)
+    long = bench.add_parser("long", help="a long 4-camera recording tracked: peak memory beside a run a tenth as "
+                                         "long, and time per tick over the first and last tenth")
+    long.add_argument("--frames", type=int, default=36_000, help="frames at 60 fps (default %(default)s: 10 minutes)")
+    long.add_argument("--reference-frames", type=int, help="the reference run's frames (default a tenth, at least 300)")
+    long.add_argument("--presets", nargs="+", default=["ukf-real", "pf-lie"], help="preset names (default: %(default)s)")
+    long.add_argument("--smooth", action="store_true", help="smooth each run over the whole run too")
+    long.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
+    long.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    long.set_defaults(run=_bench_long)
