@@ -170,3 +170,18 @@ def test_track_smooth_prints_both_errors_and_records_both_skeletons(tmp_path, ca
     assert json.loads(capsys.readouterr().out)["lag"] == 3
     assert main(["track", "cmu:07_10", "--filter", "ukf-gpdm", "--lag", "-1"]) == 2
     assert "--lag must be" in capsys.readouterr().err
+
+
+def test_the_progress_line_gives_the_rate_and_the_time_left(monkeypatch, capsys):
+    """track's progress line: frames per second since the first update, and the time left at that rate."""
+    from priortrack.cli import common
+
+    clock = iter([100.0, 101.0])
+    monkeypatch.setattr(common.time, "perf_counter", lambda: next(clock))
+    progress = common.Progress("track pf-lie", "frame {0} of {1}", rate=True)
+    progress.shown = True
+    progress(2, 1002)
+    progress(12, 1002)
+    progress.close()
+    lines = capsys.readouterr().err.split("\r")
+    assert lines[-1].strip() == "track pf-lie: frame 12 of 1002  10.0/s  ETA 1:39"

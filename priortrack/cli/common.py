@@ -4,22 +4,33 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 
 
 class Progress:
-    """A one-line progress display on stderr: a step count and a value (objective, or total).
-    Shown only on a terminal: a log file would get every update on one line."""
+    """A one-line progress display on stderr: a step count and a value (objective, or total); with
+    ``rate``, the value is the total and the line adds steps per second and the time left (ETA) at the
+    rate since the first update. Shown only on a terminal: a log file would get every update on one line."""
 
-    def __init__(self, label: str, template: str = "step {0:5d}  objective {1:.6g}"):
-        self.label, self.template = label, template
+    def __init__(self, label: str, template: str = "step {0:5d}  objective {1:.6g}", rate: bool = False):
+        self.label, self.template, self.rate = label, template, rate
         self.shown = sys.stderr.isatty()
         self.last = None
+        self.first: tuple[int, float] | None = None
 
     def __call__(self, step: int, value: float) -> None:
         if not self.shown:
             return
         self.last = (step, value)
-        print(f"\r{self.label}: " + self.template.format(step, value), end="", file=sys.stderr, flush=True)
+        line = self.template.format(step, value)
+        if self.rate:
+            now = time.perf_counter()
+            self.first = self.first or (step, now)
+            if step > self.first[0] and now > self.first[1]:
+                per_second = (step - self.first[0]) / (now - self.first[1])
+                left = max(value - step, 0) / per_second
+                line += f"  {per_second:.1f}/s  ETA {int(left // 60)}:{int(left % 60):02d}"
+        print(f"\r{self.label}: " + line + "   ", end="", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         if self.last is not None:

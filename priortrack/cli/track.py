@@ -21,7 +21,7 @@ def _track(args: argparse.Namespace) -> None:
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
         output_path(args.rrd, "rerun recording")
-    progress = Progress(f"track {args.filter}", "frame {0} of {1}")
+    progress = Progress(f"track {args.filter}", "frame {0} of {1}", rate=True)
     try:
         run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd),
                     progress=progress, frames=args.frames, **_smoothing(args))
@@ -102,7 +102,7 @@ def _track_detections(args: argparse.Namespace) -> None:
     if args.frames is not None:
         detections = detections.head(args.frames)
     calibration = read_calibration(args.cameras, units=args.units)
-    progress = Progress(f"track {args.filter}", "frame {0} of {1}")
+    progress = Progress(f"track {args.filter}", "frame {0} of {1}", rate=True)
     try:
         result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
                                   camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
