@@ -279,3 +279,42 @@ def test_a_recording_draws_the_cloud_every_kth_tick(tmp_path, capsys):
     assert rows["/world/estimate/cloud"] == 2 and rows["/world/estimate"] == 6 and rows["/metrics/loglik"] == 6
     assert main(argv + ["--rrd-every", "0"]) == 2
     assert "--rrd-every must be a whole number of ticks ≥ 1, got 0" in capsys.readouterr().err
+
+
+def test_ctrl_c_writes_what_was_tracked(tmp_path, capsys, monkeypatch):
+    """Ctrl-C during track --detections' filter run (here after tick 3 of 6): the outputs hold the four
+    ticks tracked until then, valid, and the command says so (exit 0, "interrupted" in the summary). The
+    library's run raises it unless asked (an experiment must not count a cut run); Ctrl-C elsewhere is
+    one line and exit 130."""
+    import priortrack.cli.track as cli_track
+    from priortrack.cli.common import Progress
+
+    class Interrupting(Progress):
+        def __call__(self, step, total):
+            if step == 3:
+                raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_track, "Progress", Interrupting)
+    argv = ["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
+            "--filter", "pf-lie", "--out", str(tmp_path / "r.npz"), "--out", str(tmp_path / "r.csv"), "--json"]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert "interrupted: writing the 4 ticks tracked until then" in captured.err
+    assert json.loads(captured.out)["interrupted"] is True
+    with np.load(tmp_path / "r.npz") as z:
+        assert z["joints"].shape == (4, 15, 3) and np.isfinite(z["joints"]).all() and z["frames"].tolist() == [0, 2, 4, 6]
+    assert np.loadtxt(tmp_path / "r.csv", delimiter=",", skiprows=1).shape[0] == 4
+    detections, calibration = read_detections(POSE, keypoints="body25b"), read_calibration(CALIB)
+
+    def interrupt(t, T):
+        if t == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        track_detections(detections, calibration, "pf-lie", fps=60, progress=interrupt)
+    cut = track_detections(detections, calibration, "pf-lie", fps=60, progress=interrupt, interruptible=True,
+                           smooth=True, lag=1)
+    assert cut.interrupted and len(cut.joints) == 4 and len(cut.filtered_joints) == 4 and len(cut.steps) == 2
+    monkeypatch.setattr("priortrack.data.calibration.read_calibration",
+                        lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
+    assert main(argv) == 130 and capsys.readouterr().err.strip() == "priortrack: interrupted"

@@ -3,7 +3,8 @@
 Each verb family lives in its own module, its parser beside the code it calls: ``data`` (presets,
 data list, replay), ``priors`` (fit, sample, plot), ``track``, ``compare``, ``evaluate`` (eval …),
 ``bench`` (bench …). Bad input ends with one line ``priortrack: error: …`` and exit status 2, never a
-traceback.
+traceback; Ctrl-C with ``priortrack: interrupted`` and 130, except inside ``track``'s filter run, which
+ends there and writes what it tracked (exit 0, said on stderr and in the JSON summary).
 """
 
 from __future__ import annotations
@@ -41,6 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     except (PriortrackError, OSError) as exc:         # OSError: a file that could not be read or written
         print(f"priortrack: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:                         # Ctrl-C outside a run that keeps what it tracked
+        print("priortrack: interrupted", file=sys.stderr)
+        return 130
     return 0
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from priortrack.cli.common import Progress, print_json
 from priortrack.errors import PriortrackError
@@ -106,11 +107,13 @@ def _track_detections(args: argparse.Namespace) -> None:
     try:
         result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
                                   camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
-                                  keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every,
+                                  keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True,
                                   progress=progress, height=args.height,
                                   skeleton=skeleton, **_smoothing(args))
     finally:
         progress.close()
+    if result.interrupted:
+        print(f"priortrack: interrupted: writing the {len(result.joints)} ticks tracked until then", file=sys.stderr)
     written = [str(result.save(path)) for path in args.out or []]
     if args.rrd:
         from priortrack.viz.real import record_detections

@@ -158,6 +158,8 @@ class DetectionTrack:
     #: smoother's, the filter's own joints (T, 15, 3) are kept here; ``lag`` the fixed lag (None: whole run).
     filtered_joints: np.ndarray | None = field(default=None, repr=False)
     lag: int | None = None
+    #: The run was interrupted (Ctrl-C): it holds the ticks tracked until then.
+    interrupted: bool = False
     #: The tracked motion's fit-check under the prior (:mod:`priortrack.priors.support`): "verdict",
     #: "below_p1_fraction", "median_percentile"; None where the preset's prior has no reference.
     fit_check: dict | None = None
@@ -174,6 +176,7 @@ class DetectionTrack:
                 "mismatch_fraction": self.mismatch_fraction, "cross_view_rejections": self.cross_view_rejections,
                 "mean_ess": float(np.nanmean(self.ess)) if np.isfinite(self.ess).any() else None,
                 "smoothed": self.filtered_joints is not None, "lag": self.lag, "fit_check": self.fit_check,
+                "interrupted": self.interrupted,
                 "up": self.up if isinstance(self.up, str) else [float(v) for v in self.up]}
 
     def save_npz(self, path: str | Path) -> Path:
@@ -316,14 +319,15 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                      height: float = 1.7, skeleton: Skeleton | None = None,
                      progress: Callable[[int, int], None] | None = None, smooth: bool = False,
                      lag: int | None = None, trajectories: int = TRAJECTORIES,
-                     snapshot_every: int = 1) -> DetectionTrack:
+                     snapshot_every: int = 1, interruptible: bool = False) -> DetectionTrack:
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
     (module docstring). ``fps``: the detections' frame rate (if the file does not say it); ``height``:
     the person's standing height in metres, which sets the body's size and depth from one camera;
     ``skeleton``: the person's own body (an ASF or BVH skeleton) instead of the scaled template;
     ``smooth``: also smooth the run (with a fixed ``lag``, or over the whole run) and give the smoothed
     joints (:mod:`priortrack.filters.smoothing`); ``keep_snapshots``: keep the filter's steps (a
-    recording's particle clouds), every ``snapshot_every``-th tick's.
+    recording's particle clouds), every ``snapshot_every``-th tick's; ``interruptible``: Ctrl-C during the
+    filter's run ends it there, and the result holds the ticks tracked until then (``interrupted``).
 
     Memory: each tick's spread and step record are taken as the filter goes; its point sets are let go
     unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
@@ -392,20 +396,28 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     filt = preset.filter_for(model, seed)
     torch.manual_seed(seed)
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
-    T = len(index) - first
-    spread = np.full((T, 15), np.nan)
+    z, index = z[first:], index[first:]                # from here on, tick 0 is the filter's first
+    X = None if single else X[first:]
+    spread = np.full((len(z), 15), np.nan)
     whole = smooth and lag is None                 # the whole run's smoother needs every step's point set
     online = FixedLagSmoother(filt, lag, trajectories, seed) if smooth and lag is not None else None
 
     def on_step(snapshot) -> None:
         spread[snapshot.frame] = _spread(snapshot)
         if online is not None:
-            online.push(snapshot, z[first + snapshot.frame])
+            online.push(snapshot, z[snapshot.frame])
 
-    run = filt.run(z[first:], known, keep_snapshots=keep_snapshots or whole, progress=progress,
-                   snapshot_every=1 if whole else snapshot_every, on_step=on_step, **initial)
+    run = filt.run(z, known, keep_snapshots=keep_snapshots or whole, progress=progress,
+                   snapshot_every=1 if whole else snapshot_every, on_step=on_step, interruptible=interruptible,
+                   **initial)
     smoothed = (online.result(run.estimates[:KNOWN_FRAMES]) if online is not None else
-                smooth_run(filt, run, z[first:], trajectories, None, seed) if whole else None)
+                smooth_run(filt, run, z[:len(run.estimates)], trajectories, None, seed) if whole else None)
+    T = len(run.estimates) if smoothed is None else min(len(run.estimates), len(smoothed.estimates))
+    if T < len(z):                                 # interrupted: what was tracked until then
+        z, index, spread, X = z[:T], index[:T], spread[:T], None if X is None else X[:T]
+        run = replace(run, estimates=run.estimates[:T], ess=run.ess[:T], steps=run.steps[:T - KNOWN_FRAMES])
+        smoothed = None if smoothed is None else replace(smoothed, estimates=smoothed.estimates[:T],
+                                                         spread=smoothed.spread[:T])
     snapshots = run.snapshots if keep_snapshots else None
     if snapshots is not None and whole and snapshot_every > 1:
         snapshots = snapshots[::snapshot_every]
@@ -413,23 +425,24 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     if smoothed is not None:
         spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
     estimates = run.estimates if smoothed is None else smoothed.estimates
-    loglik = frame_log_likelihoods(model.likelihood, run.estimates, z[first:])
-    mismatch = mismatch_flags(loglik, z[first:], model.likelihood)
-    lost = None if single else lost_flags(np.einsum("ij,tjk->tik", M, run.estimates), X[first:])
+    loglik = frame_log_likelihoods(model.likelihood, run.estimates, z)
+    mismatch = mismatch_flags(loglik, z, model.likelihood)
+    lost = None if single else lost_flags(np.einsum("ij,tjk->tik", M, run.estimates), X)
     def world(body: np.ndarray) -> np.ndarray:      # the detector's definitions, back in the world
         return np.einsum("ij,tjk->tik", M, body) @ A
 
     joints = world(estimates)
     # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
     ess = np.asarray(run.ess, dtype=float) if preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
-    reprojection = np.array([median_reprojection(cam, joints, uv[c, index[first:]], confidence[c, index[first:]])
+    reprojection = np.array([median_reprojection(cam, joints, uv[c, index], confidence[c, index])
                              for c, cam in enumerate(world_cameras)])
-    result = DetectionTrack(joints, np.where(index[first:] >= 0, detections.frames[np.maximum(index[first:], 0)], -1),
+    result = DetectionTrack(joints, np.where(index >= 0, detections.frames[np.maximum(index, 0)], -1),
                             float(prior.fps), spread, ess, loglik, mismatch,
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
-                            up, A, skeleton, estimates, world_cameras, z[first:],
+                            up, A, skeleton, estimates, world_cameras, z,
                             snapshots, run.steps, rejected,
-                            None if smoothed is None else world(run.estimates), lag if smooth else None)
+                            None if smoothed is None else world(run.estimates), lag if smooth else None,
+                            interrupted=run.interrupted)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible

@@ -8,6 +8,7 @@ rate of the observations), ``initialise(motion)`` (start on the first two, known
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 
@@ -18,17 +19,22 @@ from priortrack.errors import PriortrackError
 from priortrack.filters.snapshot import KNOWN_FRAMES, Snapshot, StepRecord, Track
 from priortrack.body.fk import joint_positions
 
+log = logging.getLogger(__name__)
+
 
 class SequentialFilter:
     """The ``run`` loop over ``initialise`` and ``step``, which subclasses provide."""
 
     def run(self, observations, motion: Motion, keep_snapshots: bool = False,
             progress: Callable[[int, int], None] | None = None, snapshot_every: int = 1,
-            on_step: Callable[[Snapshot], None] | None = None, **initial) -> Track:
+            on_step: Callable[[Snapshot], None] | None = None, interruptible: bool = False, **initial) -> Track:
         """Initialise on the first two frames of ``motion`` and filter the rest.
 
         Memory: without kept snapshots the run holds its estimates and a :class:`StepRecord` a frame,
         not the steps' point sets; ``on_step`` sees each step's snapshot before it is let go.
+        ``interruptible``: interrupted (Ctrl-C, KeyboardInterrupt) after its first filtered frame, the run
+        ends there and the Track holds the frames tracked so far (``interrupted`` set, logged); otherwise
+        (an experiment must not count a cut run) the interrupt is raised.
 
         Args:
             observations: (T, *model.observation_shape) at the prior's frame rate, NaN where missing.
@@ -37,6 +43,7 @@ class SequentialFilter:
             snapshot_every: … every k-th filtered frame's (1: every one).
             progress: called as progress(t, T) after each frame.
             on_step: called with each step's Snapshot (to reduce it as the run goes).
+            interruptible: Ctrl-C ends the run with what it tracked (above).
             initial: further arguments of the filter's ``initialise`` (the particle filter's
                 ``translation_std``, for a start that is itself an estimate).
         """
@@ -58,15 +65,24 @@ class SequentialFilter:
         ess = np.full(T, np.nan)
         flags: list[list[str]] = [[] for _ in range(KNOWN_FRAMES)]
         snapshots, steps = [], []
-        for t in range(KNOWN_FRAMES, T):
-            snap = self.step(observations[t])
-            estimates[t], ess[t] = snap.estimate, snap.ess
-            flags.append(snap.flags)
-            steps.append(StepRecord.of(snap))
-            if on_step is not None:
-                on_step(snap)
-            if keep_snapshots and (t - KNOWN_FRAMES) % snapshot_every == 0:
-                snapshots.append(snap)
-            if progress:
-                progress(t, T)
-        return Track(estimates, ess, flags, time.perf_counter() - start, snapshots if keep_snapshots else None, steps)
+        done = KNOWN_FRAMES                                   # frames whose estimate is in
+        try:
+            for t in range(KNOWN_FRAMES, T):
+                snap = self.step(observations[t])
+                estimates[t], ess[t] = snap.estimate, snap.ess
+                flags.append(snap.flags)
+                steps.append(StepRecord.of(snap))
+                done = t + 1
+                if on_step is not None:
+                    on_step(snap)
+                if keep_snapshots and (t - KNOWN_FRAMES) % snapshot_every == 0:
+                    snapshots.append(snap)
+                if progress:
+                    progress(t, T)
+        except KeyboardInterrupt:
+            if not interruptible or done == KNOWN_FRAMES:
+                raise
+            log.warning("interrupted: %d of %d frames tracked; the run ends there", done, T)
+        snapshots = [s for s in snapshots if s.frame < done]
+        return Track(estimates[:done], ess[:done], flags[:done], time.perf_counter() - start,
+                     snapshots if keep_snapshots else None, steps[:done - KNOWN_FRAMES], interrupted=done < T)

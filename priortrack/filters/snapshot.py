@@ -122,6 +122,8 @@ class Track:
     seconds: float
     snapshots: list[Snapshot] | None = None
     steps: list[StepRecord] = field(default_factory=list)
+    #: The run was interrupted (Ctrl-C): it holds the frames tracked until then, fewer than it was given.
+    interrupted: bool = False
 
     @property
     def seconds_per_frame(self) -> float:
