@@ -1,5 +1,6 @@
-"""Threads for torch work: scoped thread counts, and a pool of single-threaded workers that
-run blocks of a batch side by side (the Lie prior's sampler, the row-wise kernels)."""
+"""Threads for torch work: scoped thread counts (torch's, and BLAS's for numpy and scipy), and a pool
+of single-threaded workers that run blocks of a batch side by side (the Lie prior's sampler, the
+row-wise kernels)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,22 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import torch
+from threadpoolctl import ThreadpoolController
 
 _POOL_LOCK = threading.Lock()
 _pool: tuple[int, int, ThreadPoolExecutor] | None = None                               # (pid, threads, pool)
+
+
+_blas: ThreadpoolController | None = None
+
+
+def blas_threads(n: int):
+    """A context in which numpy's and scipy's BLAS (OpenBLAS) run on ``n`` threads, restored after; the
+    libraries are found once, on first use (after those that the package imports are loaded)."""
+    global _blas
+    if _blas is None:
+        _blas = ThreadpoolController()
+    return _blas.limit(limits=n, user_api="blas")
 
 
 @contextlib.contextmanager

@@ -67,3 +67,17 @@ def test_bad_targets(walk):
         inverse_kinematics(sparse, 30.0)
     with pytest.raises(PriortrackError, match="inf"):
         inverse_kinematics(np.full_like(walk, np.inf), 30.0)
+
+
+def test_a_long_motion_is_fitted_in_chunks(monkeypatch):
+    """Past CHUNK frames the fit goes chunk by chunk (its memory flat in the motion's length): each chunk
+    is the fit of its frames alone, and every frame lands on its joints as a whole fit does."""
+    from priortrack.body import ik
+
+    X = joint_positions(load_motion("cmu:49_18").resample(30)[:50], "eval15")
+    monkeypatch.setattr(ik, "CHUNK", 20)
+    chunked = ik.inverse_kinematics(X, 30.0)
+    assert len(chunked) == 50
+    np.testing.assert_array_equal(chunked.channels[20:40], ik.inverse_kinematics(X[20:40], 30.0,
+                                                                                   skeleton=chunked.skeleton).channels)
+    assert np.linalg.norm(joint_positions(chunked, "eval15") - X, axis=-1).mean() < 0.01

@@ -54,6 +54,10 @@ SMOOTHNESS = 1e-2
 HEADINGS = 12
 #: L-BFGS iterations of the fit.
 ITERATIONS = 200
+#: Frames fitted together at most by :func:`inverse_kinematics`: a longer motion is fitted in consecutive
+#: chunks (20 s at 30 fps), so that its memory does not grow with the motion (the whole of a 10-minute
+#: recording at once held 1.9 GB); the smoothness term is not carried across a chunk's edge.
+CHUNK = 600
 
 
 #: eval15 bone (child joint) → the distance (a pair of joints, or of joint pairs' midpoints) that
@@ -133,7 +137,11 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
     target = torch.as_tensor(np.where(seen[..., None], X, 0.0))
     mask = torch.as_tensor(seen, dtype=torch.float64)[..., None]
     pelvis = np.where(seen[:, :1, None], X[:, :1], np.nanmean(X, axis=1, keepdims=True))[:, 0]
-    channels = _fit(skeleton, len(X), lambda joints: ((joints - target) ** 2 * mask).sum(), pelvis, M)
+    parts = [slice(start, min(start + CHUNK, len(X))) for start in range(0, len(X), CHUNK)]
+    channels = np.concatenate([
+        _fit(skeleton, part.stop - part.start,
+             lambda joints, part=part: ((joints - target[part]) ** 2 * mask[part]).sum(), pelvis[part], M)
+        for part in parts])
     return Motion(skeleton, channels, float(fps), name)
 
 

@@ -35,7 +35,7 @@ def _bench_lie_sample(args: argparse.Namespace) -> None:
 def _bench_ukf(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.ukf import bench_ukf
 
-    print_json(bench_ukf(repeats=args.repeats, seed=args.seed, threads=args.threads))
+    print_json(bench_ukf(repeats=args.repeats, seed=args.seed, threads=args.threads, cameras=args.cameras))
 
 
 def _bench_pf(args: argparse.Namespace) -> None:
@@ -87,6 +87,8 @@ def add_parsers(verbs) -> None:
     ukf = bench.add_parser("ukf", help="one UKF step, batched sigma points vs filterpy's per-point loop")
     ukf.add_argument("--repeats", type=int, default=9, help="repetitions of each timing, the median reported (default %(default)s)")
     ukf.add_argument("--threads", type=int, default=1, help="torch threads (default %(default)s)")
+    ukf.add_argument("--cameras", type=int, default=1, help="1: one side camera; 2 to 8: distorted cameras on a "
+                                                            "ring, ukf-real's multi-view step with its gate (default %(default)s)")
     ukf.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
     ukf.add_argument("--json", action="store_true", help="(the output is always JSON)")
     ukf.set_defaults(run=_bench_ukf)

@@ -98,7 +98,7 @@ from priortrack.geometry import so3
 from priortrack.geometry.manifold_mean import signed_mean
 from priortrack.models.protocols import GaussianTransition
 from priortrack.models.tracking import GLOBAL_DIM, TrackingModel
-from priortrack.threads import torch_threads
+from priortrack.threads import blas_threads, torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -443,11 +443,13 @@ class UnscentedFilter(SequentialFilter):
         sample), estimate and best the observed joints of the mean state (the central sigma
         point), ancestors None; timings "predict", "weight" (the update), "estimate".
 
-        The step runs on one torch thread (:data:`STEP_THREADS`): its operations are on 2n + 1 points,
-        too small to split, and splitting them cost 2.8× the step's time on two idle cores (ukf-real,
-        4 cameras: 39.7 against 14.1 ms a step) and 12× with the other core busy.
+        The step runs on one torch thread and one BLAS thread (:data:`STEP_THREADS`): its operations are
+        on 2n + 1 points and matrices of a few hundred rows, too small to split. Two torch threads cost
+        2.8× the step's time on two idle cores (ukf-real, 4 cameras: 39.7 against 14.1 ms a step); with
+        the other core busy, two BLAS threads made filterpy's inverse of S (150 × 150, 5 cameras) take
+        130 ms instead of about 1.
         """
-        with torch_threads(STEP_THREADS):
+        with torch_threads(STEP_THREADS), blas_threads(STEP_THREADS):
             return self._step(z)
 
     def _step(self, z) -> Snapshot:
