@@ -125,27 +125,31 @@ def _placements(g: torch.Tensor) -> torch.Tensor:
 
 
 def placements_plus(g: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """(t, ω) ⊞ (δt, η) = (t + δt, log(exp(η) exp(ω))) on both placements: g (N, 12), v (N, 12) → (N, 12)."""
+    """(t, ω) ⊞ (δt, η) = (t + δt, log(exp(η) exp(ω))) on both placements: g (N, 12), v (N, 12) → (N, 12).
+    The rotations are composed as unit quaternions (:mod:`priortrack.geometry.so3`): a third of the
+    operations of the matrices' exp, product and log, the same rotation vector to rounding."""
     g, v = _placements(g), _placements(v)
-    rotation = so3.exp(v[..., 3:]) @ so3.exp(g[..., 3:])
-    return torch.cat([g[..., :3] + v[..., :3], so3.log(rotation)], -1).flatten(-2)
+    q = so3.quaternion_product(so3.quaternion(v[..., 3:]), so3.quaternion(g[..., 3:]))
+    return torch.cat([g[..., :3] + v[..., :3], so3.quaternion_log(q)], -1).flatten(-2)
 
 
 def placements_minus(g: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
-    """g ⊟ base = (t − t_b, log(exp(ω) exp(ω_b)ᵀ)) on both placements: g (N, 12), base (12,) → (N, 12)."""
+    """g ⊟ base = (t − t_b, log(exp(ω) exp(ω_b)ᵀ)) on both placements: g (N, 12), base (12,) → (N, 12),
+    the rotations composed as unit quaternions (as :func:`placements_plus`)."""
     g, base = _placements(g), _placements(base)
-    rotation = so3.exp(g[..., 3:]) @ so3.exp(base[..., 3:]).transpose(-1, -2)
-    return torch.cat([g[..., :3] - base[..., :3], so3.log(rotation)], -1).flatten(-2)
+    q = so3.quaternion_product(so3.quaternion(g[..., 3:]), so3.quaternion_conjugate(so3.quaternion(base[..., 3:])))
+    return torch.cat([g[..., :3] - base[..., :3], so3.quaternion_log(q)], -1).flatten(-2)
 
 
 def placements_mean(g: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Mean (12,) of both placements of states g (N, 12): the translations' Σ w_i t_i and the
-    rotations' :func:`signed_mean` with R ⊞ η = exp(η) R, R_i ⊟ M = log(R_i Mᵀ) (R_i computed once)."""
+    rotations' :func:`signed_mean` with R ⊞ η = exp(η) R, R_i ⊟ M = log(R_i Mᵀ), the rotations as unit
+    quaternions q_i (computed once; q ⊟ m = log(q m*))."""
     g = _placements(g)
-    R = so3.exp(g[..., 3:])                                                        # (N, 2, 3, 3)
-    M = signed_mean(R[0], w, lambda M: so3.log(R @ M.transpose(-1, -2)).flatten(-2),
-                    lambda M, eta: so3.exp(eta.reshape(2, 3)) @ M)
-    return torch.cat([torch.einsum("n,nkc->kc", w, g[..., :3]), so3.log(M)], -1).flatten()
+    q = so3.quaternion(g[..., 3:])                                                 # (N, 2, 4)
+    m = signed_mean(q[0], w, lambda m: so3.quaternion_log(so3.quaternion_product(q, so3.quaternion_conjugate(m))).flatten(-2),
+                    lambda m, eta: so3.quaternion_product(so3.quaternion(eta.reshape(2, 3)), m))
+    return torch.cat([torch.einsum("n,nkc->kc", w, g[..., :3]), so3.quaternion_log(m)], -1).flatten()
 
 
 # ---- a tracking model as the unscented filter sees it ---------------------------------------------
