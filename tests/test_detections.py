@@ -157,3 +157,14 @@ def test_bad_npz_and_arguments(tmp_path):
         read_detections(tmp_path / "nothing.json")
     with pytest.raises(PriortrackError, match="min_confidence"):
         read_detections(POSE2SIM / "pose", keypoints="body25b").eval15(1.5)
+
+
+def test_triangulation_in_chunks_is_the_same(monkeypatch):
+    """A long recording is triangulated CHUNK points at a time (its memory flat): the same points."""
+    from priortrack.geometry import triangulation
+
+    cameras = _cameras()
+    uv, conf = read_detections(POSE2SIM / "pose", keypoints="body25b").eval15(0.3)
+    whole = triangulate(cameras, uv, conf)
+    monkeypatch.setattr(triangulation, "CHUNK", 7)
+    np.testing.assert_array_equal(triangulate(cameras, uv, conf), whole)
