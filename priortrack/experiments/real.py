@@ -415,7 +415,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     smoothed = (online.result(run.estimates[:KNOWN_FRAMES]) if online is not None else
                 smooth_run(filt, replace(run, snapshots=for_smoother[:len(run.estimates) - KNOWN_FRAMES]),
                            z[:len(run.estimates)], trajectories, None, seed) if whole else None)
-    del for_smoother
+    for_smoother.clear()                            # the smoother has them; let them go
     T = len(run.estimates) if smoothed is None else min(len(run.estimates), len(smoothed.estimates))
     if T < len(z):                                 # interrupted: what was tracked until then
         z, index, spread, X = z[:T], index[:T], spread[:T], None if X is None else X[:T]
