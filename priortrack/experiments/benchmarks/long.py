@@ -57,14 +57,15 @@ def run_once(detections: str, preset: str, smooth: bool, out: str) -> dict:
 
     stamps = []
     start = time.perf_counter()
-    result = track_detections(read_detections(detections), read_calibration(DEFAULT_CALIBRATION), preset,
+    read = read_detections(detections)                # held through the run, as the command holds it
+    result = track_detections(read, read_calibration(DEFAULT_CALIBRATION), preset,
                               smooth=smooth, progress=lambda t, T: stamps.append(time.perf_counter()))
     result.save(out)
     seconds = time.perf_counter() - start
     per_tick = np.diff(stamps)
     tenth = max(len(per_tick) // 10, 1)
     first, last = float(per_tick[:tenth].mean()), float(per_tick[-tenth:].mean())
-    return {"preset": preset, "smooth": smooth, "frames": int(len(read_detections(detections).frames)),
+    return {"preset": preset, "smooth": smooth, "frames": int(len(read.frames)),
             "ticks": len(result.joints), "seconds": seconds, "first_tenth_ms_per_tick": 1000 * first,
             "last_tenth_ms_per_tick": 1000 * last, "last_over_first": last / first,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
