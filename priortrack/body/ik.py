@@ -55,8 +55,8 @@ HEADINGS = 12
 #: L-BFGS iterations of the fit.
 ITERATIONS = 200
 #: Frames fitted together at most by :func:`inverse_kinematics`: a longer motion is fitted in consecutive
-#: chunks (20 s at 30 fps), so that its memory does not grow with the motion (the whole of a 10-minute
-#: recording at once held 1.9 GB); the smoothness term is not carried across a chunk's edge.
+#: chunks (20 s at 30 fps), so that its memory does not grow with the motion (1,800 frames at once held
+#: 590 MB, in chunks 517 MB); the smoothness term is not carried across a chunk's edge.
 CHUNK = 600
 
 

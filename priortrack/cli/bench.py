@@ -64,6 +64,15 @@ def _bench_long(args: argparse.Namespace) -> None:
                           reference_frames=args.reference_frames, seed=args.seed))
 
 
+def _json_options(parser: argparse.ArgumentParser, seed: bool = True) -> None:
+    """The options every JSON-printing benchmark takes: --seed (where it draws) and --json (accepted;
+    the output is JSON anyway)."""
+    if seed:
+        parser.add_argument("--seed", type=int, default=0,
+                            help="random seed (default %(default)s): the same seed, the same numbers")
+    parser.add_argument("--json", action="store_true", help="(the output is always JSON)")
+
+
 def add_parsers(verbs) -> None:
     """Register this family's verbs on the ``priortrack`` sub-parsers."""
     bench = verbs.add_parser("bench", help="benchmarks against a reference").add_subparsers(dest="what", required=True)
@@ -76,21 +85,21 @@ def add_parsers(verbs) -> None:
     gpdm_fit = bench.add_parser("gpdm-fit", help="time a balanced GPDM fit to convergence")
     gpdm_fit.add_argument("--frames", type=int, default=300, help="training frames the GPDM is fitted on (default %(default)s)")
     gpdm_fit.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
-    gpdm_fit.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    _json_options(gpdm_fit, seed=False)
     gpdm_fit.set_defaults(run=_bench_gpdm_fit)
     lie_sample = bench.add_parser("lie-sample", help="Lie prior conditional samples per second vs scikit-learn")
     lie_sample.add_argument("--n", type=int, default=200_000, help="samples per timing")
     lie_sample.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
-    lie_sample.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    _json_options(lie_sample, seed=False)
     lie_sample.set_defaults(run=_bench_lie_sample)
 
     ukf = bench.add_parser("ukf", help="one UKF step, batched sigma points vs filterpy's per-point loop")
     ukf.add_argument("--repeats", type=int, default=9, help="repetitions of each timing, the median reported (default %(default)s)")
-    ukf.add_argument("--threads", type=int, default=1, help="torch threads (default %(default)s)")
+    ukf.add_argument("--threads", type=int, default=1, help="torch threads around the steps (default %(default)s; "
+                                                            "each step itself runs on one, ukf.STEP_THREADS)")
     ukf.add_argument("--cameras", type=int, default=1, help="1: one side camera; 2 to 8: distorted cameras on a "
                                                             "ring, ukf-real's multi-view step with its gate (default %(default)s)")
-    ukf.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
-    ukf.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    _json_options(ukf)
     ukf.set_defaults(run=_bench_ukf)
     pf = bench.add_parser("pf", help="particle-steps per second of the particle filter with each prior")
     pf.add_argument("--particles", type=int, default=10_000, help="particles (default %(default)s)")
@@ -100,23 +109,20 @@ def add_parsers(verbs) -> None:
                     help="the particles' dtype (the particle-filter presets run float32)")
     pf.add_argument("--translation", choices=("marginalised", "sampled"), default="marginalised",
                     help="the body's translation integrated out per particle (as the presets run) or sampled")
-    pf.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
-    pf.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    _json_options(pf)
     pf.set_defaults(run=_bench_pf)
 
     real_track = bench.add_parser("real-track", help="the whole track --detections command on real-format input "
                                                      "(4 cameras), beside DLT of the same input")
     real_track.add_argument("--frames", type=int, default=100, help="frames of the synthetic 4-camera input, 3 to 240 (default %(default)s)")
     real_track.add_argument("--filter", default="pf-lie", help="the preset (its particles: 1000 for pf-lie)")
-    real_track.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
-    real_track.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    _json_options(real_track)
     real_track.set_defaults(run=_bench_real_track)
     smooth = bench.add_parser("smooth", help="the smoother's time against the forward pass it smooths")
     smooth.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-gpdm"], help="preset names or .toml files (default: %(default)s)")
     smooth.add_argument("--frames", type=int, default=100, help="frames tracked, then smoothed (default %(default)s)")
     smooth.add_argument("--trajectories", type=int, default=100, help="smoothed trajectories drawn (default %(default)s)")
-    smooth.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
-    smooth.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    _json_options(smooth)
     smooth.set_defaults(run=_bench_smooth)
     long = bench.add_parser("long", help="a long 4-camera recording tracked: peak memory beside a run a tenth as "
                                          "long, and time per tick over the first and last tenth")
@@ -124,6 +130,5 @@ def add_parsers(verbs) -> None:
     long.add_argument("--reference-frames", type=int, help="the reference run's frames (default a tenth, at least 300)")
     long.add_argument("--presets", nargs="+", default=["ukf-real", "pf-lie"], help="preset names (default: %(default)s)")
     long.add_argument("--smooth", action="store_true", help="smooth each run over the whole run too")
-    long.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s): the same seed, the same numbers")
-    long.add_argument("--json", action="store_true", help="(the output is always JSON)")
+    _json_options(long)
     long.set_defaults(run=_bench_long)

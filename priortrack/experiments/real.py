@@ -422,7 +422,6 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         run = replace(run, estimates=run.estimates[:T], ess=run.ess[:T], steps=run.steps[:T - KNOWN_FRAMES])
         smoothed = None if smoothed is None else replace(smoothed, estimates=smoothed.estimates[:T],
                                                          spread=smoothed.spread[:T])
-    snapshots, run.snapshots = run.snapshots, None
     if smoothed is not None:
         spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
     estimates = run.estimates if smoothed is None else smoothed.estimates
@@ -441,7 +440,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                             float(prior.fps), spread, ess, loglik, mismatch,
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
                             up, A, skeleton, estimates, world_cameras, z,
-                            snapshots, run.steps, rejected,
+                            run.snapshots, run.steps, rejected,
                             None if smoothed is None else world(run.estimates), lag if smooth else None,
                             interrupted=run.interrupted)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)

@@ -83,6 +83,5 @@ class SequentialFilter:
             if not interruptible or done == KNOWN_FRAMES:
                 raise
             log.warning("interrupted: %d of %d frames tracked; the run ends there", done, T)
-        snapshots = [s for s in snapshots if s.frame < done]
         return Track(estimates[:done], ess[:done], flags[:done], time.perf_counter() - start,
                      snapshots if keep_snapshots else None, steps[:done - KNOWN_FRAMES], interrupted=done < T)

@@ -115,12 +115,17 @@ class FixedLagSmoother:
         self.seconds += time.perf_counter() - start
         return part
 
+    @staticmethod
+    def _row(part: tuple, i: int) -> tuple:
+        """Frame i of a smoothed window (estimates, spread, distinct): (estimate, spread, distinct or None)."""
+        return tuple(None if values is None else values[i] for values in part)
+
     def push(self, snapshot, observation) -> None:
         """Add the filter's step of frame t and its observation; frame t − L is released once L + 1 are in."""
         self.window.append((snapshot, np.asarray(observation, dtype=float)))
         if len(self.window) == self.window.maxlen:
             self.last = self._smoothed()
-            self.released.append(tuple(None if p is None else p[0] for p in self.last))
+            self.released.append(self._row(self.last, 0))
 
     def result(self, known: np.ndarray) -> Smoothed:
         """The smoothed run: the frames still in the window from the last window smoothed (or, for a run
@@ -129,7 +134,7 @@ class FixedLagSmoother:
             raise PriortrackError("nothing to smooth: no step was pushed")
         last = self.last if self.last is not None else self._smoothed()
         skip = 1 if self.last is not None else 0
-        rows = self.released + [tuple(None if p is None else p[i] for p in last) for i in range(skip, len(last[0]))]
+        rows = self.released + [self._row(last, i) for i in range(skip, len(last[0]))]
         estimates, spread = np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows])
         distinct = None if rows[0][2] is None else np.array([r[2] for r in rows])
         return _assembled(known, estimates, spread, distinct, self.lag, self.seconds, self.trajectories)

@@ -36,12 +36,13 @@ class Snapshot:
         flags: what was unusual: "no-observation" (nothing seen, prediction stands),
             "weights-underflow" (every likelihood −inf: weights reset), "covariance-repaired".
         timings: seconds spent per phase ("predict", "weight", "resample", "estimate").
-        (:meth:`for_smoothing` keeps what a smoother reads: ``joints`` and a Gaussian filter's
-        ``particles`` and ``weights`` None there.)
         translation_covariance: (P, 6, 6) each particle's covariance of (t_t, t_{t-1}), metres²,
             aligned with ``particles``, when the filter integrates the translation out
             (``ParticleFilter(translation="marginalised")``): the particles' translations are
             then Kalman means, and the depth spread lives here, not in the cloud. None otherwise.
+
+    :meth:`for_smoothing` gives the step with only what a smoother reads: ``joints``, and a Gaussian
+    filter's ``particles`` and ``weights``, are None there.
     """
 
     frame: int

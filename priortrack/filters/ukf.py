@@ -112,7 +112,7 @@ ALPHA, BETA, KAPPA = 0.5, 2.0, 0.0
 GATE_PROBABILITY = 1e-4
 #: Consecutive frames whose every observed point fails the gate before one is taken ungated.
 GATE_PATIENCE = 3
-#: torch threads a step runs on (:meth:`UnscentedFilter.step`).
+#: torch and BLAS threads a step runs on (:meth:`UnscentedFilter.step`).
 STEP_THREADS = 1
 #: What the filter needs of a model that is not a TrackingModel (the linear-Gaussian test model keeps it).
 UNSCENTED_INTERFACE = ("dim", "tangent_dim", "observation_shape", "measurement_block", "mean_step", "measure", "observe",

@@ -50,10 +50,10 @@ def ring_cameras(X: np.ndarray, count: int) -> list[PinholeCamera]:
     radius = np.linalg.norm(eye) + 1.5
     heading = np.arctan2(eye[2], eye[0])
     dist = read_calibration(DEFAULT_CALIBRATION).cameras[0].dist
+    target = np.array([centre[0], 1.0, centre[2]])
     cameras = []
     for c in range(count):
         angle = heading + 2 * np.pi * c / count
-        target = np.array([centre[0], 1.0, centre[2]])
         at = PinholeCamera.look_at(target + [radius * np.cos(angle), 0.5, radius * np.sin(angle)], target)
         cameras.append(PinholeCamera(at.K, at.R, at.t, at.width, at.height, dist))
     return cameras
