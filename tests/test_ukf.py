@@ -294,3 +294,14 @@ def test_a_step_runs_on_one_thread_and_gives_the_count_back(linear):
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(previous)
+
+
+def test_bench_ukf_on_several_cameras_and_its_bad_arguments():
+    """bench ukf --cameras 3: the multi-view step, batched and through filterpy's loop, the same means; a
+    camera count outside [1, 8] refused by name."""
+    from priortrack.experiments.benchmarks.ukf import bench_ukf
+
+    result = bench_ukf(repeats=1, cameras=3)
+    assert result["cameras"] == 3 and result["sigma_points"] == 125 and result["max_abs_mean_diff"] < 1e-9
+    with pytest.raises(PriortrackError, match=r"cameras in \[1, 8\] \(got 1, 1, 9\)"):
+        bench_ukf(repeats=1, cameras=9)
