@@ -36,6 +36,10 @@ def test_reports_every_prior_from_real_steps(priors):
         assert all(0 < v <= high for v in result["phases_ms"][name].values())
         assert 0 <= result["resamples"][name] <= 3
         assert result["cpu_ms_per_step"][name] > 0
+        # The FK alone, timed beside the steps: the step over it and its share are each other's inverse.
+        assert result["step_over_fk"][name] == pytest.approx(ms / result["fk_ms"])
+        assert result["fk_share"][name] == pytest.approx(result["fk_ms"] / ms)
+    assert result["fk_ms"] > 0 and result["device"] == "cpu"
 
 
 def test_bad_arguments(priors):

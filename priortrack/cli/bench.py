@@ -39,10 +39,12 @@ def _bench_ukf(args: argparse.Namespace) -> None:
 
 
 def _bench_pf(args: argparse.Namespace) -> None:
-    from priortrack.experiments.benchmarks.pf import bench_pf
+    from priortrack.experiments.benchmarks.pf import bench_pf, bench_priors
 
-    print_json(bench_pf(particles=args.particles, steps=args.steps, seed=args.seed, threads=args.threads,
-                         dtype=args.dtype, translation=args.translation))
+    runs = [bench_pf(particles=p, steps=args.steps, seed=args.seed, threads=args.threads, dtype=args.dtype,
+                     translation=args.translation, device=args.device, priors=priors)
+            for priors in [bench_priors(args.seed)] for p in args.particles]
+    print_json(runs[0] if len(runs) == 1 else runs)
 
 
 def _bench_real_track(args: argparse.Namespace) -> None:
@@ -102,7 +104,9 @@ def add_parsers(verbs) -> None:
     _json_options(ukf)
     ukf.set_defaults(run=_bench_ukf)
     pf = bench.add_parser("pf", help="particle-steps per second of the particle filter with each prior")
-    pf.add_argument("--particles", type=int, default=10_000, help="particles (default %(default)s)")
+    pf.add_argument("--particles", type=int, nargs="+", default=[10_000],
+                    help="particles (default %(default)s); several: one run each, the priors fitted once")
+    pf.add_argument("--device", default="cpu", help="cpu (default), cuda or cuda:N: where the particles live")
     pf.add_argument("--steps", type=int, default=20, help="timed steps per prior")
     pf.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
     pf.add_argument("--dtype", choices=("float32", "float64"), default="float32",

@@ -25,7 +25,7 @@ def _track(args: argparse.Namespace) -> None:
     progress = Progress(f"track {args.filter}", "frame {0} of {1}", rate=True)
     try:
         run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd),
-                    progress=progress, frames=args.frames, **_smoothing(args))
+                    progress=progress, frames=args.frames, device=args.device, **_smoothing(args))
     finally:
         progress.close()
     if args.rrd:
@@ -108,7 +108,7 @@ def _track_detections(args: argparse.Namespace) -> None:
         result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
                                   camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
                                   keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True,
-                                  progress=progress, height=args.height,
+                                  progress=progress, height=args.height, device=args.device,
                                   skeleton=skeleton, **_smoothing(args))
     finally:
         progress.close()
@@ -162,6 +162,8 @@ def add_parsers(verbs) -> None:
     track.add_argument("--scenario", default="clean",
                        help="NAME or NAME:key=value,... (clean, noise, dropout, occlusion, blackout, outliers)")
     track.add_argument("--seed", type=int, default=0, help="seeds the observations and the filter")
+    track.add_argument("--device", default="cpu", help="cpu (default), cuda or cuda:N: where a particle filter's "
+                                                       "particles live (pf and apf presets; the others run on the CPU)")
     track.add_argument("--frames", type=int, help="track only the first N frames (a motion: ticks at the "
                                                   "prior's rate; --detections: the file's first N frames)")
     track.add_argument("--rrd", help="also write a rerun recording: truth, estimate, particle cloud, 2D observations")

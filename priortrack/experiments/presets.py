@@ -52,6 +52,7 @@ import numpy as np
 from priortrack.data.bundled import expand_sources
 from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
+from priortrack.device import resolve_device
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.models.tracking import TrackingModel
@@ -223,14 +224,23 @@ class Preset:
         """The tracking model: the prior, the global motion fitted to the training motions, the likelihood."""
         return TrackingModel.fitted(self.prior(cache, progress), self.training_motions, self.likelihood(camera))
 
-    def build(self, camera: PinholeCamera, seed: int = 0, cache: Path | None = None, progress=None):
+    def build(self, camera: PinholeCamera, seed: int = 0, cache: Path | None = None, progress=None,
+              device: str = "cpu"):
         """The filter on the synthetic single-camera model, ready to ``run(observations, motion)``."""
-        return self.filter_for(self.model(camera, cache, progress), seed)
+        return self.filter_for(self.model(camera, cache, progress), seed, device)
 
-    def filter_for(self, model, seed: int = 0):
-        """The preset's filter, with its parameters, on ``model``."""
+    def filter_for(self, model, seed: int = 0, device: str = "cpu"):
+        """The preset's filter, with its parameters, on ``model``; on ``device`` where the filter takes
+        one (the particle filters); the unscented filter and the MAP tracker run on the CPU (their
+        sigma points and windows are few; filterpy's and scipy's updates are numpy), and refuse another."""
         cls = filter_class(self.filter_kind)
-        seeded = {"seed": seed} if "seed" in inspect.signature(cls.__init__).parameters else {}  # the UKF is deterministic
+        parameters = inspect.signature(cls.__init__).parameters
+        seeded = {"seed": seed} if "seed" in parameters else {}                # the UKF is deterministic
+        if "device" in parameters:
+            seeded["device"] = device
+        elif resolve_device(device).type != "cpu":
+            raise PriortrackError(f"preset {self.name!r}: its {cls.__name__} runs on the CPU only (numpy updates of "
+                                  f"a few points); --device {device} is for the particle filters (pf, apf)")
         return cls(model, **seeded, **self.filter_options)
 
 
@@ -336,7 +346,7 @@ def parse_preset(table: dict, name: str, where: str = "preset", folder: Path | N
     if cls.requires is not None and cls.requires not in PRIOR_KINDS[prior_kind].capabilities:
         raise PriortrackError(f"{where}: filter {kind!r} cannot run a {prior_kind!r} prior; it runs "
                               f"{', '.join(kinds_with(cls.requires))}")
-    valid = _parameters(cls.__init__, ("self", "model", "seed"))
+    valid = _parameters(cls.__init__, ("self", "model", "seed", "device"))
     _check_keys(f"{where} [filter] ({kind})", options, ["kind", *valid])
     _check_types(f"{where} [filter]", options, valid)
     train = prior.get("train")

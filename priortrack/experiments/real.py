@@ -319,7 +319,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                      height: float = 1.7, skeleton: Skeleton | None = None,
                      progress: Callable[[int, int], None] | None = None, smooth: bool = False,
                      lag: int | None = None, trajectories: int = TRAJECTORIES,
-                     snapshot_every: int = 1, interruptible: bool = False) -> DetectionTrack:
+                     snapshot_every: int = 1, interruptible: bool = False, device: str = "cpu") -> DetectionTrack:
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
     (module docstring). ``fps``: the detections' frame rate (if the file does not say it); ``height``:
     the person's standing height in metres, which sets the body's size and depth from one camera;
@@ -327,7 +327,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     ``smooth``: also smooth the run (with a fixed ``lag``, or over the whole run) and give the smoothed
     joints (:mod:`priortrack.filters.smoothing`); ``keep_snapshots``: keep the filter's steps (a
     recording's particle clouds), every ``snapshot_every``-th tick's; ``interruptible``: Ctrl-C during the
-    filter's run ends it there, and the result holds the ticks tracked until then (``interrupted``).
+    filter's run ends it there, and the result holds the ticks tracked until then (``interrupted``);
+    ``device``: where a particle filter's particles live ("cpu", "cuda"; :meth:`Preset.filter_for`).
 
     Memory: each tick's spread and step record are taken as the filter goes; its point sets are let go
     unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
@@ -393,7 +394,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                    **preset.observation}
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
-    filt = preset.filter_for(model, seed)
+    filt = preset.filter_for(model, seed, device)
     torch.manual_seed(seed)
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
     z, index = z[first:], index[first:]                # from here on, tick 0 is the filter's first

@@ -77,12 +77,13 @@ def _errors(estimates: np.ndarray, truth: np.ndarray, camera) -> dict[str, float
 def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", seed: int = 0,
           keep_snapshots: bool = False, progress: Callable[[int, int], None] | None = None,
           cache=None, frames: int | None = None, smooth: bool = False, lag: int | None = None,
-          trajectories: int = TRAJECTORIES) -> TrackingRun:
+          trajectories: int = TRAJECTORIES, device: str = "cpu") -> TrackingRun:
     """Track ``motion`` with ``preset`` under ``scenario`` ("NAME" or "NAME:key=value,...").
 
     ``frames`` keeps only the first frames (at the prior's rate) of the motion. ``smooth`` also
     smooths the run (with a fixed ``lag`` in frames, or over the whole run; ``trajectories`` drawn
-    by a particle smoother).
+    by a particle smoother). ``device``: where a particle filter's particles live ("cpu", "cuda";
+    :meth:`Preset.filter_for`).
 
     Returns the result {"filter", "motion", "scenario", "frames", "mpjpe_mm", "mpjpe_root_rel_mm",
     "err2d_px", "seconds_per_frame", "mean_ess"} with the run behind it; smoothed, the errors are
@@ -102,7 +103,7 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
     camera = default_camera(X)
     observations = synthesize(X, motion.fps, camera, name, seed=seed, **params)
     torch.manual_seed(seed)
-    filt = preset.build(camera, seed=seed, cache=cache)
+    filt = preset.build(camera, seed=seed, cache=cache, device=device)
     result_track = filt.run(observations.uv, motion, keep_snapshots=keep_snapshots or smooth, progress=progress)
     smoothed = smooth_run(filt, result_track, observations.uv, trajectories, lag, seed) if smooth else None
     truth = X[KNOWN_FRAMES:]

@@ -75,10 +75,12 @@ class AnnealedParticleFilter(ParticleFilter):
             filter, not committed), diffuses only the pose and the rotation, and the last layer's
             Kalman update is kept.
         seed: seeds the filter's torch.Generator.
+        device: where the particles live (as :class:`ParticleFilter`).
     """
 
     def __init__(self, model: TrackingModel, particles: int = 1000, layers: int = 5, survival: float = 0.5,
-                 resampling: str = "systematic", dtype: str = "float64", translation: str = "sampled", seed: int = 0):
+                 resampling: str = "systematic", dtype: str = "float64", translation: str = "sampled", seed: int = 0,
+                 device: str = "cpu"):
         if not isinstance(model, TrackingModel):
             raise PriortrackError("the annealed particle filter diffuses states in a prior's space: it needs a TrackingModel")
         if layers < 1:
@@ -86,7 +88,7 @@ class AnnealedParticleFilter(ParticleFilter):
         if not 0.0 < survival < 1.0:
             raise PriortrackError(f"survival must be in (0, 1), got {survival}")
         super().__init__(model, particles, resampling, ess_threshold=1.0, dtype=dtype, translation=translation,
-                         seed=seed)
+                         seed=seed, device=device)
         self.layers, self.survival = int(layers), float(survival)
         self.betas: list[float] = []
 

@@ -108,7 +108,7 @@ def _metropolis(log_transition, candidates: torch.Tensor, log_weights: torch.Ten
     chosen = torch.cat([start[None], proposals])                                    # (K + 1, M)
     density = log_transition(following.repeat(moves + 1, 1), candidates[chosen.flatten()]).reshape(moves + 1, M)
     density = density.to(torch.float64)
-    u = torch.log(torch.rand((moves, M), generator=generator, dtype=torch.float64))
+    u = torch.log(torch.rand((moves, M), generator=generator, dtype=torch.float64, device=generator.device))
     current, current_density = start, density[0]
     for k in range(moves):
         accept = (u[k] < density[k + 1] - current_density) | ~torch.isfinite(current_density)

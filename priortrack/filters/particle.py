@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from priortrack.data.motion import Motion
+from priortrack.device import resolve_device
 from priortrack.errors import PriortrackError
 from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.backward_simulation import backward_indices, distinct
@@ -68,7 +69,11 @@ class ParticleFilter(SequentialFilter):
             (0: none, the bootstrap filter; :meth:`move`).
         move_scale: the moves' first step size, as a fraction of the size of the prior's own step
             this frame (adapted between frames towards an acceptance rate of 0.2–0.5).
-        seed: seeds the filter's own torch.Generator.
+        seed: seeds the filter's own torch.Generator (on ``device``: a GPU draws other numbers than
+            the CPU from the same seed).
+        device: where the particles live and every step computes ("cpu", "cuda", "cuda:N";
+            :func:`~priortrack.device.resolve_device`); the model follows the particles. Snapshots
+            keep the particles there; their estimates are numpy arrays.
     """
 
     #: What the filter needs of a prior: nothing beyond the transition-model protocol.
@@ -76,7 +81,7 @@ class ParticleFilter(SequentialFilter):
 
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
                  ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", moves: int = 0,
-                 move_scale: float = 0.3, seed: int = 0):
+                 move_scale: float = 0.3, seed: int = 0, device: str = "cpu"):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
         if not 0.0 <= ess_threshold <= 1.0:
@@ -97,7 +102,8 @@ class ParticleFilter(SequentialFilter):
         self.model, self.P, self.ess_threshold = model, int(particles), float(ess_threshold)
         self.dtype = DTYPES[dtype]
         self.resample = resampler(resampling)
-        self.generator = torch.Generator().manual_seed(seed)
+        self.device = resolve_device(device)
+        self.generator = torch.Generator(device=self.device).manual_seed(seed)
         self.states: torch.Tensor | None = None
         self.log_weights: torch.Tensor | None = None
         self.frame = 0
@@ -117,14 +123,14 @@ class ParticleFilter(SequentialFilter):
             raise PriortrackError(f"initial particles have shape {tuple(states.shape)}; expected ({self.P}, {self.model.dim})")
         if not 0 <= translation_std < 10:
             raise PriortrackError(f"translation_std must be in [0, 10) metres, got {translation_std}")
-        self.states = states.to(self.dtype)
+        self.states = states.to(device=self.device, dtype=self.dtype)
         if self.marginal:
-            self.covariance = translation_std ** 2 * torch.eye(6, dtype=self.dtype, device=states.device).repeat(
+            self.covariance = translation_std ** 2 * torch.eye(6, dtype=self.dtype, device=self.device).repeat(
                 self.P, 1, 1)
         elif translation_std > 0:
-            shift = torch.randn((self.P, 6), generator=self.generator, dtype=self.dtype) * translation_std
+            shift = torch.randn((self.P, 6), generator=self.generator, dtype=self.dtype, device=self.device) * translation_std
             self.states = self.model.shift_translation(self.states, shift)
-        self.log_weights = torch.full((self.P,), -math.log(self.P), dtype=torch.float64, device=states.device)
+        self.log_weights = torch.full((self.P,), -math.log(self.P), dtype=torch.float64, device=self.device)
         self.frame = frame
 
     def step(self, z) -> Snapshot:
@@ -300,6 +306,6 @@ class ParticleFilter(SequentialFilter):
             states = self.model.with_translation(states.flatten(0, 1), tau.flatten(0, 1)).reshape(states.shape)
         joints = self.model.observe(states.flatten(0, 1)).reshape(states.shape[:2] + (-1, 3))
         centre = joints.mean(0)
-        weights = torch.full((len(joints),), 1.0 / len(joints), dtype=torch.float64)
+        weights = torch.full((len(joints),), 1.0 / len(joints), dtype=torch.float64, device=joints.device)
         return (centre.detach().cpu().numpy().astype(float), joint_spread(joints, centre, weights),
                 distinct(indices).numpy())

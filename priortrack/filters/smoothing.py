@@ -71,6 +71,12 @@ def joint_spread(joints: torch.Tensor, centre: torch.Tensor, weights: torch.Tens
     return torch.einsum("m,mwj->wj", weights.to(sq), sq).clamp(min=0).sqrt().cpu().numpy()
 
 
+def draws_for(filt, seed: int) -> torch.Generator:
+    """The smoother's own generator, seeded, on the filter's device (a particle filter's particles may
+    live on a GPU; the unscented filter's sigma points on the CPU)."""
+    return torch.Generator(device=getattr(filt, "device", "cpu")).manual_seed(seed)
+
+
 def _check(filt, trajectories: int, moves: int | None, lag: int | None) -> None:
     """Refuse a filter without a smoother and malformed smoothing arguments, naming them."""
     if not hasattr(filt, "smooth_window"):
@@ -101,7 +107,7 @@ class FixedLagSmoother:
         if lag is None:
             raise PriortrackError("a fixed-lag smoother needs a lag (whole frames ≥ 0)")
         self.filt, self.lag, self.trajectories, self.moves = filt, lag, trajectories, moves
-        self.generator = torch.Generator().manual_seed(seed)
+        self.generator = draws_for(filt, seed)
         self.window: deque = deque(maxlen=lag + 1)             # (snapshot, observation) of the last L + 1 frames
         self.released: list[tuple] = []                       # per released frame: (estimate, spread, distinct)
         self.last: tuple | None = None                         # the last window smoothed
@@ -185,6 +191,6 @@ def smooth(filt, track: Track, observations, trajectories: int = TRAJECTORIES, l
         return online.result(known)
     start = time.perf_counter()
     estimates, spread, distinct = filt.smooth_window(snapshots, observations[KNOWN_FRAMES:],
-                                                     torch.Generator().manual_seed(seed),
+                                                     draws_for(filt, seed),
                                                      trajectories=trajectories, moves=moves)
     return _assembled(known, estimates, spread, distinct, None, time.perf_counter() - start, trajectories)

@@ -90,7 +90,7 @@ class MultiViewLikelihood:
         count = 0
         for c, view in enumerate(self.views):
             far = outside(z[c, :, :2], view.camera)
-            z[c, far] = torch.tensor([float("nan"), float("nan"), 0.0], dtype=torch.float64)
+            z[c, far] = torch.tensor([float("nan"), float("nan"), 0.0], dtype=torch.float64, device=z.device)
             count += int(far.sum())
         return z, count
 

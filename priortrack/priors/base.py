@@ -65,8 +65,9 @@ class TransitionModel(ABC):
 
     def initial(self, x0, n: int, generator: torch.Generator) -> torch.Tensor:
         """(S,) known first state → (n, S) states drawn around it with the prior's own
-        one-step spread: the first row is x0 itself, the others one transition from it."""
-        x0 = self.check_state(torch.as_tensor(x0).reshape(1, -1), "x0")
+        one-step spread: the first row is x0 itself, the others one transition from it; drawn on the
+        generator's device."""
+        x0 = self.check_state(torch.as_tensor(x0).reshape(1, -1), "x0").to(generator.device)
         if n < 1:
             raise PriortrackError(f"initial: n must be positive, got {n}")
         drawn = self.sample(x0.expand(n, -1).contiguous(), generator)

@@ -15,6 +15,12 @@ observations are the ``noise`` scenario of the first test walk (the paper's eigh
 filters of all priors start on that walk's first two frames and step through its frames in
 lockstep (diffusion, gpdm, lie, diffusion, …), so that machine noise hits every prior alike;
 fitting and the warm-up steps are not timed.
+
+Beside every step, in the same loop, the forward kinematics alone of P poses of the walk's own
+skeleton (:class:`~priortrack.body.fk.ForwardKinematics`, the particles' dtype and device: the
+kinematics a joint-angle particle's decoding needs): ``step_over_fk`` is a step's median time over
+the FK's, and ``fk_share`` its inverse, the fraction of a step the kinematics of its particles
+would take. On a GPU (``device="cuda"``) every timing waits for the device's queued work.
 """
 
 from __future__ import annotations
@@ -23,9 +29,11 @@ import logging
 import time
 
 import numpy as np
+import torch
 
 from priortrack.data.bundled import load_walkjog
 from priortrack.errors import PriortrackError
+from priortrack.device import resolve_device, synchronize
 from priortrack.experiments.benchmarks.timing import load_average
 from priortrack.experiments.benchmarks.gpdm_fit import bench_walks
 from priortrack.filters.particle import DTYPES, ParticleFilter
@@ -37,7 +45,7 @@ from priortrack.priors.diffusion import Diffusion
 from priortrack.priors.gpdm import GPDM
 from priortrack.priors.lie import LiePrior
 from priortrack.threads import torch_threads
-from priortrack.body.fk import joint_positions
+from priortrack.body.fk import ForwardKinematics, joint_positions
 
 logger = logging.getLogger(__name__)
 
@@ -59,7 +67,7 @@ def bench_priors(seed: int = 0, gpdm_frames: int = 100) -> dict[str, TransitionM
 
 def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: int = 2, warmup: int = 2,
              gpdm_frames: int = 100, dtype: str = "float32", translation: str = "marginalised",
-             priors: dict[str, TransitionModel] | None = None) -> dict:
+             priors: dict[str, TransitionModel] | None = None, device: str = "cpu") -> dict:
     """Time ``steps`` particle-filter steps with ``particles`` particles for every prior.
 
     Args:
@@ -74,13 +82,16 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         translation: ``ParticleFilter(translation=...)``: "marginalised", as the particle-filter
             presets run (a Kalman filter per particle), or "sampled".
         priors: name → fitted prior, instead of :func:`bench_priors` (tests pass small ones).
+        device: where the particles live ("cpu", "cuda"; ``ParticleFilter(device=...)``).
 
     Returns:
         ``{"particles", "particle_steps_per_s": {prior: P / median step}, "ms_per_step":
         {prior: median ms}, "ms_per_step_range": {prior: [min, max] ms}, "cpu_ms_per_step":
         {prior: median process CPU ms, all threads}, "phases_ms": {prior: {phase: median ms}},
         "resamples": {prior: count over the timed steps}, "steps", "threads", "load_average":
-        [1-minute load before, after] (None where the system has none), "dtype", "translation"}``; the phases are those of
+        [1-minute load before, after] (None where the system has none), "dtype", "translation", "device",
+        "fk_ms": median ms of the FK alone, "step_over_fk": {prior: ms_per_step / fk_ms}, "fk_share":
+        {prior: fk_ms / ms_per_step}}``; the phases are those of
         ``Snapshot.timings`` (predict, weight = joints + projection + likelihood +
         normalisation, estimate, resample).
         On a machine busy with other work the wall time exceeds the CPU time (waiting for a
@@ -91,6 +102,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
                               f"(got {particles}, {steps}, {threads}, {warmup})")
     if dtype not in DTYPES:
         raise PriortrackError(f"bench pf: dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
+    device = resolve_device(device)
     walk = load_walkjog().walks("test")[0]
     if warmup + steps > len(walk) - 2:
         raise PriortrackError(f"bench pf: warmup + steps = {warmup + steps} exceeds the {len(walk) - 2} "
@@ -108,19 +120,30 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
     filters = {}
     for name, prior in priors.items():
         model = TrackingModel.fitted(prior, train, JointLikelihood(observations.camera))
-        filters[name] = ParticleFilter(model, particles, dtype=dtype, translation=translation, seed=seed)
+        filters[name] = ParticleFilter(model, particles, dtype=dtype, translation=translation, seed=seed,
+                                       device=device)
         filters[name].initialise(walk)
+    fk = ForwardKinematics(walk.skeleton, device=device, dtype=DTYPES[dtype])
+    poses = torch.as_tensor(walk.channels[np.random.default_rng(seed).integers(0, len(walk), particles)],
+                            dtype=DTYPES[dtype], device=device)
 
     times = {name: [] for name in filters}
+    fk_times = []
     cpu = {name: [] for name in filters}
     phases = {name: {phase: [] for phase in PHASES} for name in filters}
     resamples = dict.fromkeys(filters, 0)
     before = load_average()
     with torch_threads(threads):
         for t in range(2, 2 + warmup + steps):
+            start = time.perf_counter()
+            fk(poses)
+            synchronize(device)
+            if t >= 2 + warmup:
+                fk_times.append(time.perf_counter() - start)
             for name, pf in filters.items():
                 start, start_cpu = time.perf_counter(), time.process_time()
                 snap = pf.step(observations.uv[t])
+                synchronize(device)
                 seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - start_cpu
                 if t < 2 + warmup:
                     continue
@@ -130,6 +153,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
                     phases[name][phase].append(snap.timings[phase])
                 resamples[name] += snap.ancestors is not None
     ms = {name: 1000.0 * float(np.median(t)) for name, t in times.items()}
+    fk_ms = 1000.0 * float(np.median(fk_times))
     result = {
         "particles": particles,
         "particle_steps_per_s": {name: particles / (ms[name] / 1000.0) for name in filters},
@@ -144,9 +168,14 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         "load_average": None if before is None else [before[0], load_average()[0]],
         "dtype": str(next(iter(filters.values())).states.dtype).removeprefix("torch."),
         "translation": translation,
+        "device": str(device),
+        "fk_ms": fk_ms,
+        "step_over_fk": {name: ms[name] / fk_ms for name in filters},
+        "fk_share": {name: fk_ms / ms[name] for name in filters},
     }
     for name in filters:
-        logger.info("bench pf %s: %.0f particle-steps/s (%.1f ms per step of %d particles; %s)", name,
-                    result["particle_steps_per_s"][name], ms[name], particles,
+        logger.info("bench pf %s: %.0f particle-steps/s (%.1f ms per step of %d particles on %s, %.1f× the FK alone; "
+                    "%s)", name, result["particle_steps_per_s"][name], ms[name], particles, device,
+                    result["step_over_fk"][name],
                     ", ".join(f"{k} {v:.1f} ms" for k, v in result["phases_ms"][name].items()))
     return result
