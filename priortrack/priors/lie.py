@@ -98,9 +98,15 @@ PARAMETERS_PER_BONE = 14
 #: whatever its size, so it must be large enough to amortise their dispatch (a few µs each), and
 #: small enough that its work set (about 1 kB a row in float32) stays in the last-level cache.
 SAMPLE_CHUNK = 8192
+#: Rows per sampling block on a GPU: there a block of 8192 rows is bound by its kernel launches (123 blocks
+#: of ~30 components' terms made 10⁶ draws 164 ms on an H100), so the rows go in as few blocks as memory allows.
+DEVICE_SAMPLE_CHUNK = 2 ** 20
 #: Columns per slice in :meth:`GeodesicMixture._planar_logits`: the (B, 3K, n) products of a slice
 #: stay in cache while the elementwise steps pass over them.
 LOGIT_SLICE = 2048
+#: Columns per slice on a GPU, where a slice's dozen operations are launch-bound below ~10⁴ columns: 65,536
+#: columns of ~30 components' products take some 0.3 GB in float32.
+DEVICE_LOGIT_SLICE = 2 ** 16
 #: Floor on ln(π_k / max_j π_j) in the inverse CDF: e^−80 ≈ 1.8e−35 is still a normal float32
 #: (subnormal arithmetic is some 100× slower), and a weight that small is never drawn anyway, since
 #: it is below the resolution of a uniform of either dtype (2⁻²⁴, 2⁻⁵³).
@@ -413,7 +419,8 @@ class GeodesicMixture:
         return x.t().contiguous().view(self.bones, 3, x.shape[0])
 
     def _planar_logits(self, xp: torch.Tensor, hot: _Hot) -> torch.Tensor:
-        """ln α_k N(a_k; 0, Sxx_k) (K, n) for planar poses X (B, 3, n), :data:`LOGIT_SLICE` columns at a time.
+        """ln α_k N(a_k; 0, Sxx_k) (K, n) for planar poses X (B, 3, n), :data:`LOGIT_SLICE` columns at a time
+        (:data:`DEVICE_LOGIT_SLICE` on a GPU).
 
         |L_xx⁻¹ a|² = (θ / sin θ)² |G x|², since a = (θ / sin θ) E x (E ⊥ μ) and G = L_xx⁻¹ E,
         with (θ / sin θ)² = arccos(c)² / (1 − c²), c clamped as in
@@ -425,8 +432,9 @@ class GeodesicMixture:
         quad = torch.empty(k, n, dtype=xp.dtype, device=xp.device)
         one = torch.ones((), dtype=xp.dtype, device=xp.device)
         pi_w0, pi_w1, pi_w2 = hot.pi_w
-        for start in range(0, n, LOGIT_SLICE):
-            cols = slice(start, start + LOGIT_SLICE)
+        width = LOGIT_SLICE if xp.device.type == "cpu" else DEVICE_LOGIT_SLICE
+        for start in range(0, n, width):
+            cols = slice(start, start + width)
             x0, x1, x2 = xp[..., cols].unsqueeze(2).unbind(1)                           # (B, 1, n') each
             y = pi_w0 * x0
             y.addcmul_(pi_w1, x1).addcmul_(pi_w2, x2)                                   # (B, 3K, n')
@@ -532,8 +540,8 @@ class GeodesicMixture:
     def sample_next(self, x: torch.Tensor, generator: torch.Generator, scale: float) -> torch.Tensor:
         """One draw x_next = exp_x(v / s), v ~ p(v | x), per row of flat poses x (P, 3B).
 
-        The rows go in ⌈P / :data:`SAMPLE_CHUNK`⌉ blocks of equal size (:meth:`_sample_block`, or
-        :meth:`_fused_block` in float32 on the CPU). Each block draws its uniforms (one per row)
+        The rows go in ⌈P / :data:`SAMPLE_CHUNK`⌉ blocks of equal size (:data:`DEVICE_SAMPLE_CHUNK` on a
+        GPU; :meth:`_sample_block`, or :meth:`_fused_block` in float32 on the CPU). Each block draws its uniforms (one per row)
         and normals z ~ N(0, I) (B, 2, n) from a generator of its own, seeded by one 63-bit integer
         per block drawn from ``generator`` in the calling thread. On the CPU with torch set to
         T > 1 threads, min(T, blocks) single-threaded workers of
@@ -544,7 +552,8 @@ class GeodesicMixture:
         hot = self._hot(x.dtype, x.device, scale)
         block = self._sample_block if hot.kernel is None else self._fused_block
         out = torch.empty_like(x)
-        count = -(-len(x) // SAMPLE_CHUNK)                       # blocks of equal size, for balanced workers
+        chunk = SAMPLE_CHUNK if x.device.type == "cpu" else DEVICE_SAMPLE_CHUNK
+        count = -(-len(x) // chunk)                              # blocks of equal size, for balanced workers
         bounds = [len(x) * i // count for i in range(count + 1)]
         seeds = torch.randint(2 ** 63 - 1, (count,), generator=generator, device=generator.device).tolist()
         jobs: queue.SimpleQueue = queue.SimpleQueue()
