@@ -13,6 +13,7 @@ from priortrack.filters.backward_simulation import backward_indices
 from priortrack.filters.particle import ParticleFilter
 from priortrack.filters.posterior_linearisation import posterior_linearisation
 from priortrack.filters.smoothing import smooth
+from priortrack.filters.step_store import StepStore, step_bytes
 from priortrack.filters.ukf import ManifoldSigmaPoints, UnscentedFilter
 from priortrack.filters.unscented_rts import unscented_rts
 
@@ -222,6 +223,15 @@ def test_the_whole_run_smoother_needs_only_the_compact_steps(preset, tmp_path):
     full, lean = smooth(filt, track, z, trajectories=20), smooth(filt, replace(track, snapshots=compact), z, trajectories=20)
     np.testing.assert_array_equal(full.estimates, lean.estimates)
     np.testing.assert_array_equal(full.spread, lean.spread)
+    # … and from a StepStore that spilled all but the first steps to disk (read back a frame at a time)
+    store = StepStore(memory=3 * step_bytes(compact[0]))
+    for snapshot in track.snapshots:
+        store.append(snapshot)
+    assert store.spilled == len(compact) - 3
+    spilled = smooth(filt, replace(track, snapshots=store), z, trajectories=20)
+    store.close()
+    np.testing.assert_array_equal(full.estimates, spilled.estimates)
+    np.testing.assert_array_equal(full.spread, spilled.spread)
 
 
 def test_what_cannot_be_smoothed_says_why(tmp_path):

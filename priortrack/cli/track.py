@@ -17,7 +17,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.experiments.tracking import track
     from priortrack.viz.replay import replay
 
-    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "skeleton"):   # (--height has a default)
+    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "skeleton", "memory"):   # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -79,6 +79,7 @@ def _track_detections(args: argparse.Namespace) -> None:
     from priortrack.data.calibration import read_calibration
     from priortrack.data.detections import read_detections
     from priortrack.experiments.real import RESULT_SUFFIXES, track_detections
+    from priortrack.filters.step_store import DEFAULT_MEMORY, parse_memory
 
     if args.motion is not None:
         raise PriortrackError("give a motion or --detections, not both")
@@ -92,6 +93,7 @@ def _track_detections(args: argparse.Namespace) -> None:
         output_path(args.rrd, "rerun recording")
     if args.rrd_every < 1:
         raise PriortrackError(f"--rrd-every must be a whole number of ticks ≥ 1, got {args.rrd_every}")
+    memory = DEFAULT_MEMORY if args.memory is None else parse_memory(args.memory)
     camera_map = None
     if args.camera_map:
         pairs = [item.split("=", 1) for item in args.camera_map.split(",")]
@@ -109,6 +111,7 @@ def _track_detections(args: argparse.Namespace) -> None:
                                   camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
                                   keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True,
                                   progress=progress, height=args.height, device=args.device,
+                                  memory=memory,
                                   skeleton=skeleton, **_smoothing(args))
     finally:
         progress.close()
@@ -175,5 +178,8 @@ def add_parsers(verbs) -> None:
     track.add_argument("--lag", type=int, help="fixed-lag smoothing: frame t − LAG estimated at frame t (implies --smooth)")
     track.add_argument("--trajectories", type=int,
                        help="smoothed trajectories a particle smoother draws (default 100)")
+    track.add_argument("--memory", help="whole-run --smooth of --detections: the filter's steps held "
+                                                       "in memory (e.g. 500MB, 2GB; default 2GB), the rest spilled to a "
+                                                       "temporary folder and read back by the smoother")
     track.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
     track.set_defaults(run=_track)

@@ -72,6 +72,7 @@ from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
 from priortrack.experiments.presets import Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES
+from priortrack.filters.step_store import DEFAULT_MEMORY, StepStore
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.frames import in_working_frame, to_y_up, up_from_person, up_vector
 from priortrack.geometry.triangulation import triangulate
@@ -319,7 +320,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                      height: float = 1.7, skeleton: Skeleton | None = None,
                      progress: Callable[[int, int], None] | None = None, smooth: bool = False,
                      lag: int | None = None, trajectories: int = TRAJECTORIES,
-                     snapshot_every: int = 1, interruptible: bool = False, device: str = "cpu") -> DetectionTrack:
+                     snapshot_every: int = 1, interruptible: bool = False, device: str = "cpu",
+                     memory: int = DEFAULT_MEMORY) -> DetectionTrack:
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
     (module docstring). ``fps``: the detections' frame rate (if the file does not say it); ``height``:
     the person's standing height in metres, which sets the body's size and depth from one camera;
@@ -328,7 +330,9 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     joints (:mod:`priortrack.filters.smoothing`); ``keep_snapshots``: keep the filter's steps (a
     recording's particle clouds), every ``snapshot_every``-th tick's; ``interruptible``: Ctrl-C during the
     filter's run ends it there, and the result holds the ticks tracked until then (``interrupted``);
-    ``device``: where a particle filter's particles live ("cpu", "cuda"; :meth:`Preset.filter_for`).
+    ``device``: where a particle filter's particles live ("cpu", "cuda"; :meth:`Preset.filter_for`);
+    ``memory``: bytes of the whole-run smoother's steps held in memory, the rest spilled to a temporary
+    folder (:class:`~priortrack.filters.step_store.StepStore`).
 
     Memory: each tick's spread and step record are taken as the filter goes; its point sets are let go
     unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
@@ -402,21 +406,28 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     spread = np.full((len(z), 15), np.nan)
     whole = smooth and lag is None                 # the whole run's smoother: what it needs of every step
     online = FixedLagSmoother(filt, lag, trajectories, seed) if smooth and lag is not None else None
-    for_smoother = []
+    for_smoother = StepStore(memory) if whole else None
 
     def on_step(snapshot) -> None:
         spread[snapshot.frame] = _spread(snapshot)
         if online is not None:
             online.push(snapshot, z[snapshot.frame])
         if whole:
-            for_smoother.append(snapshot.for_smoothing())
+            for_smoother.append(snapshot)
 
     run = filt.run(z, known, keep_snapshots=keep_snapshots, progress=progress, snapshot_every=snapshot_every,
                    on_step=on_step, interruptible=interruptible, **initial)
-    smoothed = (online.result(run.estimates[:KNOWN_FRAMES]) if online is not None else
-                smooth_run(filt, replace(run, snapshots=for_smoother[:len(run.estimates) - KNOWN_FRAMES]),
-                           z[:len(run.estimates)], trajectories, None, seed) if whole else None)
-    for_smoother.clear()                            # the smoother has them; let them go
+    if whole:
+        for_smoother.truncate(len(run.estimates) - KNOWN_FRAMES)          # an interrupted run's steps
+        if for_smoother.spilled:
+            log.info("smoothing %d ticks, %d of them read back from disk", len(for_smoother), for_smoother.spilled)
+        try:
+            smoothed = smooth_run(filt, replace(run, snapshots=for_smoother), z[:len(run.estimates)], trajectories,
+                                  None, seed)
+        finally:
+            for_smoother.close()                    # the smoother has them; let them go
+    else:
+        smoothed = online.result(run.estimates[:KNOWN_FRAMES]) if online is not None else None
     T = len(run.estimates) if smoothed is None else min(len(run.estimates), len(smoothed.estimates))
     if T < len(z):                                 # interrupted: what was tracked until then
         z, index, spread, X = z[:T], index[:T], spread[:T], None if X is None else X[:T]

@@ -37,11 +37,15 @@ from priortrack.filters.marginal_translation import kalman_update, predict_covar
 from priortrack.filters.resampling import resampler
 from priortrack.filters.smoothing import joint_spread
 from priortrack.filters.snapshot import Snapshot
+from priortrack.filters.step_store import Column
 from priortrack.models.tracking import TrackingModel
 
 
 #: The particles' dtypes, by name.
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
+
+#: Trajectory-frames whose joints the particle smoother decodes at once (a whole run's M × W would not fit).
+SMOOTH_JOINT_ROWS = 1 << 16
 
 #: How the body's translation is handled (see ``ParticleFilter``'s ``translation``).
 TRANSLATIONS = ("sampled", "marginalised")
@@ -294,18 +298,25 @@ class ParticleFilter(SequentialFilter):
         if not callable(getattr(self.model.prior, "log_prob", None)):
             raise PriortrackError(f"the {type(self.model.prior).__name__} prior has no transition density log_prob: "
                                   f"it cannot be smoothed by backward simulation")
-        particles = [s.particles for s in snapshots]
-        log_weights = [torch.log(s.weights.to(torch.float64)) for s in snapshots]
-        marginal = snapshots[0].translation_covariance is not None
+        particles = Column(snapshots, "particles")       # each step read when reached (spilled ones from disk)
+        log_weights = Column(snapshots, "weights", lambda w: torch.log(w.to(torch.float64)))
+        first_covariance = snapshots[0].translation_covariance
+        marginal = first_covariance is not None
         indices = backward_indices(partial(self.model.log_transition, translation=not marginal), particles,
                                    log_weights, trajectories, generator,
-                                   None if moves is None else [s.ancestors for s in snapshots], moves or 0)
+                                   None if moves is None else Column(snapshots, "ancestors"), moves or 0)
         states = torch.stack([p[i] for p, i in zip(particles, indices)], 1)               # (M, W, A)
         if marginal:
-            tau = smooth_translation(self.model, states, snapshots[0].translation_covariance[indices[0]], observations)
+            tau = smooth_translation(self.model, states, first_covariance[indices[0]], observations)
             states = self.model.with_translation(states.flatten(0, 1), tau.flatten(0, 1)).reshape(states.shape)
-        joints = self.model.observe(states.flatten(0, 1)).reshape(states.shape[:2] + (-1, 3))
-        centre = joints.mean(0)
-        weights = torch.full((len(joints),), 1.0 / len(joints), dtype=torch.float64, device=joints.device)
-        return (centre.detach().cpu().numpy().astype(float), joint_spread(joints, centre, weights),
+        M, W = states.shape[:2]
+        weights = torch.full((M,), 1.0 / M, dtype=torch.float64, device=states.device)
+        frames = max(1, SMOOTH_JOINT_ROWS // M)                  # joints decoded a window of frames at a time
+        centres, spreads = [], []
+        for start in range(0, W, frames):
+            window = states[:, start:start + frames]
+            joints = self.model.observe(window.flatten(0, 1)).reshape(window.shape[:2] + (-1, 3))
+            centres.append(joints.mean(0))
+            spreads.append(joint_spread(joints, centres[-1], weights))
+        return (torch.cat(centres).detach().cpu().numpy().astype(float), np.concatenate(spreads),
                 distinct(indices).numpy())
