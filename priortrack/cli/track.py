@@ -179,7 +179,7 @@ def add_parsers(verbs) -> None:
     track.add_argument("--trajectories", type=int,
                        help="smoothed trajectories a particle smoother draws (default 100)")
     track.add_argument("--memory", help="whole-run --smooth of --detections: the filter's steps held "
-                                                       "in memory (e.g. 500MB, 2GB; default 2GB), the rest spilled to a "
+                                                       "in memory (e.g. 500MB, 2GB; default 1GB), the rest spilled to a "
                                                        "temporary folder and read back by the smoother")
     track.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
     track.set_defaults(run=_track)

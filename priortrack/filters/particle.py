@@ -168,7 +168,7 @@ class ParticleFilter(SequentialFilter):
         t2 = time.perf_counter()
         mean = self.model.mean(self.states, weights)
         estimate = self.model.observe(mean[None])[0]
-        best = joints[int(torch.argmax(weights))]
+        best = joints[int(torch.argmax(weights))].clone()          # not a view: it would hold every joint
         t3 = time.perf_counter()
         snapshot_states, snapshot_covariance, ancestors = self.states, self.covariance, None
         if ess < self.ess_threshold * self.P:
