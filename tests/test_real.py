@@ -318,3 +318,22 @@ def test_ctrl_c_writes_what_was_tracked(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr("priortrack.data.calibration.read_calibration",
                         lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
     assert main(argv) == 130 and capsys.readouterr().err.strip() == "priortrack: interrupted"
+
+
+def test_the_mismatch_warning_says_what_it_measured_and_names_no_weaker_preset():
+    """Issue 28: a run with 99.6 % of its ticks explained was told "explains 100 % … try pf-diffusion-local"
+    (the preset it ran). The warning counts the ticks and gives each cause's count, and names no preset."""
+    from priortrack.experiments.real import mismatch_message
+
+    T = 2 + 998
+    mismatch, lost = np.zeros(T, bool), np.zeros(T, bool)
+    mismatch[500:504] = True
+    unlikely = mismatch.copy()
+    unlikely[502:504] = False
+    lost[502:504] = True
+    text = mismatch_message(mismatch, unlikely, lost, "diffusion-local", judged_by_prior=False)
+    assert text.startswith("4 of 998 tracked ticks (0.4%) are flagged as mismatch: 2 where the detections")
+    assert "2 where the estimate is on average over 100 mm" in text and "3 nats" in text
+    assert "pf-" not in text and "100%" not in text and "implausible" not in text
+    judged = mismatch_message(mismatch, unlikely, None, "lie", judged_by_prior=True)
+    assert "the lie prior finds the tracked pose implausible" in judged and "triangulation" not in judged

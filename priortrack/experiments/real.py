@@ -458,6 +458,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible
+    unlikely = result.mismatch.copy()
     if lost is not None:                 # … or one where the estimate has left the data's own triangulation
         result.mismatch = result.mismatch | lost
     if result.fit_check is not None and result.fit_check["verdict"] != "in support":
@@ -470,9 +471,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                     f"the {better['preset']} preset's prior fits it better ({better['verdict']}, "
                     f"{100 * better['below_p1_fraction']:.0f}% of its frames below): track with --filter {better['preset']}")
     if result.mismatch_fraction > 0:
-        log.warning("the %s prior explains %.0f%% of the frames (the others are flagged as mismatch); if the motion "
-                    "is not what the prior learned, try pf-diffusion-local", preset.prior_kind,
-                    100 * (1 - result.mismatch_fraction))
+        log.warning(mismatch_message(result.mismatch, unlikely, lost, preset.prior_kind,
+                                     implausible is not None))
     return result
 
 
@@ -616,6 +616,25 @@ def frame_log_likelihoods(likelihood, estimates: np.ndarray, z: np.ndarray) -> n
         if np.isfinite(joints).all() and np.isfinite(frame[..., :2]).any():
             loglik[t] = float(likelihood.log_likelihood(torch.as_tensor(joints)[None], torch.as_tensor(frame))[0])
     return loglik
+
+
+def mismatch_message(mismatch: np.ndarray, unlikely: np.ndarray, lost: np.ndarray | None, prior_kind: str,
+                     judged_by_prior: bool) -> str:
+    """The warning of a run with ticks flagged as mismatch: how many, and what was measured at each (the
+    detections unlikely under the estimate, by MISMATCH_NATS a detection for MISMATCH_RUN ticks, and a
+    pose the prior finds implausible where it was judged; the estimate LOST_MM from the triangulation).
+    It names no other preset: the fit-check's warning does, where a shipped prior fits the motion better."""
+    T = len(mismatch) - KNOWN_FRAMES
+    causes = [f"{int(unlikely.sum())} where the detections are over {MISMATCH_NATS:g} nats a detection less likely "
+              f"than the noise model expects for {MISMATCH_RUN}+ ticks"
+              + (f" and the {prior_kind} prior finds the tracked pose implausible" if judged_by_prior else "")]
+    if lost is not None:
+        causes.append(f"{int(lost.sum())} where the estimate is on average over {LOST_MM:g} mm from the detections' "
+                      f"own triangulation")
+    return (f"{int(mismatch.sum())} of {T} tracked ticks ({100 * mismatch.sum() / max(T, 1):.1f}%) are flagged as "
+            f"mismatch: {'; '.join(causes)}. The estimate there does not explain the detections: look at those ticks "
+            f"(the npz's mismatch, the recording's events) for a detector's swap or a lost limb, or a motion the "
+            f"{prior_kind} prior did not learn")
 
 
 def mismatch_flags(loglik: np.ndarray, z: np.ndarray, likelihood: MultiViewLikelihood) -> np.ndarray:
