@@ -124,3 +124,15 @@ def test_the_reference_is_cached_and_verified_like_the_priors(tmp_path, caplog):
     again = reference(preset, cache=tmp_path)
     assert "does not match its digest" in caplog.text
     np.testing.assert_array_equal(again, first)
+
+
+def test_the_printed_verdict_gives_its_rule_beside_its_share(capsys):
+    """Issue 28: "partly" printed beside "84% of its frames below" read as a contradiction; the line now
+    says where the verdicts part, and the share it prints gets the verdict that rule gives."""
+    import re
+
+    assert main(["eval", "fit-check", "pf-lie", "cmu:49_18"]) == 0
+    line = capsys.readouterr().out
+    share = float(re.search(r"(\d+)% of its frames score below", line).group(1)) / 100
+    word = "in support" if share < IN_SUPPORT else "outside" if share > OUTSIDE else "partly"
+    assert f": {word}." in line and f"'outside' over {100 * OUTSIDE:.0f}%" in line

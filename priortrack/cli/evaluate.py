@@ -69,7 +69,7 @@ def _eval_fit_check(args: argparse.Namespace) -> None:
     from priortrack.data.load import load_motion
     from priortrack.experiments.presets import load_preset
     from priortrack.priors.base import load_prior
-    from priortrack.priors.support import frame_log_density, reference, verdict
+    from priortrack.priors.support import frame_log_density, reference, verdict, verdict_rule
 
     motion = load_motion(args.motion)
     given = [load_motion(m) for m in args.reference or []]
@@ -96,7 +96,7 @@ def _eval_fit_check(args: argparse.Namespace) -> None:
     print(f"{args.motion} under {args.prior} ({prior.kind}): {result['verdict']}. "
           f"{100 * result['below_p1_fraction']:.0f}% of its frames score below the 1st percentile of frames the prior "
           f"was not fitted on ({p['1']:.1f}); median log-density {result['median_log_density']:.1f} per frame, at the "
-          f"{result['median_percentile']:.0f}th percentile (reference median {p['50']:.1f})")
+          f"{result['median_percentile']:.0f}th percentile (reference median {p['50']:.1f}); {verdict_rule()}")
 
 
 def _eval_pace(args: argparse.Namespace) -> None:

@@ -462,12 +462,14 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     if lost is not None:                 # … or one where the estimate has left the data's own triangulation
         result.mismatch = result.mismatch | lost
     if result.fit_check is not None and result.fit_check["verdict"] != "in support":
+        from priortrack.priors.support import verdict_rule
+
         better = result.fit_check.get("better_prior")
         log.warning("fit-check: the tracked motion is %s the %s prior's support (%.0f%% of its frames below the "
-                    "1st percentile of held-out training frames); its estimate leans on a prior that does not know "
-                    "the motion: %s", "outside" if result.fit_check["verdict"] == "outside" else "partly in",
-                    preset.prior_kind, 100 * result.fit_check["below_p1_fraction"],
-                    "compare with pf-diffusion-local" if better is None else
+                    "1st percentile of held-out training frames; %s); its estimate leans on a prior that does not "
+                    "know the motion: %s", "outside" if result.fit_check["verdict"] == "outside" else "partly in",
+                    preset.prior_kind, 100 * result.fit_check["below_p1_fraction"], verdict_rule(),
+                    "no shipped prior fits it better; fit one on motion like it (priortrack fit)" if better is None else
                     f"the {better['preset']} preset's prior fits it better ({better['verdict']}, "
                     f"{100 * better['below_p1_fraction']:.0f}% of its frames below): track with --filter {better['preset']}")
     if result.mismatch_fraction > 0:

@@ -127,6 +127,12 @@ def _swapped(a: list[Motion], b: list[Motion]) -> list[tuple[list[Motion], list[
     return [(a, b), (b, a)]
 
 
+def verdict_rule() -> str:
+    """The verdicts' thresholds in words, printed beside a share so that a reader sees why it got its verdict."""
+    return (f"'in support' under {100 * IN_SUPPORT:.0f}% of the frames below it, 'outside' over {100 * OUTSIDE:.0f}%, "
+            f"'partly' between")
+
+
 def verdict(ell: np.ndarray, reference_values: np.ndarray) -> dict:
     """The fit-check result of frame log-densities ``ell`` against ``reference_values`` (module docstring):
     {"verdict", "below_p1_fraction", "median_log_density", "median_percentile", "reference_percentiles",
