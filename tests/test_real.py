@@ -167,6 +167,10 @@ def test_a_run_keeps_a_record_a_tick_not_its_point_sets():
     every = track_detections(detections, calibration, "pf-lie", fps=60, keep_snapshots=True, snapshot_every=3)
     assert [s.frame for s in every.snapshots] == list(range(2, T, 3))
     np.testing.assert_array_equal(every.joints, plain.joints)
+    # a snapshot is in the Y-up working frame; in_world maps its estimate onto the world joints of its tick
+    for snapshot in every.snapshots:
+        np.testing.assert_allclose(every.in_world(snapshot.estimate), every.joints[snapshot.frame], atol=1e-12)
+    assert np.abs(every.snapshots[0].estimate - every.joints[2]).max() > 0.1          # the two frames differ here
     lagged = track_detections(detections, calibration, "pf-lie", fps=60, smooth=True, lag=2)
     assert lagged.snapshots is None and lagged.lag == 2
     np.testing.assert_array_equal(lagged.filtered_joints, plain.joints)

@@ -107,6 +107,14 @@ MISMATCH_RUN = 5
 LOST_MM = 100.0
 
 
+def in_world(body: np.ndarray, A: np.ndarray, definitions: bool = True) -> np.ndarray:
+    """Points (..., 3) of the Y-up working frame → the calibration's world (rows @ A, A the run's
+    :attr:`DetectionTrack.working_to_world`); with ``definitions`` eval15 body joints
+    (..., 15, 3) are moved to the detector's definitions first (:func:`~priortrack.data.keypoints.detector_map`)."""
+    body = np.asarray(body, dtype=float)
+    return (np.einsum("ij,...jk->...ik", detector_map(), body) if definitions else body) @ A
+
+
 @dataclass
 class DetectionTrack:
     """The result of :func:`track_detections`.
@@ -164,6 +172,13 @@ class DetectionTrack:
     #: The tracked motion's fit-check under the prior (:mod:`priortrack.priors.support`): "verdict",
     #: "below_p1_fraction", "median_percentile"; None where the preset's prior has no reference.
     fit_check: dict | None = None
+
+    def in_world(self, body: np.ndarray, definitions: bool = True) -> np.ndarray:
+        """Points (..., 3) of the filter's Y-up working frame (a snapshot's estimate, best or cloud, the
+        body joints) in the calibration's world, metres; with ``definitions`` an eval15 body's joints
+        (..., 15, 3) are also moved to the detector's definitions (pelvis = mid-hips, neck = mid-shoulders),
+        as ``joints`` are."""
+        return in_world(body, self.working_to_world, definitions)
 
     @property
     def mismatch_fraction(self) -> float:
@@ -440,10 +455,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     loglik = frame_log_likelihoods(model.likelihood, run.estimates, z)
     mismatch = mismatch_flags(loglik, z, model.likelihood)
     lost = None if single else lost_flags(np.einsum("ij,tjk->tik", M, run.estimates), X)
-    def world(body: np.ndarray) -> np.ndarray:      # the detector's definitions, back in the world
-        return np.einsum("ij,tjk->tik", M, body) @ A
-
-    joints = world(estimates)
+    joints = in_world(estimates, A)
     # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
     ess = np.asarray(run.ess, dtype=float) if preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
     reprojection = np.array([median_reprojection(cam, joints, uv[c, index], confidence[c, index])
@@ -453,7 +465,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
                             up, A, skeleton, estimates, world_cameras, z,
                             run.snapshots, run.steps, rejected,
-                            None if smoothed is None else world(run.estimates), lag if smooth else None,
+                            None if smoothed is None else in_world(run.estimates, A), lag if smooth else None,
                             interrupted=run.interrupted)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible

@@ -29,7 +29,9 @@ class Snapshot:
         ess: effective sample size 1 / Σ w².
         ancestors: (P,) indices into ``particles`` of the resampled set, None if not resampled.
         estimate: (J, 3) joints (eval15: J = 15) of the filter's estimate (of its weighted mean
-            state), metres, world.
+            state), metres, in the filter model's frame: the world of a synthetic run; for
+            ``track_detections``, its Y-up working frame (``DetectionTrack.in_world`` maps points of
+            a snapshot, ``estimate``, ``best`` and ``joints``, into the calibration's world).
         best: (J, 3) joints of the highest-weight particle.
         joints: (P, J, 3) joints of every particle (for clouds coloured by weight).
         (For a model other than a tracking model: what its ``observe`` returns.)

@@ -39,7 +39,7 @@ def record_detections(result, path: str | Path) -> Path:
             if result.filtered_joints is not None and np.isfinite(result.filtered_joints[t]).all():
                 rec.skeleton("filtered", result.filtered_joints[t], color=FILTERED_COLOR)
             if t in snapshots:
-                cloud = snapshots[t].joints.detach().cpu().double().numpy() @ result.working_to_world
+                cloud = result.in_world(snapshots[t].joints.detach().cpu().numpy(), definitions=False)
                 rec.cloud("estimate", cloud, snapshots[t].weights.detach().cpu().numpy())
             for c, (name, camera) in enumerate(zip(result.camera_names, result.cameras)):
                 z = result.observations[t, c]
