@@ -28,6 +28,7 @@ from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
+from priortrack.priors.defensive import DefensiveMixture
 from priortrack.priors.gpdm import GPDM
 from priortrack.priors.lie import LiePrior
 from priortrack.threads import torch_threads
@@ -40,9 +41,11 @@ needs_cuda = pytest.mark.skipif(not CUDA, reason="needs a CUDA GPU; this machine
 def priors():
     walks = list(load_walkjog().walks("train"))
     with torch_threads(1):
+        lie = LiePrior.fit(walks[:3], seed=0, max_components=2)
         return {"diffusion": Diffusion.fit(walks[:2], local=True),
                 "gpdm": GPDM.fit([m[:15] for m in walks[:2]], seed=0),
-                "lie": LiePrior.fit(walks[:3], seed=0, max_components=2)}
+                "lie": lie,
+                "defensive": DefensiveMixture(lie, Diffusion.fit(walks[:2], local=True, space="directions"), 0.1)}
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +62,7 @@ def _model(prior, walk, robust_nu=None):
 
 
 @needs_cuda
-@pytest.mark.parametrize("name", ["diffusion", "gpdm", "lie"])
+@pytest.mark.parametrize("name", ["diffusion", "gpdm", "lie", "defensive"])
 def test_a_steps_deterministic_parts_give_the_cpus_numbers(priors, walk, name):
     """On the same float64 particles: decoding to world joints, the likelihood (Gaussian and
     Student-t), the translation's Kalman update and its predictive likelihood, the prior's transition
@@ -91,7 +94,7 @@ def test_a_steps_deterministic_parts_give_the_cpus_numbers(priors, walk, name):
 
 
 @needs_cuda
-@pytest.mark.parametrize("name", ["diffusion", "gpdm", "lie"])
+@pytest.mark.parametrize("name", ["diffusion", "gpdm", "lie", "defensive"])
 def test_a_prior_draws_on_the_gpu_with_the_cpus_spread(priors, walk, name):
     """The transition drawn on the GPU (its own generator) has the CPU's one-step spread: the RMS
     tangent step per joint group of 20,000 draws within 4 % (the sampling error is about 1 %)."""
@@ -151,11 +154,17 @@ def test_real_detections_track_on_the_gpu():
                                                        device=device).summary()["reprojection_px"].values()))
                for device in ("cpu", "cuda")}
     assert medians["cuda"] <= 1.25 * medians["cpu"] + 1.0, medians
+    # the whole-run smoother on the GPU, its steps in memory and spilled to disk (read back onto the GPU)
+    held, spilled = (track_detections(detections, calibration, "pf-diffusion-local", fps=60, smooth=True, memory=memory,
+                                      device="cuda") for memory in (1 << 30, 0))
+    assert np.isfinite(held.joints).all()
+    np.testing.assert_allclose(spilled.joints, held.joints, rtol=0, atol=1e-5)
 
 
 @needs_cuda
 def test_bench_pf_times_the_gpu(priors):
-    result = bench_pf(particles=100_000, steps=3, warmup=1, priors=priors, device="cuda")
+    result = bench_pf(particles=100_000, steps=3, warmup=1, priors={k: priors[k] for k in ("diffusion", "gpdm", "lie")},
+                      device="cuda")
     assert result["device"] == "cuda" and result["fk_ms"] > 0
     assert all(v > 0 for v in result["particle_steps_per_s"].values())
 
