@@ -49,6 +49,8 @@ from priortrack.filters.unscented_rts import unscented_rts
 ITERATIONS = 1
 #: Van der Merwe's α of the smoother's sigma points (module docstring).
 SMOOTHER_ALPHA = 0.1
+#: Frames whose sigma points are propagated in one batch (bounds the smoother's memory on long runs).
+FRAMES_AT_ONCE = 256
 
 
 def _regression(xi: np.ndarray, y: np.ndarray, Sigma: np.ndarray, Wm: np.ndarray, Wc: np.ndarray):
@@ -81,6 +83,20 @@ def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.nda
     return H[kept], z_hat[kept], (R_u + Lam)[np.ix_(kept, kept)], values[usable][kept]
 
 
+def _sigma_frames(model, points: ManifoldSigmaPoints, mu: list[np.ndarray], Sigma: list[np.ndarray]):
+    """Per frame k in order: the sigma points' offsets ξ (N, n) of N(μ_k, Σ_k), their images under the
+    dynamics f(χ_i) (N, A) and the measurement h(χ_i) (N, m), computed ``FRAMES_AT_ONCE`` frames at a
+    time (a whole recording's sigma points at once would not fit: 18,000 frames × 125 points)."""
+    for start in range(0, len(mu), FRAMES_AT_ONCE):
+        xi = [points.offsets_at(P) for P in Sigma[start:start + FRAMES_AT_ONCE]]          # (2n + 1, n) each
+        N = len(xi[0])
+        chi = model.boxplus(torch.from_numpy(np.repeat(np.stack(mu[start:start + FRAMES_AT_ONCE]), N, axis=0)),
+                            torch.from_numpy(np.concatenate(xi)))
+        moved = model.mean_step(chi).split(N)
+        h = model.measure(chi).numpy().reshape(len(xi), N, -1)
+        yield from zip(xi, moved, h)
+
+
 def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.ndarray],
                             covariances: list[np.ndarray], data: np.ndarray, iterations: int = ITERATIONS,
                             gate_probability: float = GATE_PROBABILITY) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -96,25 +112,25 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.n
     threshold = chi2.isf(gate_probability, model.measurement_block) if gate_probability > 0 else np.inf
     T, n = len(mu), len(Sigma[0])
     for _ in range(iterations):
-        xi = [points.offsets_at(P) for P in Sigma]                                   # (2n + 1, n) each
-        N = len(xi[0])
-        chi = model.boxplus(torch.from_numpy(np.repeat(np.stack(mu), N, axis=0)), torch.from_numpy(np.concatenate(xi)))
-        moved = model.mean_step(chi).split(N)
-        h = model.measure(chi).numpy().reshape(T, N, -1)
+        frames = _sigma_frames(model, points, mu, Sigma)
+        previous = next(frames)
         # the filter, in the tangent coordinates at each μ_k
         gamma = model.transport(torch.from_numpy(means[0]), torch.from_numpy(mu[0])).numpy()
         d = model.boxminus(torch.from_numpy(means[0])[None], torch.from_numpy(mu[0]))[0].numpy()
         P = gamma @ covariances[0] @ gamma.T
         filtered, predicted, dynamics = [(d, P)], [], []
         for k in range(1, T):
-            y = model.boxminus(moved[k - 1], torch.from_numpy(mu[k])).numpy()
-            A, b, Omega, _ = _regression(xi[k - 1], y, Sigma[k - 1], Wm, Wc)
+            current = next(frames)
+            (xi_prev, moved_prev, _), (xi, _, h) = previous, current
+            previous = current
+            y = model.boxminus(moved_prev, torch.from_numpy(mu[k])).numpy()
+            A, b, Omega, _ = _regression(xi_prev, y, Sigma[k - 1], Wm, Wc)
             Q = model.process_covariance(torch.from_numpy(mu[k - 1])).numpy() + Omega
             d, P = A @ d + b, A @ P @ A.T + Q
             P = (P + P.T) / 2
             predicted.append((d, P))
             dynamics.append(A)
-            obs = _observed(model, data[k], h[k], xi[k], Sigma[k], Wm, Wc, threshold)
+            obs = _observed(model, data[k], h, xi, Sigma[k], Wm, Wc, threshold)
             if obs is not None:
                 H, z_hat, R, z = obs
                 S = H @ P @ H.T + R

@@ -558,7 +558,8 @@ class UnscentedFilter(SequentialFilter):
         generator and the particle smoother's options are not needed): the joints of each smoothed
         mean (W, J, 3) and their spread over the smoothed Gaussian's sigma points, at the filter's α
         (W, J) (and no trajectories to count)."""
-        from priortrack.filters.posterior_linearisation import SMOOTHER_ALPHA, posterior_linearisation
+        from priortrack.filters.posterior_linearisation import (FRAMES_AT_ONCE, SMOOTHER_ALPHA,
+                                                                posterior_linearisation)
         from priortrack.filters.smoothing import joint_spread
 
         points = self.kf.points_fn
@@ -566,7 +567,12 @@ class UnscentedFilter(SequentialFilter):
         means, covariances = posterior_linearisation(self.unscented, local, [s.mean.numpy() for s in snapshots],
                                                      [s.covariance.numpy() for s in snapshots], observations,
                                                      gate_probability=self.gate_probability)
-        sigmas = torch.from_numpy(np.stack([points.sigma_points(m, P) for m, P in zip(means, covariances)]))
-        joints = self.unscented.observe(sigmas.flatten(0, 1)).reshape(sigmas.shape[:2] + (-1, 3)).transpose(0, 1)
-        centre = self.unscented.observe(torch.from_numpy(np.stack(means)))
-        return centre.cpu().numpy(), joint_spread(joints, centre, torch.from_numpy(points.Wc)), None
+        centres, spreads = [], []
+        for start in range(0, len(means), FRAMES_AT_ONCE):                # a block of frames at a time
+            block = slice(start, start + FRAMES_AT_ONCE)
+            sigmas = torch.from_numpy(np.stack([points.sigma_points(m, P)
+                                                for m, P in zip(means[block], covariances[block])]))
+            joints = self.unscented.observe(sigmas.flatten(0, 1)).reshape(sigmas.shape[:2] + (-1, 3)).transpose(0, 1)
+            centres.append(self.unscented.observe(torch.from_numpy(np.stack(means[block]))))
+            spreads.append(joint_spread(joints, centres[-1], torch.from_numpy(points.Wc)))
+        return torch.cat(centres).cpu().numpy(), np.concatenate(spreads), None
