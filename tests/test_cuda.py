@@ -181,6 +181,8 @@ def test_no_gpu_is_one_clear_error(capsys):
         resolve_device("cuda")
     assert main(["track", "walkjog:35_29", "--filter", "pf-diffusion-local", "--device", "cuda", "--frames", "5"]) == 2
     assert "no CUDA GPU" in capsys.readouterr().err
+    assert main(["bench", "pf", "--device", "cuda"]) == 2                 # said before any prior is fitted
+    assert "no CUDA GPU" in capsys.readouterr().err
 
 
 def test_an_unknown_device_is_named():

@@ -39,11 +39,13 @@ def _bench_ukf(args: argparse.Namespace) -> None:
 
 
 def _bench_pf(args: argparse.Namespace) -> None:
+    from priortrack.device import resolve_device
     from priortrack.experiments.benchmarks.pf import bench_pf, bench_priors
 
+    resolve_device(args.device)                      # a missing GPU is said before the priors are fitted
+    priors = bench_priors(args.seed)                 # fitted once for every particle count
     runs = [bench_pf(particles=p, steps=args.steps, seed=args.seed, threads=args.threads, dtype=args.dtype,
-                     translation=args.translation, device=args.device, priors=priors)
-            for priors in [bench_priors(args.seed)] for p in args.particles]
+                     translation=args.translation, device=args.device, priors=priors) for p in args.particles]
     print_json(runs[0] if len(runs) == 1 else runs)
 
 

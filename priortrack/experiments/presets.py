@@ -235,13 +235,13 @@ class Preset:
         sigma points and windows are few; filterpy's and scipy's updates are numpy), and refuse another."""
         cls = filter_class(self.filter_kind)
         parameters = inspect.signature(cls.__init__).parameters
-        seeded = {"seed": seed} if "seed" in parameters else {}                # the UKF is deterministic
+        given = {"seed": seed} if "seed" in parameters else {}                 # the UKF is deterministic
         if "device" in parameters:
-            seeded["device"] = device
+            given["device"] = device
         elif resolve_device(device).type != "cpu":
             raise PriortrackError(f"preset {self.name!r}: its {cls.__name__} runs on the CPU only (numpy updates of "
                                   f"a few points); --device {device} is for the particle filters (pf, apf)")
-        return cls(model, **seeded, **self.filter_options)
+        return cls(model, **given, **self.filter_options)
 
 
 def _digest_path(path: Path) -> Path:

@@ -35,7 +35,7 @@ from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.backward_simulation import backward_indices, distinct
 from priortrack.filters.marginal_translation import kalman_update, predict_covariance, smooth_translation
 from priortrack.filters.resampling import resampler
-from priortrack.filters.smoothing import joint_spread
+from priortrack.filters.smoothing import blockwise_spread
 from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.step_store import Column
 from priortrack.models.tracking import TrackingModel
@@ -311,12 +311,11 @@ class ParticleFilter(SequentialFilter):
             states = self.model.with_translation(states.flatten(0, 1), tau.flatten(0, 1)).reshape(states.shape)
         M, W = states.shape[:2]
         weights = torch.full((M,), 1.0 / M, dtype=torch.float64, device=states.device)
-        frames = max(1, SMOOTH_JOINT_ROWS // M)                  # joints decoded a window of frames at a time
-        centres, spreads = [], []
-        for start in range(0, W, frames):
-            window = states[:, start:start + frames]
+
+        def decode(frames: slice):
+            window = states[:, frames]
             joints = self.model.observe(window.flatten(0, 1)).reshape(window.shape[:2] + (-1, 3))
-            centres.append(joints.mean(0))
-            spreads.append(joint_spread(joints, centres[-1], weights))
-        return (torch.cat(centres).detach().cpu().numpy().astype(float), np.concatenate(spreads),
-                distinct(indices).numpy())
+            return joints, joints.mean(0), weights
+
+        centre, spread = blockwise_spread(W, max(1, SMOOTH_JOINT_ROWS // M), decode)
+        return centre, spread, distinct(indices).numpy()

@@ -71,6 +71,18 @@ def joint_spread(joints: torch.Tensor, centre: torch.Tensor, weights: torch.Tens
     return torch.einsum("m,mwj->wj", weights.to(sq), sq).clamp(min=0).sqrt().cpu().numpy()
 
 
+def blockwise_spread(frames: int, block: int, decode) -> tuple[np.ndarray, np.ndarray]:
+    """The centre (W, J, 3) and spread (W, J) of a smoothed run's points, ``block`` frames at a time (a
+    long run's points decoded at once would not fit in memory): ``decode(frames)`` gives the joints of
+    those frames' points (M, w, J, 3), their centre (w, J, 3) and the points' weights (M,) (:func:`joint_spread`)."""
+    centres, spreads = [], []
+    for start in range(0, frames, block):
+        joints, centre, weights = decode(slice(start, start + block))
+        centres.append(centre.detach().cpu().numpy().astype(float))
+        spreads.append(joint_spread(joints, centre, weights))
+    return np.concatenate(centres), np.concatenate(spreads)
+
+
 def draws_for(filt, seed: int) -> torch.Generator:
     """The smoother's own generator, seeded, on the filter's device (a particle filter's particles may
     live on a GPU; the unscented filter's sigma points on the CPU)."""

@@ -2,10 +2,11 @@
 
 A particle filter's step, as the smoother reads it (:meth:`Snapshot.for_smoothing`), is its states,
 weights, ancestors and translation covariances: pf-lie's 1,000 particles take 376 kB a tick, 6.8 GB
-for ten minutes at 30 ticks a second (the unscented filter's mean and covariance 31 kB). :class:`StepStore` keeps the steps in memory while their arrays
-total at most ``memory`` bytes; each later step's arrays go to a ``.npy`` file of their own in a
-temporary folder (numpy's format, no pickle) and are read back when the smoother asks for that step,
-so a run's length alone never exhausts the memory. The folder goes with :meth:`StepStore.close`
+for ten minutes at 30 ticks a second (the unscented filter's mean and covariance 31 kB).
+:class:`StepStore` keeps the steps in memory while their arrays total at most ``memory`` bytes; each
+later step's arrays go to a ``.npy`` file of their own in a temporary folder (numpy's format, no
+pickle) and are read back when the smoother asks for that step, so a run's length alone never
+exhausts the memory. The folder goes with :meth:`StepStore.close`
 (or when the store is collected).
 """
 

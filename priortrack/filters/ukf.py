@@ -560,19 +560,19 @@ class UnscentedFilter(SequentialFilter):
         (W, J) (and no trajectories to count)."""
         from priortrack.filters.posterior_linearisation import (FRAMES_AT_ONCE, SMOOTHER_ALPHA,
                                                                 posterior_linearisation)
-        from priortrack.filters.smoothing import joint_spread
+        from priortrack.filters.smoothing import blockwise_spread
 
         points = self.kf.points_fn
         local = ManifoldSigmaPoints(self.unscented, SMOOTHER_ALPHA, points.offsets.beta, points.offsets.kappa)
         means, covariances = posterior_linearisation(self.unscented, local, [s.mean.numpy() for s in snapshots],
                                                      [s.covariance.numpy() for s in snapshots], observations,
                                                      gate_probability=self.gate_probability)
-        centres, spreads = [], []
-        for start in range(0, len(means), FRAMES_AT_ONCE):                # a block of frames at a time
-            block = slice(start, start + FRAMES_AT_ONCE)
+        Wc = torch.from_numpy(points.Wc)
+
+        def decode(frames: slice):
             sigmas = torch.from_numpy(np.stack([points.sigma_points(m, P)
-                                                for m, P in zip(means[block], covariances[block])]))
+                                                for m, P in zip(means[frames], covariances[frames])]))
             joints = self.unscented.observe(sigmas.flatten(0, 1)).reshape(sigmas.shape[:2] + (-1, 3)).transpose(0, 1)
-            centres.append(self.unscented.observe(torch.from_numpy(np.stack(means[block]))))
-            spreads.append(joint_spread(joints, centres[-1], torch.from_numpy(points.Wc)))
-        return torch.cat(centres).cpu().numpy(), np.concatenate(spreads), None
+            return joints, self.unscented.observe(torch.from_numpy(np.stack(means[frames]))), Wc
+
+        return *blockwise_spread(len(means), FRAMES_AT_ONCE, decode), None
