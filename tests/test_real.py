@@ -47,8 +47,12 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
         "cam01_json", "cam02_json", "cam03_json", "cam04_json"}
     assert all(e < 35 for e in summary["reprojection_px"].values()) and summary["mismatch_fraction"] == 0.0
     with np.load(folder / "r.npz") as z:
-        assert set(z.files) == {"joints", "joint_names", "fps", "frames", "spread", "ess", "loglik", "mismatch"}
+        assert set(z.files) == {"joints", "joint_names", "fps", "frames", "spread", "ess", "loglik", "mismatch",
+                                "camera_names", "reprojection_px", "gated"}
         joints = z["joints"]
+        by_tick, gated = z["reprojection_px"], z["gated"]
+        assert tuple(z["camera_names"]) == ("cam01_json", "cam02_json", "cam03_json", "cam04_json")
+        assert by_tick.shape == (6, 4) and gated.shape == (6, 4, 15) and not gated.any()     # a particle filter: no gate
         assert joints.shape == (6, 15, 3) and joints.dtype == np.float64
         assert tuple(z["joint_names"]) == EVAL15_NAMES and float(z["fps"]) == 30.0
         assert z["frames"].tolist() == [0, 2, 4, 6, 8, 10]            # 60 fps data, a 30 fps prior
@@ -59,6 +63,11 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
     uv, conf = read_detections(POSE, keypoints="body25b").eval15(0.3)
     X = triangulate(cameras, uv[:, ::2], conf[:, ::2])
     assert np.nanmean(np.linalg.norm(joints[:, 3:] - X[:, 3:], axis=-1)) < 0.05
+    # each tick's reprojection error per camera, recomputed here: the median over its detections seen
+    for t, c in ((0, 0), (5, 3)):
+        projected, _ = cameras[c].project(joints[t])
+        seen = conf[c, 2 * t] > 0
+        assert by_tick[t, c] == pytest.approx(np.median(np.linalg.norm(projected[seen] - uv[c, 2 * t][seen], axis=-1)))
     assert np.all(joints[:, [11, 14], 2] < 0.2) and np.all(joints[:, 2, 2] > 1.5)          # standing, Z up
     csv = np.loadtxt(folder / "r.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(csv[:, 2:47].reshape(6, 15, 3), joints, atol=1e-6)
@@ -341,3 +350,28 @@ def test_the_mismatch_warning_says_what_it_measured_and_names_no_weaker_preset()
     assert "pf-" not in text and "100%" not in text and "implausible" not in text
     judged = mismatch_message(mismatch, unlikely, None, "lie", judged_by_prior=True)
     assert "the lie prior finds the tracked pose implausible" in judged and "triangulation" not in judged
+
+
+def test_the_gate_and_each_cameras_reprojection_are_in_the_npz_and_the_recording(tmp_path):
+    """A right wrist thrown 300 px off in one camera at one frame: ukf-real's validation gate holds that
+    detection out (and no other at that tick; the real trial's own neck and shoulder in cam01 at tick 2
+    are held out too), the npz says which (tick, camera, joint), the recording draws each and counts
+    them per camera."""
+    detections = read_detections(POSE, keypoints="body25b")
+    keypoints = detections.keypoints.copy()
+    wrist = detections.keypoint_names.index("right_wrist")
+    keypoints[1, 6, wrist, :2] += 300.0                                # frame 6 = tick 3, cam02
+    result = track_detections(replace(detections, keypoints=keypoints), read_calibration(CALIB), "ukf-real", fps=60)
+    assert result.gated[3, 1, 8] and result.gated[3].sum() == 1, np.argwhere(result.gated)
+    result.save_npz(tmp_path / "r.npz")
+    with np.load(tmp_path / "r.npz") as z:
+        np.testing.assert_array_equal(z["gated"], result.gated)
+        np.testing.assert_array_equal(z["reprojection_px"], result.reprojection_by_tick)
+    from priortrack.viz.real import record_detections
+
+    record_detections(result, tmp_path / "r.rrd")
+    entities = {str(c.entity_path) for c in rr.chunk.RrdReader(tmp_path / "r.rrd").stream().to_chunks()}
+    for c, name in enumerate(result.camera_names):
+        assert (f"/world/{name}/image/gated" in entities) == (f"/metrics/gated/{name}" in entities) == bool(
+            result.gated[:, c].any())
+    assert "/world/cam02_json/image/gated" in entities

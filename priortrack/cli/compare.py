@@ -5,14 +5,31 @@ from __future__ import annotations
 import argparse
 
 from priortrack.cli.common import Progress, print_json
+from priortrack.errors import PriortrackError
 
 
 def _compare(args: argparse.Namespace) -> None:
     from pathlib import Path
 
-    from priortrack.experiments.compare import compare, plan, table
+    from priortrack.experiments.compare import compare, plan, series_of, table
+    from priortrack.experiments.compare_detections import LIMBS, plan_detections, summary
 
-    configs = plan(args.filters, args.motions, args.scenarios, args.seeds, args.frames, args.smooth)
+    if args.detections is not None:
+        if args.motions or args.scenarios:
+            raise PriortrackError("compare --detections scores the filters on your recording: give no --motions or "
+                                  "--scenarios")
+        if args.cameras is None:
+            raise PriortrackError("compare --detections needs the cameras' calibration (--cameras)")
+        configs = plan_detections(args.filters, args.detections, args.cameras, args.seeds, args.truth,
+                                  args.keypoints, args.fps, args.frames, args.smooth,
+                                  args.joints or LIMBS)
+    else:
+        for name in ("cameras", "truth", "keypoints", "fps", "joints"):
+            if getattr(args, name) is not None:
+                raise PriortrackError(f"--{name} is for compare --detections")
+        if not args.motions:
+            raise PriortrackError("compare needs --motions (bundled motion capture) or --detections with --cameras")
+        configs = plan(args.filters, args.motions, args.scenarios or ["clean"], args.seeds, args.frames, args.smooth)
     progress = Progress("compare", "{0}")
 
     def show(p) -> None:
@@ -24,6 +41,14 @@ def _compare(args: argparse.Namespace) -> None:
     finally:
         progress.close()
     files = sorted(str(f) for f in Path(args.out).rglob("*") if f.is_file() and f.parent.name != "runs")
+    if args.detections is not None:
+        if args.json:
+            print_json({"rows": rows, "summary": summary(rows, series_of(args.out, configs)), "out": args.out,
+                        "files": files})
+            return
+        print((Path(args.out) / "summary.md").read_text())
+        print(f"wrote {args.out}/results.csv, {args.out}/summary.md and the plots {args.out}/plots/*.png")
+        return
     if args.json:
         print_json({"rows": rows, "out": args.out, "files": files})
         return
@@ -54,11 +79,20 @@ def _compare(args: argparse.Namespace) -> None:
 
 def add_parsers(verbs) -> None:
     """Register this family's verbs on the ``priortrack`` sub-parsers."""
-    grid = verbs.add_parser("compare", help="a grid of filters x motions x scenarios x seeds: CSV, summary, plots, "
+    grid = verbs.add_parser("compare", help="a grid of filters x motions x scenarios x seeds, or filters on your own "
+                                            "--detections with each camera left out in turn: CSV, summary, plots, "
                                             "recordings; cached, resumable, serial or on Dask")
     grid.add_argument("--filters", nargs="+", required=True, help="preset names or .toml files")
-    grid.add_argument("--motions", nargs="+", required=True, help="bundled names, .amc or .bvh files")
-    grid.add_argument("--scenarios", nargs="+", default=["clean"], help="NAME or NAME:key=value,... (clean)")
+    grid.add_argument("--motions", nargs="+", help="bundled names, .amc or .bvh files")
+    grid.add_argument("--scenarios", nargs="+", help="NAME or NAME:key=value,... (clean)")
+    grid.add_argument("--detections", help="your recording's 2D keypoints (as track --detections reads them): each "
+                                           "filter tracks from all cameras but one, scored in the one left out")
+    grid.add_argument("--cameras", help="--detections: the calibration file (as track --cameras reads it)")
+    grid.add_argument("--truth", help="--detections: 3D joints of the same frames (.trc or .npz) to score MPJPE")
+    grid.add_argument("--keypoints", help="--detections: their layout, if the files do not say it")
+    grid.add_argument("--fps", type=float, help="--detections: their frame rate, if the files do not say it")
+    grid.add_argument("--joints", nargs="+", help="--detections: the eval15 joints scored (default shoulders to "
+                                                  "ankles; e.g. the arms' six for a person seated at a desk)")
     grid.add_argument("--seeds", type=int, default=1, help="seeds per motion and scenario (1)")
     grid.add_argument("--frames", type=int, help="track only the first N frames of each motion")
     grid.add_argument("--out", required=True, help="the results folder (reused: finished runs are not run again)")

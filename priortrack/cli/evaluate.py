@@ -154,27 +154,6 @@ def _eval_smoothing(args: argparse.Namespace) -> None:
               f"| {r['clean_ratio']:.2f} | {r['forward_seconds']:.1f} | {r['smoothing_seconds']:.1f} |")
 
 
-def _eval_leave_one_out(args: argparse.Namespace) -> None:
-    import numpy as np
-
-    from priortrack.experiments.real_format import leave_one_camera_out
-
-    rows = [leave_one_camera_out(p, c) for p in args.presets for c in range(4)]
-    if args.json:
-        print_json(rows)
-        return
-    print("real detections (Pose2Sim demo): tracked from 3 cameras, median pixel error in the 4th (shoulders to "
-          "ankles, confidence > 0.3)")
-    print("| preset | " + " | ".join(r["held_out"] for r in rows[:4]) + " | mean |")
-    print("|---|" + "---|" * 5)
-    for p in args.presets:
-        mine = [r for r in rows if r["preset"] == p]
-        print(f"| {p} | " + " | ".join(f"{r['tracker_px']:.1f}" for r in mine)
-              + f" | {np.mean([r['tracker_px'] for r in mine]):.1f} |")
-    print("| 3-camera DLT | " + " | ".join(f"{r['dlt_px']:.1f}" for r in rows[:4])
-          + f" | {np.mean([r['dlt_px'] for r in rows[:4]]):.1f} |")
-
-
 def _eval_tracking(args: argparse.Namespace) -> None:
     from priortrack.experiments.tracking import TABLE_MOTIONS, TABLE_PRESETS, TABLE_SCENARIOS, TABLE_SEEDS, eval_tracking
 
@@ -264,11 +243,6 @@ def add_parsers(verbs) -> None:
     smoothing.add_argument("--seeds", type=int, default=1, help="seeds per motion (default %(default)s)")
     smoothing.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
     smoothing.set_defaults(run=_eval_smoothing)
-    loo = evaluate.add_parser("leave-one-out", help="real detections: track from 3 cameras, reproject into the 4th")
-    loo.add_argument("--presets", nargs="+", default=["pf-diffusion-local", "apf-diffusion-local", "pf-gpdm", "pf-lie",
-                                                      "ukf-diffusion-local", "ukf-gpdm", "map-gpdm", "ukf-real"], help="preset names or .toml files (default: %(default)s)")
-    loo.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
-    loo.set_defaults(run=_eval_leave_one_out)
     tracking = evaluate.add_parser("tracking", help="the accuracy table: every preset x scenario over seeds")
     tracking.add_argument("--presets", nargs="+", help="default: the table's nine presets")
     tracking.add_argument("--scenarios", nargs="+", help="default: clean, occlusion and blackout at 5 px")

@@ -49,8 +49,8 @@ COLUMNS = ("filter", "motion", "scenario", "seed", "mpjpe_mm", "rootrel_mm", "px
 SMOOTHED_COLUMNS = ("filtered_mpjpe_mm", "filtered_rootrel_mm")
 #: The series kept per run (DIR/runs/<hash>.npz), each (T,).
 SERIES = ("error_mm", "ess", "observed_fraction")
-#: The most a run's series file may hold (a run of 10⁶ frames).
-SERIES_BYTES = 3 * 8 * 10**6
+#: The most a run's series file may hold (a detections run of 10⁶ ticks: five (T, 12) float64 series).
+SERIES_BYTES = 5 * 12 * 8 * 10**6
 
 
 @dataclass(frozen=True)
@@ -82,6 +82,23 @@ class RunConfig:
     def label(self) -> str:
         """filter · motion · scenario · seed: the run's name in recordings and logs."""
         return f"{self.filter} · {self.motion} · {self.scenario} · seed {self.seed}"
+
+    @property
+    def recording_stem(self) -> str:
+        return "_".join((self.filter, Path(self.motion).name, self.scenario, f"seed{self.seed}"))
+
+    def run(self, cache: str | None = None, rrd: bool = False) -> tuple[dict, dict[str, list[float]], bytes | None]:
+        return run(self, cache, rrd)
+
+    @staticmethod
+    def write_results(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], out: Path) -> None:
+        """``out``/results.csv, summary.md and plots/."""
+        from priortrack.viz.compare_plots import write_plots
+
+        write_csv(rows, out / "results.csv",
+                  list(COLUMNS) + [c for c in SMOOTHED_COLUMNS if any(c in r for r in rows)])
+        (out / "summary.md").write_text(summary_markdown(rows))
+        write_plots(rows, series, out / "plots")
 
 
 def plan(filters: Sequence[str], motions: Sequence[str], scenarios: Sequence[str], seeds: int,
@@ -180,11 +197,13 @@ class Progress:
     label: str
 
 
-def compare(configs: Sequence[RunConfig], out: str | Path, workers: int | None = None, scheduler: str | None = None,
+def compare(configs: Sequence, out: str | Path, workers: int | None = None, scheduler: str | None = None,
             rrd: bool = False, cache: str | Path | None = None,
             progress: Callable[[Progress], None] | None = None) -> list[dict]:
-    """Run (or read from ``out``'s cache) every configuration, write ``out``/results.csv, summary.md,
-    plots/ and (``rrd``) recordings/; returns the rows in the grid's order."""
+    """Run (or read from ``out``'s cache) every configuration (:class:`RunConfig`s of motion capture, or
+    :class:`~priortrack.experiments.compare_detections.DetectionRunConfig`s of a user's detections: each
+    knows its run and its results' files), write ``out``/results.csv, summary.md, plots/ and (``rrd``)
+    recordings/; returns the rows in the grid's order."""
     from priortrack.experiments.presets import cache_dir, load_preset
     from priortrack.threads import torch_threads
 
@@ -225,16 +244,18 @@ def compare(configs: Sequence[RunConfig], out: str | Path, workers: int | None =
                 load_preset(name).prior(cache)                  # fitted once, here, before any run
         if workers is None and scheduler is None:
             for config in pending:
-                finished(config, *run(config, cache, rrd))
+                finished(config, *config.run(cache, rrd))
         else:
             _on_dask(pending, cache, rrd, workers, scheduler, finished)
     ordered = [rows[c] for c in configs]
-    write_csv(ordered, out / "results.csv")
-    (out / "summary.md").write_text(summary_markdown(ordered))
-    from priortrack.viz.compare_plots import write_plots
-
-    write_plots(ordered, {c.key: _series(runs_dir, c.key) for c in configs}, out / "plots")
+    if configs:
+        type(configs[0]).write_results(ordered, series_of(out, configs), out)
     return ordered
+
+
+def _run(config, cache: str, rrd: bool):
+    """A configuration's run (what a Dask worker calls)."""
+    return config.run(cache, rrd)
 
 
 def _on_dask(pending: list[RunConfig], cache: str, rrd: bool, workers: int | None, scheduler: str | None,
@@ -259,7 +280,7 @@ def _on_dask(pending: list[RunConfig], cache: str, rrd: bool, workers: int | Non
                                    dashboard_address=None)
             client = Client(cluster)
     try:
-        futures = {client.submit(run, config, cache, rrd, pure=False): config for config in pending}
+        futures = {client.submit(_run, config, cache, rrd, pure=False): config for config in pending}
         for future in as_completed(futures):
             finished(futures[future], *future.result())
     finally:
@@ -268,12 +289,10 @@ def _on_dask(pending: list[RunConfig], cache: str, rrd: bool, workers: int | Non
             cluster.close()
 
 
-def _recording_path(out: Path, config: RunConfig) -> Path:
+def _recording_path(out: Path, config) -> Path:
     from priortrack.viz.recording import entry_name
 
-    safe = "_".join(entry_name(part) for part in (config.filter, Path(config.motion).name, config.scenario,
-                                                  f"seed{config.seed}"))
-    return out / "recordings" / f"{safe}.rrd"
+    return out / "recordings" / f"{entry_name(config.recording_stem)}.rrd"
 
 
 def _stored(runs_dir: Path, key: str) -> dict | None:
@@ -290,24 +309,27 @@ def _stored(runs_dir: Path, key: str) -> dict | None:
 def _store(runs_dir: Path, key: str, row: dict, series: dict) -> None:
     """The run's series, then its row (written last, atomically: a row on disk means a finished run)."""
     with open(runs_dir / f"{key}.npz", "wb") as f:
-        np.savez(f, **{name: np.asarray(series[name], dtype=float) for name in SERIES})
+        np.savez(f, **{name: np.asarray(values, dtype=float) for name, values in series.items()})
     partial = runs_dir / f"{key}.json.partial"
     partial.write_text(json.dumps(row))
     os.replace(partial, runs_dir / f"{key}.json")
 
 
+def series_of(out: str | Path, configs: Sequence) -> dict[str, dict[str, np.ndarray]]:
+    """The stored series of every configuration of a finished grid in ``out``, by configuration hash."""
+    return {c.key: _series(Path(out) / "runs", c.key) for c in configs}
+
+
 def _series(runs_dir: Path, key: str) -> dict[str, np.ndarray]:
     from priortrack.data.npz import read_npz
 
-    arrays = read_npz(runs_dir / f"{key}.npz", SERIES_BYTES, "compare run series")
-    return {name: arrays[name] for name in SERIES}
+    return read_npz(runs_dir / f"{key}.npz", SERIES_BYTES, "compare run series")
 
 
-def write_csv(rows: Sequence[dict], path: Path) -> None:
-    """One line per run, COLUMNS (and SMOOTHED_COLUMNS where the runs were smoothed); empty = none."""
+def write_csv(rows: Sequence[dict], path: Path, columns: Sequence[str]) -> None:
+    """One line per run, its ``columns``; empty = none."""
     import csv
 
-    columns = list(COLUMNS) + [c for c in SMOOTHED_COLUMNS if any(c in r for r in rows)]
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(columns)

@@ -131,7 +131,10 @@ class DetectionTrack:
         loglik: (T,) log p(z_t | estimate) under the observation model (NaN where nothing was seen).
         mismatch: (T,) bool, the ticks the prior does not explain (module docstring).
         camera_names: (C,) the detection cameras; reprojection_px (C,): the median pixel error of the
-            estimate's projection against each camera's detections.
+            estimate's projection against each camera's detections (over every tick and joint).
+        reprojection_by_tick: (T, C) the same per tick (NaN where the camera saw nothing).
+        gated: (T, C, 15) bool, the detections the unscented filter's validation gate held out (all
+            False for the other filters).
         filter: the preset's name; seconds: the run's wall time.
     """
 
@@ -172,6 +175,8 @@ class DetectionTrack:
     #: The tracked motion's fit-check under the prior (:mod:`priortrack.priors.support`): "verdict",
     #: "below_p1_fraction", "median_percentile"; None where the preset's prior has no reference.
     fit_check: dict | None = None
+    reprojection_by_tick: np.ndarray | None = field(default=None, repr=False)
+    gated: np.ndarray | None = field(default=None, repr=False)
 
     def in_world(self, body: np.ndarray, definitions: bool = True) -> np.ndarray:
         """Points (..., 3) of the filter's Y-up working frame (a snapshot's estimate, best or cloud, the
@@ -197,14 +202,18 @@ class DetectionTrack:
 
     def save_npz(self, path: str | Path) -> Path:
         """``joints`` (T, 15, 3) float64 metres in the calibration's world, ``joint_names``, ``fps``,
-        ``frames`` (T,), ``spread`` (T, 15), ``ess`` (T,), ``loglik`` (T,), ``mismatch`` (T,) bool; a smoothed
-        run adds ``filtered_joints`` (T, 15, 3), the filter's own (``joints`` and ``spread`` are the smoother's)."""
+        ``frames`` (T,), ``spread`` (T, 15), ``ess`` (T,), ``loglik`` (T,), ``mismatch`` (T,) bool,
+        ``camera_names`` (C,), ``reprojection_px`` (T, C) each tick's median pixel error per camera and
+        ``gated`` (T, C, 15) bool the detections the validation gate held out; a smoothed run adds
+        ``filtered_joints`` (T, 15, 3), the filter's own (``joints`` and ``spread`` are the smoother's)."""
         path = output_path(path, "result file")
         smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints.astype(np.float64)}
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints.astype(np.float64), joint_names=np.array(EVAL15_NAMES),
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,
-                     ess=self.ess, loglik=self.loglik, mismatch=self.mismatch.astype(bool), **smoothed)
+                     ess=self.ess, loglik=self.loglik, mismatch=self.mismatch.astype(bool),
+                     camera_names=np.array(self.camera_names), reprojection_px=self.reprojection_by_tick,
+                     gated=self.gated.astype(bool), **smoothed)
         return path
 
     def save_csv(self, path: str | Path) -> Path:
@@ -316,7 +325,7 @@ def _check_in_front(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[st
                                   f"camera as read (a camera → world file, or a wrong sign?)")
 
 
-def _up_from_detections(cameras: list[PinholeCamera], uv: np.ndarray, confidence: np.ndarray,
+def up_from_detections(cameras: list[PinholeCamera], uv: np.ndarray, confidence: np.ndarray,
                         source: str) -> np.ndarray:
     """The world's up found from the person (:func:`priortrack.geometry.frames.up_from_person`) over
     the detections' frames triangulated in the calibration's world; logged."""
@@ -363,7 +372,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     uv, confidence = detections.eval15(min_confidence)                           # (C, T, 15, 2), (C, T, 15)
     up = up if up is not None else calibration.up
     if up is None:
-        up = _up_from_detections(world_cameras, uv, confidence, calibration.source)
+        up = up_from_detections(world_cameras, uv, confidence, calibration.source)
     up = up if isinstance(up, str) and up in UP_AXES else up_vector(up)
     A = to_y_up(up)
     cameras = [in_working_frame(c, A) for c in world_cameras]
@@ -458,15 +467,22 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     joints = in_world(estimates, A)
     # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
     ess = np.asarray(run.ess, dtype=float) if preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
-    reprojection = np.array([median_reprojection(cam, joints, uv[c, index], confidence[c, index])
+    consumed = np.where(index[:, None] >= 0, confidence[:, index], 0.0)      # (C, T, 15): none at a tick without a frame
+    reprojection = np.array([median_reprojection(cam, joints, uv[c, index], consumed[c])
                              for c, cam in enumerate(world_cameras)])
+    by_tick = np.stack([tick_reprojection(cam, joints, uv[c, index], consumed[c])
+                        for c, cam in enumerate(world_cameras)], axis=1)
+    gated = np.zeros(z.shape[:3], dtype=bool)                                      # (T, C, 15)
+    for step in run.steps:
+        if step.held_out is not None and step.frame < T:
+            gated[step.frame] = step.held_out.reshape(z.shape[1:3])
     result = DetectionTrack(joints, np.where(index >= 0, detections.frames[np.maximum(index, 0)], -1),
                             float(prior.fps), spread, ess, loglik, mismatch,
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
                             up, A, skeleton, estimates, world_cameras, z,
                             run.snapshots, run.steps, rejected,
                             None if smoothed is None else in_world(run.estimates, A), lag if smooth else None,
-                            interrupted=run.interrupted)
+                            interrupted=run.interrupted, reprojection_by_tick=by_tick, gated=gated)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible
@@ -688,10 +704,26 @@ def _in_runs(bad: np.ndarray) -> np.ndarray:
     return flagged
 
 
+def pixel_errors(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """(T, J) pixel distance between the projected joints (T, J, 3) and the detections (T, J, 2), NaN
+    where a detection is not seen (confidence 0, NaN) or a joint is missing."""
+    projected, _ = camera.project(np.nan_to_num(joints))
+    seen = (confidence > 0) & np.isfinite(uv).all(axis=-1) & np.isfinite(joints).all(axis=-1)
+    return np.where(seen, np.linalg.norm(projected - uv, axis=-1), np.nan)
+
+
 def median_reprojection(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> float:
     """Median pixel distance between the projected joints (T, J, 3) and the detections (T, J, 2) seen
-    (confidence > 0); NaN if none is."""
-    projected, _ = camera.project(joints)
-    seen = (confidence > 0) & np.isfinite(uv).all(axis=-1)
-    errors = np.linalg.norm(projected - uv, axis=-1)[seen]
-    return float(np.nanmedian(errors)) if len(errors) else float("nan")
+    (confidence > 0), over every tick and joint; NaN if none is."""
+    errors = pixel_errors(camera, joints, uv, confidence)
+    return float(np.nanmedian(errors)) if np.isfinite(errors).any() else float("nan")
+
+
+def tick_reprojection(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """(T,) each tick's median pixel distance between the projected joints and the detections seen; NaN
+    where none is."""
+    errors = pixel_errors(camera, joints, uv, confidence)
+    seen = np.isfinite(errors).any(axis=1)
+    out = np.full(len(errors), np.nan)
+    out[seen] = np.nanmedian(errors[seen], axis=1)
+    return out

@@ -38,7 +38,7 @@ from priortrack.data.keypoints import LAYOUTS
 from priortrack.data.load import load_motion
 from priortrack.errors import PriortrackError
 from priortrack.experiments.presets import Preset
-from priortrack.experiments.real import median_reprojection, track_detections
+from priortrack.experiments.real import track_detections
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.frames import to_y_up
 from priortrack.geometry.triangulation import triangulate
@@ -184,32 +184,3 @@ def eval_real_format(presets, motions, seeds: int = 1, cameras: list[int] | None
                     **{key: float(np.mean([r[key] for r in rows])) for key in
                        ("filtered_mm", "jitter_mm", "filtered_jitter_mm", "truth_jitter_mm") if smooth}}
     return {"table": table, "runs": runs, "cameras": runs[0]["cameras"] if runs else 0}
-
-
-def leave_one_camera_out(preset: str, held_out: int, seed: int = 0, cache=None) -> dict:
-    """Real detections (the Pose2Sim demo's trial): track from every camera but ``held_out``, project the
-    estimate into it, and take the median pixel error against its detections (confidence > 0.3,
-    shoulders to ankles); beside it, the same for the DLT triangulation of the other cameras."""
-    from dataclasses import replace
-
-    detections = read_detections(POSE2SIM_DIR / "pose", keypoints="body25b")
-    calibration = read_calibration(DEFAULT_CALIBRATION)
-    kept = [c for c in range(len(calibration.cameras)) if c != held_out]
-    if not 0 <= held_out < len(calibration.cameras):
-        raise PriortrackError(f"held_out must be a camera index in [0, {len(calibration.cameras) - 1}]")
-    three = replace(detections, keypoints=detections.keypoints[kept],
-                    camera_names=tuple(detections.camera_names[c] for c in kept), switches=())
-    result = track_detections(three, Calibration(tuple(calibration.cameras[c] for c in kept), calibration.up,
-                                                 calibration.source), preset, fps=60.0, seed=seed, cache=cache)
-    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
-    uv, confidence = detections.eval15(0.3)
-    ticks = result.frames >= 0
-    frames = result.frames[ticks]
-    target, weight = uv[held_out, frames][:, SHOULDERS_TO_ANKLES], confidence[held_out, frames][:, SHOULDERS_TO_ANKLES]
-    dlt = triangulate([cameras[c] for c in kept], uv[kept][:, frames], confidence[kept][:, frames])
-
-    def median_px(X: np.ndarray) -> float:
-        return median_reprojection(cameras[held_out], X[:, SHOULDERS_TO_ANKLES], target, weight)
-
-    return {"preset": preset, "held_out": detections.camera_names[held_out], "tracker_px": median_px(result.joints[ticks]),
-            "dlt_px": median_px(dlt), "ticks": int(ticks.sum())}

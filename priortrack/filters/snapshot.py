@@ -105,7 +105,8 @@ class StepRecord:
         points: particles (or sigma points, or window states) in the step's set.
         resampled: whether the particle set was resampled after the step.
         flags: the step's flags (:class:`Snapshot`).
-        held_out: points the unscented filter's validation gate held out, None for other filters.
+        held_out: (points,) bool, the observed points (cameras × joints, in the observation's order) the
+            unscented filter's validation gate held out; None for other filters, or a step with nothing to gate.
     """
 
     frame: int
@@ -113,12 +114,12 @@ class StepRecord:
     points: int
     resampled: bool
     flags: tuple[str, ...]
-    held_out: int | None = None
+    held_out: np.ndarray | None = None
 
     @classmethod
     def of(cls, snapshot: Snapshot) -> "StepRecord":
         return cls(snapshot.frame, float(snapshot.ess), len(snapshot.weights), snapshot.ancestors is not None,
-                   tuple(snapshot.flags), None if snapshot.held_out is None else int(snapshot.held_out.sum()))
+                   tuple(snapshot.flags), None if snapshot.held_out is None else np.array(snapshot.held_out, dtype=bool))
 
 
 @dataclass

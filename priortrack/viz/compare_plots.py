@@ -5,6 +5,12 @@
   over the runs);
 - ``ess_<scenario>.png``: the effective sample size per frame of the filters that have one;
 - ``summary.png``: mean ± std MPJPE per filter, bars grouped by scenario.
+
+and of ``priortrack compare --detections`` (:mod:`priortrack.experiments.compare_detections`):
+
+- ``held_out_cdf.png``: the cumulative distribution of the pixel errors in the cameras left out, one
+  line per filter and one for the DLT of the other cameras;
+- ``held_out_joints.png``: the median pixel error per joint, bars grouped by joint.
 """
 
 from __future__ import annotations
@@ -86,6 +92,55 @@ def write_plots(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], 
     ax.legend(fontsize=7)
     figure.tight_layout()
     path = folder / "summary.png"
+    figure.savefig(path, dpi=100)
+    written.append(path)
+    return written
+
+
+def write_detection_plots(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], folder: Path) -> list[Path]:
+    """Write the plots of a detections grid (module docstring) into ``folder``; returns the files written."""
+    from matplotlib import colormaps
+
+    from priortrack.experiments.compare_detections import ALL_CAMERAS
+
+    folder.mkdir(parents=True, exist_ok=True)
+    filters = list(dict.fromkeys(r["filter"] for r in rows))
+    joints = list(rows[0]["joints"])
+    held_out = [r for r in rows if r["held_out"] != ALL_CAMERAS and "error_px" in series[r["config_hash"]]]
+    errors = {f: [series[r["config_hash"]]["error_px"] for r in held_out if r["filter"] == f] for f in filters}
+    first = {r["held_out"]: r for r in reversed(held_out)}              # each camera's first run that tracked
+    errors["DLT"] = [series[r["config_hash"]]["dlt_px"] for r in first.values()]
+    colours = {f: colormaps["tab10"](i % 10) for i, f in enumerate(filters)} | {"DLT": "black"}
+    pooled = {name: np.concatenate([np.reshape(a, (-1, len(joints))) for a in v]) if v else
+              np.empty((0, len(joints))) for name, v in errors.items()}
+    written = []
+    figure = _figure(figsize=(6, 4))
+    ax = figure.subplots()
+    for name, e in pooled.items():
+        values = np.sort(e[np.isfinite(e)])
+        if len(values):
+            ax.plot(values, np.arange(1, len(values) + 1) / len(values), color=colours[name], label=name,
+                    lw=1.2, ls="--" if name == "DLT" else "-")
+    ax.set_xscale("log")
+    ax.set_xlabel("pixel error in the camera left out")
+    ax.set_ylabel("fraction of joints")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    figure.tight_layout()
+    path = folder / "held_out_cdf.png"
+    figure.savefig(path, dpi=100)
+    written.append(path)
+    figure = _figure(figsize=(max(6, 0.9 * len(joints)), 3.8))
+    ax = figure.subplots()
+    width = 0.8 / len(pooled)
+    for i, (name, e) in enumerate(pooled.items()):
+        medians = [np.nanmedian(e[:, j]) if np.isfinite(e[:, j]).any() else np.nan for j in range(len(joints))]
+        ax.bar(np.arange(len(joints)) + i * width, medians, width, color=colours[name], label=name)
+    ax.set_xticks(np.arange(len(joints)) + 0.4 - width / 2, joints, fontsize=8)
+    ax.set_ylabel("median pixel error, camera left out")
+    ax.legend(fontsize=7)
+    figure.tight_layout()
+    path = folder / "held_out_joints.png"
     figure.savefig(path, dpi=100)
     written.append(path)
     return written

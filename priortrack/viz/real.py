@@ -1,7 +1,8 @@
 """Rerun recordings of real detections tracked by :func:`priortrack.experiments.real.track_detections`.
 
 In the calibration's world (its up axis): every camera as a pinhole with its image size, its
-detections (radius and brightness by confidence) and the estimate's reprojection in its image, the
+detections (radius and brightness by confidence; red over them, those the unscented filter's
+validation gate held out, counted as ``gated/<camera>``) and the estimate's reprojection in its image, the
 3D estimate skeleton (a smoothed run: the smoothed one, and the filter's own as "filtered") and the
 particle cloud coloured by weight, and per-frame scalars: each
 camera's median reprojection error, the ESS, the log-likelihood and the mismatch flag.
@@ -21,6 +22,8 @@ from priortrack.viz.logger import ESTIMATE_COLOR, step_events
 
 DETECTION_COLOR, MISMATCH_COLOR = (60, 200, 255), (255, 0, 200)
 FILTERED_COLOR = (150, 150, 150)
+#: The detections the unscented filter's validation gate held out, drawn over their camera's detections.
+GATED_COLOR = (255, 40, 40)
 
 
 def record_detections(result, path: str | Path) -> Path:
@@ -44,13 +47,14 @@ def record_detections(result, path: str | Path) -> Path:
             for c, (name, camera) in enumerate(zip(result.camera_names, result.cameras)):
                 z = result.observations[t, c]
                 rec.points_2d("detections", z[:, :2], DETECTION_COLOR, camera=name, confidence=z[:, 2])
+                if result.gated[t, c].any():
+                    rec.points_2d("gated", z[result.gated[t, c], :2], GATED_COLOR, camera=name)
+                    rec.scalar(f"gated/{name}", float(result.gated[t, c].sum()))
                 if np.isfinite(joints).all():
                     uv, _ = camera.project(torch.as_tensor(joints))
                     rec.points_2d("estimate", uv.numpy(), ESTIMATE_COLOR, camera=name)
-                    seen = np.isfinite(z[:, 0]) & (np.nan_to_num(z[:, 2]) > 0)
-                    if seen.any():
-                        rec.scalar(f"reprojection_px/{name}",
-                                   float(np.median(np.linalg.norm(uv.numpy()[seen] - z[seen, :2], axis=-1))))
+                if np.isfinite(result.reprojection_by_tick[t, c]):
+                    rec.scalar(f"reprojection_px/{name}", float(result.reprojection_by_tick[t, c]))
             step = steps.get(t)
             if step is not None and np.isfinite(result.ess[t]):           # particles (sigma points have no ESS)
                 rec.scalar("ess_fraction", step.ess / step.points)

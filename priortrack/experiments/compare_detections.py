@@ -1,0 +1,438 @@
+"""``priortrack compare --detections``: filters compared on a user's own recording, scored without 3D
+truth by leaving each camera out in turn.
+
+A run is one preset, one held-out camera c and one seed: the preset tracks the person from every
+camera but c (:func:`~priortrack.experiments.real.track_detections`), and the estimate's joints are
+projected into c (its lens distortion included) and compared with c's own detections over the limb
+joints (shoulders to ankles, where c's confidence exceeds ``min_confidence``): e_{t,j} = ‖π_c(X̂_{t,j})
+− u_{c,t,j}‖ in pixels, at every tick that consumed a frame. A camera the tracker never saw is an
+independent view: how well a 3D estimate explains it is its cross-validation where no truth exists.
+The baseline is per-frame confidence-weighted DLT of the same other cameras on the same frames,
+projected the same way (a row of the table beside the presets). With ``smooth`` the smoothed joints
+are scored, the filter's own beside them.
+
+With a truth file (3D joints of the same frames: a TRC or an NPZ, :func:`read_truth`) each preset
+also tracks from every camera (held-out camera "", the "all cameras" run), scored by world MPJPE
+over the same joints against the truth, beside the DLT of every camera.
+
+The grid is cached, resumable and Dask-able as the motion-capture grid is
+(:func:`priortrack.experiments.compare.compare`): a run's key covers the detections', calibration's
+and truth's bytes. The summary pools every held-out camera's errors per preset (median and 90th
+percentile, pixels) and breaks them down by camera and by joint.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, replace
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from priortrack.data.eval15 import EVAL15_NAMES
+from priortrack.errors import PriortrackError
+
+log = logging.getLogger(__name__)
+#: The eval15 joints scored by default: shoulders to ankles (pelvis, neck and head are defined differently
+#: by each detector); a grid may score fewer (the upper body of a person seated at a desk).
+LIMBS = EVAL15_NAMES[3:]
+#: The CSV's columns, in order (truth and smoothing add theirs where given).
+COLUMNS = ("filter", "held_out", "seed", "median_px", "p90_px", "dlt_median_px", "dlt_p90_px", "ticks",
+           "s_per_frame", "mismatch_fraction", "error", "config_hash")
+TRUTH_COLUMNS = ("mpjpe_mm", "dlt_mpjpe_mm")
+SMOOTHED_COLUMNS = ("filtered_median_px", "filtered_p90_px", "filtered_mpjpe_mm")
+#: Every held-out camera's name for the run that tracks from all cameras (scored by the truth only).
+ALL_CAMERAS = ""
+
+
+def _digest(path: Path) -> bytes:
+    """SHA-256 of a file's bytes, or of a folder's files (relative names and bytes, in sorted order)."""
+    h = hashlib.sha256()
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    for f in files:
+        h.update(str(f.relative_to(path) if path.is_dir() else f.name).encode())
+        h.update(f.read_bytes())
+    return h.digest()
+
+
+@dataclass(frozen=True)
+class DetectionRunConfig:
+    """One run of a detections grid (plain values: what a Dask worker is sent). ``held_out``: the
+    detection camera left out (its name), or :data:`ALL_CAMERAS`."""
+
+    filter: str
+    detections: str
+    cameras: str
+    held_out: str
+    seed: int
+    truth: str | None = None
+    keypoints: str | None = None
+    fps: float | None = None
+    frames: int | None = None
+    smooth: bool = False
+    joints: tuple[str, ...] = LIMBS
+
+    @cached_property
+    def key(self) -> str:
+        """The configuration hash: the fields, priortrack's version, the preset file's text and the
+        bytes of the detections, calibration and truth (16 hex digits)."""
+        from priortrack import __version__
+        from priortrack.experiments.compare import RUN_THREADS
+        from priortrack.experiments.presets import preset_path
+
+        digest = hashlib.sha256(json.dumps([asdict(self), RUN_THREADS, __version__], sort_keys=True).encode())
+        digest.update(preset_path(self.filter).read_bytes())
+        for path in (self.detections, self.cameras, self.truth):
+            if path is not None:
+                digest.update(_digest(Path(path)))
+        return digest.hexdigest()[:16]
+
+    @property
+    def label(self) -> str:
+        """filter · held-out camera · seed: the run's name in recordings and logs."""
+        return f"{self.filter} · {'all cameras' if self.held_out == ALL_CAMERAS else 'without ' + self.held_out} · seed {self.seed}"
+
+    @property
+    def recording_stem(self) -> str:
+        return "_".join((self.filter, self.held_out or "all", f"seed{self.seed}"))
+
+    def run(self, cache: str | None = None, rrd: bool = False) -> tuple[dict, dict[str, list], bytes | None]:
+        return run_detections(self, cache, rrd)
+
+    @staticmethod
+    def write_results(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], out: Path) -> None:
+        """``out``/results.csv, summary.md and plots/ (:func:`summary`)."""
+        from priortrack.experiments.compare import write_csv
+        from priortrack.viz.compare_plots import write_detection_plots
+
+        extra = [c for c in TRUTH_COLUMNS + SMOOTHED_COLUMNS if any(r.get(c) is not None for r in rows)]
+        write_csv(rows, out / "results.csv", list(COLUMNS) + extra)
+        (out / "summary.md").write_text(summary_markdown(summary(rows, series)))
+        write_detection_plots(rows, series, out / "plots")
+
+
+def _inputs(config: DetectionRunConfig):
+    """The detections (their first ``frames``; two cameras or more), calibration and each detection
+    camera's calibration."""
+    from priortrack.data.calibration import read_calibration
+    from priortrack.data.detections import read_detections
+    from priortrack.experiments.real import match_cameras
+
+    detections = read_detections(config.detections, keypoints=config.keypoints)
+    if config.frames is not None:
+        detections = detections.head(config.frames)
+    if len(detections.camera_names) < 2:
+        raise PriortrackError(f"compare --detections scores each camera left out: {config.detections} has "
+                              f"{len(detections.camera_names)} camera; it needs two or more")
+    calibration = read_calibration(config.cameras)
+    return detections, calibration, match_cameras(detections, calibration)
+
+
+def plan_detections(filters: Sequence[str], detections: str, cameras: str, seeds: int, truth: str | None = None,
+                    keypoints: str | None = None, fps: float | None = None, frames: int | None = None,
+                    smooth: bool = False, joints: Sequence[str] = LIMBS) -> list[DetectionRunConfig]:
+    """Every run of the grid (each preset × each held-out camera × each seed, and with a ``truth`` the
+    all-camera runs), after checking every argument (one PriortrackError naming the first bad one,
+    before any work): the presets, the files, at least two cameras, the joints scored (eval15 names from
+    the shoulders down), the truth's joints and frames."""
+    from priortrack.experiments.presets import load_preset
+
+    joints = tuple(joints)
+    unknown = [j for j in joints if j not in LIMBS]
+    if not joints or unknown or len(set(joints)) < len(joints):
+        raise PriortrackError(f"compare: --joints must name distinct joints among {', '.join(LIMBS)}"
+                              + (f"; {', '.join(unknown)} is not one" if unknown else ""))
+    if not filters:
+        raise PriortrackError("compare --detections: give at least one of --filters")
+    repeated = sorted({f for f in filters if list(filters).count(f) > 1})
+    if repeated:
+        raise PriortrackError(f"compare: --filters repeats {', '.join(repeated)}")
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
+        raise PriortrackError(f"compare: --seeds must be a positive whole number, got {seeds!r}")
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 3):
+        raise PriortrackError(f"compare: --frames must be at least 3, got {frames!r}")
+    for name in filters:
+        preset = load_preset(name)
+        if smooth and preset.filter_kind not in ("pf", "ukf"):
+            raise PriortrackError(f"compare: --smooth needs particle or unscented filters; {name} is a "
+                                  f"{preset.filter_kind!r} filter")
+    probe = DetectionRunConfig(filters[0], str(detections), str(cameras), ALL_CAMERAS, 0, truth, keypoints, fps, frames)
+    found, calibration, _ = _inputs(probe)
+    if fps is None and found.fps is None:
+        raise PriortrackError(f"{detections}: the detections do not say their frame rate; give it (--fps)")
+    if truth is not None:
+        read_truth(truth, found, calibration, joints, fps)
+    held = list(found.camera_names) + ([ALL_CAMERAS] if truth is not None else [])
+    return [DetectionRunConfig(f, str(detections), str(cameras), c, seed, truth, keypoints, fps, frames, smooth, joints)
+            for f in filters for c in held for seed in range(seeds)]
+
+
+# ---- truth --------------------------------------------------------------------------------------
+
+def _normalised(name: str) -> str:
+    """A joint name compared across tools: lower case, no separators, left/right as l/r
+    ("RShoulder", "right_shoulder", "rshoulder" → "rshoulder")."""
+    key = "".join(ch for ch in name.lower() if ch.isalnum())
+    for side in ("left", "right"):
+        if key.startswith(side):
+            key = side[0] + key[len(side):]
+    return key
+
+
+def read_truth(path: str | Path, detections, calibration, joints: Sequence[str] = LIMBS,
+               fps: float | None = None) -> np.ndarray:
+    """(T, J, 3) world positions (metres, the calibration's world) of the eval15 ``joints`` at each
+    detection frame, NaN where the truth has none.
+
+    - NPZ: ``joints`` (N, J, 3) metres in the calibration's world, ``joint_names`` (J,) (eval15 if absent
+      and J = 15) and ``frames`` (N,), the detection frame numbers (else row k is the k-th detection
+      frame); priortrack's own ``track --out`` NPZ is one.
+    - TRC (Pose2Sim, OpenSim): Y-up as TRC files are; turned back into a Z-up calibration's world as
+      Pose2Sim writes it (:mod:`priortrack.data.trc`); row k is the k-th detection frame, at the same rate
+      (the detections' ``fps``, given or their own).
+
+    Marker names match eval15's across spellings (RShoulder, right_shoulder, rshoulder)."""
+    from priortrack.data.npz import read_npz
+    from priortrack.data.trc import read_trc
+
+    path = Path(path)
+    if not path.is_file():
+        raise PriortrackError(f"truth {path} does not exist")
+    suffix = path.suffix.lower()
+    rows = None
+    if suffix == ".npz":
+        arrays = read_npz(path, 1 << 31, "truth")
+        if "joints" not in arrays:
+            raise PriortrackError(f"truth {path} has no 'joints' array (N, J, 3) of metres")
+        points = np.asarray(arrays["joints"], dtype=float)
+        if points.ndim != 3 or points.shape[-1] != 3:
+            raise PriortrackError(f"truth {path}: joints have shape {points.shape}; expected (N, J, 3)")
+        if "joint_names" in arrays:
+            names = tuple(str(n) for n in arrays["joint_names"])
+            if len(names) != points.shape[1]:
+                raise PriortrackError(f"truth {path}: {len(names)} joint_names for {points.shape[1]} joints")
+        elif points.shape[1] == 15:
+            names = EVAL15_NAMES
+        else:
+            raise PriortrackError(f"truth {path}: {points.shape[1]} joints and no 'joint_names' to say which")
+        if "frames" in arrays:
+            frames = np.asarray(arrays["frames"]).astype(np.int64)
+            if frames.shape != (len(points),):
+                raise PriortrackError(f"truth {path}: frames have shape {frames.shape}; expected ({len(points)},)")
+            at = np.searchsorted(detections.frames, frames)
+            known = (at < len(detections.frames)) & (detections.frames[np.minimum(at, len(detections.frames) - 1)] == frames)
+            rows = np.full(len(detections.frames), -1)
+            rows[at[known]] = np.flatnonzero(known)
+    elif suffix == ".trc":
+        up = calibration.up if isinstance(calibration.up, str) and calibration.up in ("y", "z") else "y"
+        points, names, rate = read_trc(path, up)
+        fps = fps or detections.fps
+        if fps is not None and abs(rate - fps) > 1e-6 * fps:
+            raise PriortrackError(f"truth {path} is at {rate:g} fps, the detections at {fps:g}: "
+                                  f"give the truth at the detections' rate")
+    else:
+        raise PriortrackError(f"truth {path}: give a .trc or .npz file of 3D joints")
+    by_name = {_normalised(n): i for i, n in enumerate(names)}
+    columns = [by_name.get(_normalised(j)) for j in joints]
+    missing = [j for j, c in zip(joints, columns) if c is None]
+    if missing:
+        raise PriortrackError(f"truth {path} lacks the joints {', '.join(missing)} (it has {', '.join(names)})")
+    if rows is None:
+        rows = np.where(np.arange(len(detections.frames)) < len(points), np.arange(len(detections.frames)), -1)
+    truth = np.full((len(detections.frames), len(joints), 3), np.nan)
+    has = np.flatnonzero(rows >= 0)
+    truth[has] = points[rows[has]][:, columns]
+    if not np.isfinite(truth).any():
+        raise PriortrackError(f"truth {path} covers none of the detections' frames")
+    return truth
+
+
+# ---- one run ------------------------------------------------------------------------------------
+
+def _quantile(values: np.ndarray, q: float) -> float | None:
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    return float(np.quantile(finite, q)) if len(finite) else None
+
+
+def _mean(values: np.ndarray) -> float | None:
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    return float(finite.mean()) if len(finite) else None
+
+
+def _mm(X: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(T, J) joint errors in mm (NaN where either is missing)."""
+    return 1000 * np.linalg.norm(X - truth, axis=-1)
+
+
+def run_detections(config: DetectionRunConfig, cache: str | None = None,
+                   rrd: bool = False) -> tuple[dict, dict[str, list], bytes | None]:
+    """One run on the compare grid's torch threads: its CSV row, its series (``frames`` (T,), the
+    detection frame number each scored tick consumed; per tick × scored joint: ``error_px``, ``dlt_px``,
+    ``filtered_px`` held-out pixel errors, ``error_mm``, ``dlt_mm`` against a truth) and, with ``rrd``,
+    its recording's bytes. A run that cannot track (:class:`PriortrackError`) gives a row with its
+    ``error`` and no series."""
+    import tempfile
+
+    from priortrack.data.calibration import Calibration
+    from priortrack.experiments.compare import RUN_THREADS
+    from priortrack.experiments.real import pixel_errors, track_detections, up_from_detections
+    from priortrack.geometry.camera import PinholeCamera
+    from priortrack.geometry.triangulation import triangulate
+    from priortrack.threads import torch_threads
+
+    detections, calibration, matched = _inputs(config)
+    names = detections.camera_names
+    if config.held_out != ALL_CAMERAS and config.held_out not in names:
+        raise PriortrackError(f"held-out camera {config.held_out!r} is not among {', '.join(names)}")
+    kept = [c for c, n in enumerate(names) if n != config.held_out]
+    cameras = [PinholeCamera.from_calibration(c) for c in matched]
+    uv, confidence = detections.eval15(0.3)
+    # the world's up is the recording's: from the file, else from the person seen by every camera
+    up = calibration.up if calibration.up is not None else up_from_detections(cameras, uv, confidence,
+                                                                              calibration.source)
+    seen = replace(detections, keypoints=detections.keypoints[kept], camera_names=tuple(names[c] for c in kept),
+                   switches=tuple(detections.switches[c] for c in kept) if detections.switches else ())
+    row = {"filter": config.filter, "held_out": config.held_out, "seed": config.seed, "joints": list(config.joints),
+           "config_hash": config.key}
+    try:
+        with torch_threads(RUN_THREADS):
+            result = track_detections(seen, Calibration(tuple(matched[c] for c in kept), up, calibration.source,
+                                                        calibration.format, calibration.units),
+                                      config.filter, fps=config.fps, seed=config.seed, cache=cache,
+                                      smooth=config.smooth, keep_snapshots=rrd)
+    except PriortrackError as exc:                 # e.g. too few joints seen by two of the other cameras to start
+        log.warning("compare: %s could not track: %s", config.label, exc)
+        return {**row, "error": str(exc)}, {}, None
+    ticks = result.frames >= 0
+    at = np.searchsorted(detections.frames, result.frames[ticks])              # detection index of each tick
+    J = [EVAL15_NAMES.index(j) for j in config.joints]
+    dlt = triangulate([cameras[c] for c in kept], uv[kept][:, at], confidence[kept][:, at])[:, J]
+    row.update(ticks=int(ticks.sum()), s_per_frame=result.seconds / max(len(result.joints), 1),
+               mismatch_fraction=result.mismatch_fraction)
+    series: dict[str, np.ndarray] = {"frames": result.frames[ticks]}
+    if config.held_out != ALL_CAMERAS:
+        c = names.index(config.held_out)
+
+        def held_out_px(X: np.ndarray) -> np.ndarray:
+            return pixel_errors(cameras[c], X, uv[c, at][:, J], confidence[c, at][:, J])
+
+        series["error_px"], series["dlt_px"] = held_out_px(result.joints[ticks][:, J]), held_out_px(dlt)
+        if config.smooth:
+            series["filtered_px"] = held_out_px(result.filtered_joints[ticks][:, J])
+    if config.truth is not None:
+        truth = read_truth(config.truth, detections, calibration, config.joints, config.fps)[at]
+        series["error_mm"], series["dlt_mm"] = _mm(result.joints[ticks][:, J], truth), _mm(dlt, truth)
+        row["mpjpe_mm"], row["dlt_mpjpe_mm"] = _mean(series["error_mm"]), _mean(series["dlt_mm"])
+        if config.smooth:
+            row["filtered_mpjpe_mm"] = _mean(_mm(result.filtered_joints[ticks][:, J], truth))
+    for prefix, key in (("", "error_px"), ("dlt_", "dlt_px"), ("filtered_", "filtered_px")):
+        if key in series:
+            row[prefix + "median_px"], row[prefix + "p90_px"] = (_quantile(series[key], q) for q in (0.5, 0.9))
+    recording = None
+    if rrd:
+        from priortrack.viz.real import record_detections
+
+        with tempfile.TemporaryDirectory() as folder:
+            recording = record_detections(result, Path(folder) / "run.rrd").read_bytes()
+    return row, {k: v.tolist() for k, v in series.items()}, recording
+
+
+# ---- the summary ---------------------------------------------------------------------------------
+
+def _pooled(runs: Sequence[dict], series: dict[str, dict[str, np.ndarray]], key: str, J: int) -> np.ndarray:
+    """Every value of ``key``'s series over the runs, (N, J) stacked (runs without it add nothing)."""
+    arrays = [np.asarray(series[r["config_hash"]][key]).reshape(-1, J) for r in runs
+              if key in series[r["config_hash"]]]
+    return np.concatenate(arrays) if arrays else np.empty((0, J))
+
+
+def summary(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]]) -> dict:
+    """The grid's table: {"held_out": {name: {"median_px", "p90_px", "ratio_median", "ratio_p90",
+    "filtered_median_px", "filtered_p90_px", "by_camera": {camera: median}, "by_joint": {joint: median},
+    "mpjpe_mm", "filtered_mpjpe_mm"}}, "cameras", "joints", "seeds", "failed": [(filter, held_out, seed,
+    error)]}; the DLT of the other cameras is the row "DLT" (its errors from each held-out camera's first
+    run that tracked: the same frames). Pixel figures pool every held-out camera's ticks and joints;
+    "mpjpe_mm" is the all-camera runs' mean against a truth; ratios are the preset's over DLT's."""
+    filters = list(dict.fromkeys(r["filter"] for r in rows))
+    cameras = list(dict.fromkeys(r["held_out"] for r in rows if r["held_out"] != ALL_CAMERAS))
+    joints = list(rows[0]["joints"])
+    tracked = [r for r in rows if "error" not in r]
+    baseline = [next(r for r in tracked if r["held_out"] == c) for c in cameras + [ALL_CAMERAS]
+                if any(r["held_out"] == c for r in tracked)]
+    table: dict[str, dict] = {}
+    for name, runs, key in [(f, [r for r in tracked if r["filter"] == f], "error_px") for f in filters] + \
+                           [("DLT", baseline, "dlt_px")]:
+        loco = [r for r in runs if r["held_out"] != ALL_CAMERAS]
+        errors = _pooled(loco, series, key, len(joints))
+        entry = {"median_px": _quantile(errors, 0.5), "p90_px": _quantile(errors, 0.9),
+                 "by_camera": {c: _quantile(_pooled([r for r in loco if r["held_out"] == c], series, key,
+                                                    len(joints)), 0.5) for c in cameras},
+                 "by_joint": {j: _quantile(errors[:, i], 0.5) for i, j in enumerate(joints)}}
+        if name != "DLT" and any("filtered_px" in series[r["config_hash"]] for r in loco):
+            filtered = _pooled(loco, series, "filtered_px", len(joints))
+            entry.update(filtered_median_px=_quantile(filtered, 0.5), filtered_p90_px=_quantile(filtered, 0.9))
+        everything = [r for r in runs if r["held_out"] == ALL_CAMERAS]
+        if everything:
+            entry["mpjpe_mm"] = _mean(np.array([r["dlt_mpjpe_mm" if name == "DLT" else "mpjpe_mm"] for r in everything],
+                                               dtype=float))
+            if name != "DLT" and everything[0].get("filtered_mpjpe_mm") is not None:
+                entry["filtered_mpjpe_mm"] = _mean(np.array([r["filtered_mpjpe_mm"] for r in everything], dtype=float))
+        table[name] = entry
+    dlt = table["DLT"]
+    for entry in table.values():
+        for q in ("median", "p90"):
+            mine, theirs = entry[f"{q}_px"], dlt[f"{q}_px"]
+            entry[f"ratio_{q}"] = None if mine is None or not theirs else mine / theirs
+    failed = [(r["filter"], r["held_out"], r["seed"], r["error"]) for r in rows if "error" in r]
+    return {"held_out": table, "cameras": cameras, "joints": joints, "seeds": len({r["seed"] for r in rows}),
+            "failed": failed}
+
+
+def _cell(value: float | None, digits: int = 1) -> str:
+    return "—" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def summary_table(result: dict) -> list[str]:
+    """The Markdown lines of the main table: a row per preset and the DLT baseline."""
+    table = result["held_out"]
+    smoothed = any("filtered_median_px" in e for e in table.values())
+    truth = any("mpjpe_mm" in e for e in table.values())
+    head = ["filter", "median px", "p90 px", "× DLT median", "× DLT p90"]
+    head += ["filtered median px", "filtered p90 px"] if smoothed else []
+    head += ["MPJPE mm (all cameras)"] + (["filtered MPJPE mm"] if smoothed else []) if truth else []
+    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    for name, e in table.items():
+        cells = [name, _cell(e["median_px"]), _cell(e["p90_px"]), _cell(e["ratio_median"], 2), _cell(e["ratio_p90"], 2)]
+        cells += [_cell(e.get("filtered_median_px")), _cell(e.get("filtered_p90_px"))] if smoothed else []
+        cells += [_cell(e.get("mpjpe_mm"))] + ([_cell(e.get("filtered_mpjpe_mm"))] if smoothed else []) if truth else []
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def summary_markdown(result: dict) -> str:
+    """summary.md: the main table, then the median by held-out camera and by joint."""
+    table, cameras = result["held_out"], result["cameras"]
+    lines = ["# Filter comparison on detections, each camera left out in turn\n",
+             f"Each preset tracked from every camera but one ({len(cameras)} cameras, {result['seeds']} seed(s)); "
+             f"its joints ({', '.join(result['joints'])}) projected into the camera left out and compared with that camera's "
+             "detections (confidence > 0.3), pixels, pooled over the cameras left out. DLT: per-frame triangulation "
+             "of the same other cameras on the same frames. × DLT: the preset's figure over DLT's (below 1: better).\n",
+             *summary_table(result), "", "## Median by camera left out (px)\n",
+             "| filter | " + " | ".join(cameras) + " |", "|---" * (len(cameras) + 1) + "|"]
+    lines += [f"| {n} | " + " | ".join(_cell(e["by_camera"][c]) for c in cameras) + " |" for n, e in table.items()]
+    joints = result["joints"]
+    lines += ["", "## Median by joint (px)\n", "| filter | " + " | ".join(joints) + " |",
+              "|---" * (len(joints) + 1) + "|"]
+    lines += [f"| {n} | " + " | ".join(_cell(e["by_joint"][j]) for j in joints) + " |" for n, e in table.items()]
+    if result["failed"]:
+        lines += ["", "## Runs that could not track (left out of the figures above)\n"]
+        lines += [f"- {f}, {'all cameras' if c == ALL_CAMERAS else 'without ' + c}, seed {seed}: {error}"
+                  for f, c, seed, error in result["failed"]]
+    return "\n".join(lines) + "\n"
