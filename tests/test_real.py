@@ -220,8 +220,13 @@ def test_the_real_track_benchmark_runs_the_whole_command(capsys):
     assert main(["bench", "real-track", "--frames", "12"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["frames"] == 12 and result["cameras"] == 4 and result["command_seconds"] > 0
-    assert main(["bench", "real-track", "--frames", "1000"]) == 2
-    assert "frames must be in [3, 240]" in capsys.readouterr().err
+    assert main(["bench", "real-track", "--frames", "12", "--cameras", "5", "--fps", "25", "--filter", "ukf-real"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["cameras"] == 5 and result["fps"] == 25.0 and result["command_seconds"] > 0
+    assert main(["bench", "real-track", "--frames", "5000"]) == 2
+    assert "frames must be in [3, 1800]" in capsys.readouterr().err
+    assert main(["bench", "real-track", "--cameras", "1"]) == 2
+    assert "cameras must be in [2, 12]" in capsys.readouterr().err
 
 
 def test_smoothing_real_format_input_lowers_the_error_and_the_jitter():
@@ -375,3 +380,22 @@ def test_the_gate_and_each_cameras_reprojection_are_in_the_npz_and_the_recording
         assert (f"/world/{name}/image/gated" in entities) == (f"/metrics/gated/{name}" in entities) == bool(
             result.gated[:, c].any())
     assert "/world/cam02_json/image/gated" in entities
+
+
+def test_the_summary_gives_the_persons_own_body_measured_over_the_whole_trial(tmp_path):
+    """A held-out walk written as a detector would (noise, drops, swaps, outliers) through the 4
+    cameras: the tracked body's measures (medians over every tick's triangulation, left and right
+    averaged) are the mocap person's own to 2 cm."""
+    from priortrack.body.ik import BODY_MEASURES, measured_distances
+    from priortrack.experiments.real_format import DEFAULT_CALIBRATION, detector_keypoints, placed_walk, write_openpose
+
+    calibration = read_calibration(DEFAULT_CALIBRATION)
+    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    X = placed_walk("walkjog:35_29", "z")
+    write_openpose(detector_keypoints(X, cameras, np.random.default_rng(1)), tmp_path)
+    result = track_detections(read_detections(tmp_path, keypoints="body25b"), calibration, "ukf-real", fps=60)
+    truth = measured_distances(X)
+    measured = result.summary()["bones_m"]
+    assert set(measured) == set(BODY_MEASURES)
+    for name, j in BODY_MEASURES.items():
+        assert abs(measured[name] - truth[j - 1]) < 0.02, (name, measured[name], truth[j - 1])

@@ -93,13 +93,31 @@ def measured_distances(X: np.ndarray) -> np.ndarray:
     return out
 
 
+#: The body's distinct measures (module docstring), each named, by the eval15 joint whose bone it scales.
+BODY_MEASURES = {"trunk": 1, "head": 2, "shoulder_width": 3, "hip_width": 9, "upper_arm": 4, "forearm": 5,
+                 "thigh": 10, "shin": 11}
+
+
+def _rest(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """The skeleton's joints in its rest pose (all channels 0), (N, 3), and its eval15 joints (15, 3)."""
+    points = ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels)).numpy()
+    return points, points[eval15_indices(skeleton)]
+
+
+def body_measures(skeleton: Skeleton, joint_map: np.ndarray | None = None) -> dict[str, float]:
+    """{measure: metres} of :data:`BODY_MEASURES` on the skeleton's rest pose, in the targets'
+    definitions (``joint_map`` M applied): the body a tracker fitted, as a person would measure it."""
+    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+    distances = measured_distances((M @ _rest(skeleton)[1])[None])
+    return {name: float(distances[j - 1]) for name, j in BODY_MEASURES.items()}
+
+
 def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | None = None) -> Skeleton:
     """The template scaled so that its distances (module docstring) match those of the targets X
     (T, 15, 3), both in the targets' definitions (``joint_map`` M applied to the template)."""
     index = eval15_indices(template)
     offsets = template.offsets.copy()
-    points = ForwardKinematics(template, dtype=torch.float64)(np.zeros(template.num_channels)).numpy()   # rest pose
-    rest = points[index]
+    points, rest = _rest(template)
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
     scale = measured_distances(X) / measured_distances((M @ rest)[None])
     for j in range(1, 15):

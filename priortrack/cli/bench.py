@@ -52,7 +52,8 @@ def _bench_pf(args: argparse.Namespace) -> None:
 def _bench_real_track(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.real_track import bench_real_track
 
-    print_json(bench_real_track(frames=args.frames, preset=args.filter, seed=args.seed))
+    print_json(bench_real_track(frames=args.frames, preset=args.filter, seed=args.seed, cameras=args.cameras,
+                                fps=args.fps))
 
 
 def _bench_smooth(args: argparse.Namespace) -> None:
@@ -120,7 +121,10 @@ def add_parsers(verbs) -> None:
 
     real_track = bench.add_parser("real-track", help="the whole track --detections command on real-format input "
                                                      "(4 cameras), beside DLT of the same input")
-    real_track.add_argument("--frames", type=int, default=100, help="frames of the synthetic 4-camera input, 3 to 240 (default %(default)s)")
+    real_track.add_argument("--frames", type=int, default=100, help="frames of the synthetic input, 3 to 1800 (default %(default)s)")
+    real_track.add_argument("--cameras", type=int, default=4, help="4: the Pose2Sim demo's; else 2 to 12 distorted "
+                                                                   "cameras on a ring (default %(default)s)")
+    real_track.add_argument("--fps", type=float, default=30.0, help="the input's frame rate (default %(default)s)")
     real_track.add_argument("--filter", default="pf-lie", help="the preset (its particles: 1000 for pf-lie)")
     _json_options(real_track)
     real_track.set_defaults(run=_bench_real_track)

@@ -19,7 +19,10 @@
    (:func:`priortrack.body.ik.inverse_kinematics_2d`). From several, each tick's joints are triangulated (confidence-weighted DLT through the
    lens distortion); the first two consecutive ticks with at least ``START_JOINTS`` joints
    triangulated start the filter: the body (the prior's skeleton, or CMU subject 35's) is scaled to
-   the distances measured over the first ``LENGTH_TICKS`` ticks and fitted to the two ticks by
+   the person's own distances, each bone's the median over every tick of the whole trial whose
+   triangulation measures it, left and right averaged (robust to a detector's swaps and outliers on
+   some frames, and to a first second where the person is half in view; reported as the summary's
+   ``bones_m``), and fitted to the two ticks by
    inverse kinematics over ``START_TICKS`` ticks (:mod:`priortrack.body.ik`), both in the detector's
    joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
    its neck the mid-shoulders), which the observation model uses too. The two start frames are
@@ -59,7 +62,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from priortrack.body.ik import fitted_skeleton, inverse_kinematics, inverse_kinematics_2d, scaled_to_height
+from priortrack.body.ik import body_measures, fitted_skeleton, inverse_kinematics, inverse_kinematics_2d, scaled_to_height
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -87,8 +90,6 @@ log = logging.getLogger(__name__)
 CROSS_VIEW_GATE = 0.1
 #: Joints a tick needs triangulated to start the filter there.
 START_JOINTS = 14
-#: Ticks whose triangulations give the body's size (medians).
-LENGTH_TICKS = 30
 #: Ticks fitted together by inverse kinematics for the start (the first two start the filter), as
 #: long as each has MIN_FIT_JOINTS joints.
 START_TICKS, MIN_FIT_JOINTS = 8, 8
@@ -191,13 +192,15 @@ class DetectionTrack:
 
     def summary(self) -> dict:
         """The JSON summary: frames, seconds, median reprojection error per camera, mismatch fraction, the
-        world's up (an axis, or the vector given or found from the person)."""
+        world's up (an axis, or the vector given or found from the person), the tracked body's measures
+        (:func:`~priortrack.body.ik.body_measures`, metres)."""
         return {"filter": self.filter, "frames": int(len(self.joints)), "fps": self.fps, "seconds": self.seconds,
                 "reprojection_px": {n: float(e) for n, e in zip(self.camera_names, self.reprojection_px)},
                 "mismatch_fraction": self.mismatch_fraction, "cross_view_rejections": self.cross_view_rejections,
                 "mean_ess": float(np.nanmean(self.ess)) if np.isfinite(self.ess).any() else None,
                 "smoothed": self.filtered_joints is not None, "lag": self.lag, "fit_check": self.fit_check,
                 "interrupted": self.interrupted,
+                "bones_m": None if self.skeleton is None else body_measures(self.skeleton, detector_map()),
                 "up": self.up if isinstance(self.up, str) else [float(v) for v in self.up]}
 
     def save_npz(self, path: str | Path) -> Path:
@@ -410,7 +413,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         window += 1
     if skeleton is None:                           # else the user's own body, as given (not scaled)
         skeleton = (scaled_to_height(template, height) if single else
-                    fitted_skeleton(template, X[first:first + LENGTH_TICKS], M))
+                    fitted_skeleton(template, X, M))
     if single:
         ticks = z[first:window, 0]
         fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M)

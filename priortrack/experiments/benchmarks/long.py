@@ -35,14 +35,18 @@ MOTION, FPS = "cmu:49_18", 60.0
 LOOP_SECONDS = 8.0
 
 
+def ping_pong(X: np.ndarray, frames: int) -> np.ndarray:
+    """``frames`` frames of the motion X (T, …) played forward and back (no jump where it turns)."""
+    period = 2 * len(X) - 2
+    phase = np.arange(frames) % period
+    return X[np.where(phase < len(X), phase, period - phase)]
+
+
 def write_long_input(frames: int, path: Path, seed: int = 0) -> Path:
     """The benchmark's input (module docstring): ``frames`` frames at 60 fps × 4 cameras, as an .npz."""
     calibration = read_calibration(DEFAULT_CALIBRATION)
     cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
-    X = placed_walk(MOTION, calibration.up, fps=FPS, seconds=LOOP_SECONDS)
-    period = 2 * len(X) - 2
-    phase = np.arange(frames) % period
-    X = X[np.where(phase < len(X), phase, period - phase)]
+    X = ping_pong(placed_walk(MOTION, calibration.up, fps=FPS, seconds=LOOP_SECONDS), frames)
     keypoints = detector_keypoints(X, cameras, np.random.default_rng(seed)).astype(np.float32)
     with open(path, "wb") as f:
         np.savez(f, keypoints=keypoints, keypoint_names=np.array(LAYOUTS["body25b"]), fps=np.array(FPS))

@@ -1,10 +1,13 @@
 """``priortrack bench real-track``: what ``priortrack track --detections`` does, on real-format input
 of a given size, timed, beside per-frame DLT triangulation of the same input as the reference.
 
-The input: CMU 49_18 (a person balancing in place, so that all 4 of the Pose2Sim demo's cameras see
-them throughout) written as OpenPose BODY_25B JSON at 30 fps with the detector errors of
-:mod:`priortrack.experiments.real_format`. Timed in this process, as the command runs it: reading the
-files, fitting or loading the prior, starting, tracking, writing an .npz; the preset sets the particles.
+The input: CMU 49_18 (a person balancing in place, so that every camera sees them throughout; played
+forward and back past its 8 s, :func:`~priortrack.experiments.benchmarks.long.ping_pong`) written as
+OpenPose BODY_25B JSON at ``fps`` with the detector errors of :mod:`priortrack.experiments.real_format`,
+seen by the Pose2Sim demo's 4 cameras or by ``cameras`` distorted cameras on a ring
+(:func:`~priortrack.experiments.benchmarks.ukf.ring_cameras`, a Y-up world). Timed in this process, as
+the command runs it: reading the files, fitting or loading the prior, starting, tracking, writing an
+.npz; the preset sets the particles.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from priortrack.data.calibration import read_calibration
+from priortrack.data.calibration import Calibration, CameraCalibration, read_calibration
 from priortrack.data.detections import read_detections
 from priortrack.errors import PriortrackError
 from priortrack.experiments.benchmarks.timing import load_average
@@ -24,27 +27,52 @@ from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.triangulation import triangulate
 
 MOTION, FPS = "cmu:49_18", 30.0
+#: The most frames the benchmark writes (a minute at 30 fps).
+MAX_FRAMES = 1800
 
 
-def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0) -> dict:
-    """Seconds of the whole command's work on ``frames`` frames × 4 cameras, and of DLT on the same input."""
+def _ring_calibration(X: np.ndarray, count: int) -> Calibration:
+    """``count`` ring cameras around X (T, 15, 3), Y-up, as a calibration."""
+    from priortrack.experiments.benchmarks.ukf import ring_cameras
+
+    def calibrated(c: int, camera: PinholeCamera) -> CameraCalibration:
+        return CameraCalibration(f"ring{c + 1}", camera.K.double().numpy(), camera.dist.double().numpy(),
+                                 camera.R.double().numpy(), camera.t.double().numpy(), (camera.width, camera.height))
+
+    return Calibration(tuple(calibrated(c, cam) for c, cam in enumerate(ring_cameras(X, count))), "y", "ring")
+
+
+def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, cameras: int = 4,
+                     fps: float = FPS) -> dict:
+    """Seconds of the whole command's work on ``frames`` frames × ``cameras`` cameras at ``fps``, and of
+    DLT on the same input."""
+    from priortrack.experiments.benchmarks.long import LOOP_SECONDS, ping_pong
     from priortrack.experiments.real import track_detections
 
-    if not 3 <= frames <= 240:
-        raise PriortrackError(f"bench real-track: frames must be in [3, 240] (8 s of {MOTION}), got {frames}")
-    calibration = read_calibration(DEFAULT_CALIBRATION)
-    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
-    X = placed_walk(MOTION, calibration.up, fps=FPS, seconds=frames / FPS)
+    if not 3 <= frames <= MAX_FRAMES:
+        raise PriortrackError(f"bench real-track: frames must be in [3, {MAX_FRAMES}], got {frames}")
+    if not 2 <= cameras <= 12:
+        raise PriortrackError(f"bench real-track: cameras must be in [2, 12], got {cameras}")
+    if not 10 <= fps <= 120:
+        raise PriortrackError(f"bench real-track: fps must be in [10, 120], got {fps}")
+    if cameras == 4:
+        calibration = read_calibration(DEFAULT_CALIBRATION)
+        X = placed_walk(MOTION, calibration.up, fps=fps, seconds=LOOP_SECONDS)
+    else:
+        X = placed_walk(MOTION, "y", fps=fps, seconds=LOOP_SECONDS)
+        calibration = _ring_calibration(X, cameras)
+    X = ping_pong(X, frames)
+    views = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
     with tempfile.TemporaryDirectory() as tmp:
-        folder = write_openpose(detector_keypoints(X, cameras, np.random.default_rng(seed)), Path(tmp) / "pose")
+        folder = write_openpose(detector_keypoints(X, views, np.random.default_rng(seed)), Path(tmp) / "pose")
         start = time.perf_counter()
         detections = read_detections(folder, keypoints="body25b")
-        result = track_detections(detections, read_calibration(DEFAULT_CALIBRATION), preset, fps=FPS, seed=seed)
+        result = track_detections(detections, calibration, preset, fps=fps, seed=seed)
         result.save(Path(tmp) / "out.npz")
         seconds = time.perf_counter() - start
         start = time.perf_counter()
         uv, confidence = read_detections(folder, keypoints="body25b").eval15(0.3)
-        triangulate(cameras, uv, confidence)
+        triangulate(views, uv, confidence)
         dlt_seconds = time.perf_counter() - start
-    return {"frames": frames, "cameras": len(cameras), "preset": preset, "command_seconds": seconds,
+    return {"frames": frames, "fps": fps, "cameras": len(views), "preset": preset, "command_seconds": seconds,
             "dlt_seconds": dlt_seconds, "ratio": seconds / dlt_seconds, "load_average": load_average()}
