@@ -199,3 +199,21 @@ def test_the_command_line(trial, grid, capsys):
     assert main(["compare", "--filters", "ukf-real", "--motions", "cmu:07_10", "--truth", "t.npz", "--out",
                  str(out)]) == 2
     assert "--truth is for compare --detections" in capsys.readouterr().err
+
+
+def test_dask_gives_the_serial_numbers_and_recordings_come_back(grid, tmp_path):
+    """Two runs of the grid on a LocalCluster of two one-thread workers: the serial rows (but the
+    timing), and with --rrd each run's recording, written by this process."""
+    pytest.importorskip("dask.distributed", reason="the Dask extra (priortrack[cluster]) is a dev dependency")
+    import rerun as rr
+
+    out, configs, rows = grid
+    on_dask = compare(configs[:2], tmp_path, workers=2, rrd=True)
+    for serial, parallel in zip(rows[:2], on_dask):
+        assert {k: v for k, v in serial.items() if k != "s_per_frame"} == \
+            {k: v for k, v in parallel.items() if k != "s_per_frame"}
+    recordings = sorted((tmp_path / "recordings").glob("*.rrd"))
+    assert [p.name for p in recordings] == ["ukf-real_cam01_seed0.rrd", "ukf-real_cam02_seed0.rrd"]
+    entities = {str(c.entity_path) for c in rr.chunk.RrdReader(recordings[0]).stream().to_chunks()}
+    assert "/world/estimate" in entities and "/world/cam02/image/detections" in entities
+    assert "/world/cam01/image/detections" not in entities              # the camera left out is not tracked

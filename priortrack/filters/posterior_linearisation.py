@@ -139,20 +139,19 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.n
                 I_KH = np.eye(n) - K @ H
                 P = I_KH @ P @ I_KH.T + K @ R @ K.T
             filtered.append((d, P))
-        # the RTS smoother of the linearised model
-        smoothed = [filtered[-1]]
-        for k in range(T - 2, -1, -1):
-            (d, P), (d_pred, P_pred), A = filtered[k], predicted[k], dynamics[k]
+        # the RTS smoother of the linearised model, each frame's filtered, predicted and dynamics let go
+        # as it is used (with μ_k, Σ_k replaced in place below: the smoother's memory is 5 matrices a
+        # frame at its peak, not 7)
+        smoothed = [filtered.pop()]
+        for _ in range(T - 1):
+            (d, P), (d_pred, P_pred), A = filtered.pop(), predicted.pop(), dynamics.pop()
             G = np.linalg.solve(P_pred, A @ P).T
             d_s, P_s = smoothed[-1]
             smoothed.append((d + G @ (d_s - d_pred), P + G @ (P_s - P_pred) @ G.T))
-        smoothed.reverse()
-        new_mu, new_Sigma = [], []
-        for m, (d_s, P_s) in zip(mu, smoothed):
-            m_t = torch.from_numpy(m)
+        for k in range(T):
+            d_s, P_s = smoothed.pop()                                                  # frame k
+            m_t = torch.from_numpy(mu[k])
             m_new = model.boxplus(m_t[None], torch.from_numpy(d_s)[None])[0]
             onto = model.transport(m_t, m_new).numpy()
-            new_mu.append(m_new.numpy())
-            new_Sigma.append(repaired_covariance(onto @ P_s @ onto.T)[0])
-        mu, Sigma = new_mu, new_Sigma
+            mu[k], Sigma[k] = m_new.numpy(), repaired_covariance(onto @ P_s @ onto.T)[0]
     return mu, Sigma
