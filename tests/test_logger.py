@@ -108,7 +108,7 @@ def test_step_events_name_what_happened():
     from priortrack.filters.snapshot import StepRecord
     from priortrack.viz.logger import step_events
 
-    step = StepRecord(7, 1.5, 4, True, ("innovation-gated", "gate-reopened"), 2)
+    step = StepRecord(7, 1.5, 4, True, ("innovation-gated", "gate-reopened"), np.array([True, False, True]))
     events = step_events(7, step, mismatch=True, observed=True)
     assert events == [("frame 7: resampled (ESS 2 of 4)", "DEBUG"),
                       ("frame 7: the gate held out detections the prediction cannot explain (2 points)", "INFO"),

@@ -73,7 +73,12 @@ predicts correctly is rejected with probability p_gate (flagged "innovation-gate
 frames add no information, so P grows by Q each frame and S with it: a filter that lost the
 body widens its own gate. Should every observed point still fail the gate ``GATE_PATIENCE``
 frames in a row, the next frame is taken ungated (flagged "gate-reopened"): the data win over a
-prediction that no longer explains any of them.
+prediction that no longer explains any of them. The same holds for one joint: where it is seen by
+two cameras or more and fails the gate in every one of them ``GATE_PATIENCE`` frames in a row (the
+views agree with each other, not with the estimate: a lost limb, not one detector's mistake, which
+the other cameras would not repeat), the following frames take that joint ungated until the gate
+accepts it again (flagged "joint-reacquired"; ukf-lie-defensive had held caliscope's right wrist out for 67 frames running,
+300–460 px off in every webcam).
 
 Only a Gaussian filter: a robust (Student-t) likelihood has no R, and the Lie prior's transition
 (a mixture) has no single noise covariance; both are refused with a PriortrackError (use the
@@ -110,7 +115,8 @@ EIGEN_FLOOR = 1e-9
 ALPHA, BETA, KAPPA = 0.5, 2.0, 0.0
 #: Probability that the validation gate rejects a point the model predicts correctly (module docstring).
 GATE_PROBABILITY = 1e-4
-#: Consecutive frames whose every observed point fails the gate before one is taken ungated.
+#: Consecutive frames whose every observed point (or every camera's detection of one joint) fails the gate
+#: before one is taken ungated.
 GATE_PATIENCE = 3
 #: torch and BLAS threads a step runs on (:meth:`UnscentedFilter.step`).
 STEP_THREADS = 1
@@ -407,6 +413,11 @@ class UnscentedFilter(SequentialFilter):
         self.gate_probability = gate_probability
         self.initialised = False
         self.frame, self.gated_frames = 0, 0
+        #: (J,) per joint (an observation (…, J, coordinates); a flat one's points are J), the frames
+        #: running in which every camera seeing it rejected it.
+        shape = tuple(self.unscented.observation_shape)
+        joints = shape[-2] if len(shape) >= 2 else int(np.prod(shape)) // self.unscented.measurement_block
+        self.lost_frames = np.zeros(joints, dtype=int)
         #: (points,) the observed points (a joint in one camera, the observation's order) the last
         #: step's validation gate held out; None where the step had nothing to gate.
         self.held_out: np.ndarray | None = None
@@ -438,6 +449,7 @@ class UnscentedFilter(SequentialFilter):
             raise PriortrackError("initial mean or covariance contains NaN or inf")
         self.kf.x, self.kf.P = mean, covariance
         self.initialised, self.frame, self.gated_frames = True, frame, 0
+        self.lost_frames[:] = 0
 
     def step(self, z) -> Snapshot:
         """Consume the observation z of the next frame (``observation_shape``, NaN where missing).
@@ -533,6 +545,7 @@ class UnscentedFilter(SequentialFilter):
         S = np.einsum("i,ikc,ikd->kcd", self.kf.Wc, r, r) + diagonal_blocks(R[np.ix_(columns, columns)], b)
         d2 = block_distances(z[columns].reshape(-1, b) - z_hat, S)
         rejected = d2 > chi2.isf(self.gate_probability, b)
+        rejected &= ~self._reacquired(columns.reshape(-1, b)[:, 0] // b, rejected, flags)
         if not rejected.any():
             self.gated_frames = 0
             return usable
@@ -550,6 +563,24 @@ class UnscentedFilter(SequentialFilter):
         kept = usable.copy()
         kept[columns.reshape(-1, b)[rejected].ravel()] = False
         return kept
+
+    def _reacquired(self, points: np.ndarray, rejected: np.ndarray, flags: list[str]) -> np.ndarray:
+        """(K,) bool: the tested points (indices ``points`` (K,) in cameras × joints order) of the joints
+        this frame takes ungated (module docstring: seen by two cameras or more, rejected in every one of
+        them for more than ``GATE_PATIENCE`` frames running, until the gate takes it again); counts each
+        joint's run of such frames."""
+        J = len(self.lost_frames)
+        joint = points % J
+        seen = np.bincount(joint, minlength=J)
+        lost = (seen >= 2) & (np.bincount(joint, weights=rejected, minlength=J) == seen)
+        self.lost_frames = np.where(lost, self.lost_frames + 1, 0)
+        again = self.lost_frames > GATE_PATIENCE
+        if not again.any():
+            return np.zeros(len(points), dtype=bool)
+        flags.append("joint-reacquired")
+        log.debug("frame %d: joints %s taken ungated after %d frames held out in every camera", self.frame + 1,
+                  np.flatnonzero(again).tolist(), GATE_PATIENCE)
+        return again[joint]
 
     def smooth_window(self, snapshots: list[Snapshot], observations, generator: torch.Generator,
                       **_particle_options) -> tuple[np.ndarray, np.ndarray, None]:

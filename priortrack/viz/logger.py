@@ -37,6 +37,8 @@ OBSERVATION_COLOR = (40, 200, 255)
 FLAG_EVENTS = {"innovation-gated": ("the gate held out detections the prediction cannot explain", "INFO"),
                "outlier-gated": ("detections far off the body left out", "INFO"),
                "gate-reopened": ("the gate reopened: every detection had failed it too long", "WARN"),
+               "joint-reacquired": ("a joint every camera had seen away from the estimate too long taken again",
+                                    "WARN"),
                "no-observation": ("nothing observed: the prediction stands", "WARN"),
                "weights-underflow": ("every particle's likelihood underflowed: weights reset", "WARN"),
                "covariance-repaired": ("covariance repaired to positive definite", "DEBUG"),
@@ -53,7 +55,8 @@ def step_events(frame: int, step: StepRecord | None = None, mismatch: bool | Non
             events.append((f"frame {frame}: resampled (ESS {step.ess:.0f} of {step.points})", "DEBUG"))
         for flag in step.flags:
             text, level = FLAG_EVENTS.get(flag, (flag, "INFO"))
-            count = f" ({step.held_out} points)" if flag == "innovation-gated" and step.held_out is not None else ""
+            count = (f" ({int(step.held_out.sum())} points)" if flag == "innovation-gated" and step.held_out is not None
+                     else "")
             events.append((f"frame {frame}: {text}{count}", level))
     if mismatch:
         events.append((f"frame {frame}: mismatch: the prior does not explain this frame", "WARN"))
