@@ -45,6 +45,7 @@ from priortrack.data.eval15 import EVAL15_PARENTS
 from priortrack.data.motion import Motion
 from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
+from priortrack.threads import torch_threads
 
 #: λ, the weight (m² per rad²) of the pull of the rotation channels to zero.
 REGULARISATION = 1e-4
@@ -54,6 +55,10 @@ SMOOTHNESS = 1e-2
 HEADINGS = 12
 #: L-BFGS iterations of the fit.
 ITERATIONS = 200
+#: torch threads of a fit: its tensors are small (a frame's ~30 joints × T), and with a second process on a
+#: 2-core machine two threads took 40–308 s for a 120-frame fit that one thread does in 4–5 s (both threads
+#: spin-waiting for a core the other process holds).
+IK_THREADS = 1
 #: Frames fitted together at most by :func:`inverse_kinematics`: a longer motion is fitted in consecutive
 #: chunks (20 s at 30 fps), so that its memory does not grow with the motion (1,800 frames at once held
 #: 590 MB, in chunks 517 MB); the smoothness term is not carried across a chunk's edge.
@@ -218,7 +223,12 @@ def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: floa
 
 def _fit(skeleton: Skeleton, T: int, data, pelvis: np.ndarray, M: np.ndarray) -> np.ndarray:
     """Channels (T, C) minimising data(M FK(θ)) + the regularisation and smoothness (module docstring),
-    from the root at ``pelvis`` (T, 3) turned to the best of HEADINGS headings."""
+    from the root at ``pelvis`` (T, 3) turned to the best of HEADINGS headings, on IK_THREADS torch threads."""
+    with torch_threads(IK_THREADS):
+        return _fit_threads(skeleton, T, data, pelvis, M)
+
+
+def _fit_threads(skeleton: Skeleton, T: int, data, pelvis: np.ndarray, M: np.ndarray) -> np.ndarray:
     fk = ForwardKinematics(skeleton, dtype=torch.float64)
     index = eval15_indices(skeleton)
     rotation = torch.ones(skeleton.num_channels, dtype=torch.bool)
