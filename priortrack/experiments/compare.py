@@ -101,15 +101,13 @@ class RunConfig:
         write_plots(rows, series, out / "plots")
 
 
-def plan(filters: Sequence[str], motions: Sequence[str], scenarios: Sequence[str], seeds: int,
-         frames: int | None = None, smooth: bool = False) -> list[RunConfig]:
-    """Every run of the grid, after checking every argument (one PriortrackError naming the first
-    bad one, before any work)."""
-    from priortrack.data.load import load_motion
+def check_grid(filters: Sequence[str], seeds: int, frames: int | None, smooth: bool, **lists: Sequence[str]) -> None:
+    """The checks every grid's arguments share (one PriortrackError naming the first bad one): ``filters``
+    and each of ``lists`` non-empty and without repeats, the presets readable (and smoothable with
+    ``smooth``), ``seeds`` positive, ``frames`` None or at least 3 (two known, one tracked)."""
     from priortrack.experiments.presets import load_preset
-    from priortrack.observation.synthetic import parse_scenario
 
-    for name, values in (("filters", filters), ("motions", motions), ("scenarios", scenarios)):
+    for name, values in (("filters", filters), *lists.items()):
         if not values:
             raise PriortrackError(f"compare: give at least one of --{name}")
         repeated = sorted({v for v in values if list(values).count(v) > 1})
@@ -124,6 +122,16 @@ def plan(filters: Sequence[str], motions: Sequence[str], scenarios: Sequence[str
         if smooth and preset.filter_kind not in ("pf", "ukf"):
             raise PriortrackError(f"compare: --smooth needs particle or unscented filters; {name} is a "
                                   f"{preset.filter_kind!r} filter")
+
+
+def plan(filters: Sequence[str], motions: Sequence[str], scenarios: Sequence[str], seeds: int,
+         frames: int | None = None, smooth: bool = False) -> list[RunConfig]:
+    """Every run of the grid, after checking every argument (one PriortrackError naming the first
+    bad one, before any work)."""
+    from priortrack.data.load import load_motion
+    from priortrack.observation.synthetic import parse_scenario
+
+    check_grid(filters, seeds, frames, smooth, motions=motions, scenarios=scenarios)
     for name in motions:
         load_motion(name)
     for spec in scenarios:

@@ -140,27 +140,14 @@ def plan_detections(filters: Sequence[str], detections: str, cameras: str, seeds
     all-camera runs), after checking every argument (one PriortrackError naming the first bad one,
     before any work): the presets, the files, at least two cameras, the joints scored (eval15 names from
     the shoulders down), the truth's joints and frames."""
-    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.compare import check_grid
 
     joints = tuple(joints)
     unknown = [j for j in joints if j not in LIMBS]
     if not joints or unknown or len(set(joints)) < len(joints):
         raise PriortrackError(f"compare: --joints must name distinct joints among {', '.join(LIMBS)}"
                               + (f"; {', '.join(unknown)} is not one" if unknown else ""))
-    if not filters:
-        raise PriortrackError("compare --detections: give at least one of --filters")
-    repeated = sorted({f for f in filters if list(filters).count(f) > 1})
-    if repeated:
-        raise PriortrackError(f"compare: --filters repeats {', '.join(repeated)}")
-    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
-        raise PriortrackError(f"compare: --seeds must be a positive whole number, got {seeds!r}")
-    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 3):
-        raise PriortrackError(f"compare: --frames must be at least 3, got {frames!r}")
-    for name in filters:
-        preset = load_preset(name)
-        if smooth and preset.filter_kind not in ("pf", "ukf"):
-            raise PriortrackError(f"compare: --smooth needs particle or unscented filters; {name} is a "
-                                  f"{preset.filter_kind!r} filter")
+    check_grid(filters, seeds, frames, smooth)
     probe = DetectionRunConfig(filters[0], str(detections), str(cameras), ALL_CAMERAS, 0, truth, keypoints, fps, frames)
     found, calibration, _ = _inputs(probe)
     if fps is None and found.fps is None:

@@ -34,6 +34,23 @@ def _figure(**size):
     return Figure(**size)
 
 
+def _saved(figure, ax, path: Path) -> Path:
+    """Draw ``ax``'s legend, lay the figure out and write it to ``path``; returns ``path``."""
+    ax.legend(fontsize=7)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    return path
+
+
+def _grouped_bars(ax, groups: Sequence[str], bars: dict[str, Sequence[float]], colours: dict, yerr=None) -> None:
+    """One bar per name of ``bars`` (its values, one per group) in each group, side by side."""
+    width = 0.8 / len(bars)
+    for i, (name, values) in enumerate(bars.items()):
+        ax.bar(np.arange(len(groups)) + i * width, values, width, color=colours[name], label=name,
+               **({} if yerr is None else {"yerr": yerr[name], "capsize": 3}))
+    ax.set_xticks(np.arange(len(groups)) + 0.4 - width / 2, groups, fontsize=8)
+
+
 def _mean_over_runs(values: np.ndarray) -> np.ndarray:
     """(R, T) → (T,) the mean over the runs with a value at each frame (NaN where none has one)."""
     seen = np.isfinite(values)
@@ -72,28 +89,17 @@ def write_plots(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]], 
                 ax.set_ylabel(ylabel)
             if not drawn:                     # no filter of the grid keeps particles: no ESS plot
                 continue
-            axes[0][0].legend(fontsize=7)
             figure.suptitle(f"{scenario} (shaded: joints missing)", fontsize=10)
-            figure.tight_layout()
-            path = folder / f"{stem}_{_safe(scenario)}.png"
-            figure.savefig(path, dpi=100)
-            written.append(path)
+            written.append(_saved(figure, axes[0][0], folder / f"{stem}_{_safe(scenario)}.png"))
     figure = _figure(figsize=(max(5, 1.6 * len(scenarios) * max(1, len(filters)) / 2), 3.8))
     ax = figure.subplots()
-    width = 0.8 / len(filters)
-    for i, name in enumerate(filters):
-        stats = [[r["mpjpe_mm"] for r in rows if r["filter"] == name and r["scenario"] == s] for s in scenarios]
-        means = [np.mean(v) if v else np.nan for v in stats]            # a filter not run on a scenario: no bar
-        stds = [np.std(v, ddof=1) if len(v) > 1 else 0.0 for v in stats]
-        ax.bar(np.arange(len(scenarios)) + i * width, means, width, yerr=stds, capsize=3, color=colours[name],
-               label=name)
-    ax.set_xticks(np.arange(len(scenarios)) + 0.4 - width / 2, scenarios, fontsize=8)
+    stats = {name: [[r["mpjpe_mm"] for r in rows if r["filter"] == name and r["scenario"] == s] for s in scenarios]
+             for name in filters}
+    _grouped_bars(ax, scenarios, {n: [np.mean(v) if v else np.nan for v in runs] for n, runs in stats.items()},
+                  colours, yerr={n: [np.std(v, ddof=1) if len(v) > 1 else 0.0 for v in runs]    # no run: no bar
+                                 for n, runs in stats.items()})
     ax.set_ylabel("world MPJPE (mm), mean ± std")
-    ax.legend(fontsize=7)
-    figure.tight_layout()
-    path = folder / "summary.png"
-    figure.savefig(path, dpi=100)
-    written.append(path)
+    written.append(_saved(figure, ax, folder / "summary.png"))
     return written
 
 
@@ -125,22 +131,11 @@ def write_detection_plots(rows: Sequence[dict], series: dict[str, dict[str, np.n
     ax.set_xlabel("pixel error in the camera left out")
     ax.set_ylabel("fraction of joints")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    figure.tight_layout()
-    path = folder / "held_out_cdf.png"
-    figure.savefig(path, dpi=100)
-    written.append(path)
+    written.append(_saved(figure, ax, folder / "held_out_cdf.png"))
     figure = _figure(figsize=(max(6, 0.9 * len(joints)), 3.8))
     ax = figure.subplots()
-    width = 0.8 / len(pooled)
-    for i, (name, e) in enumerate(pooled.items()):
-        medians = [np.nanmedian(e[:, j]) if np.isfinite(e[:, j]).any() else np.nan for j in range(len(joints))]
-        ax.bar(np.arange(len(joints)) + i * width, medians, width, color=colours[name], label=name)
-    ax.set_xticks(np.arange(len(joints)) + 0.4 - width / 2, joints, fontsize=8)
+    _grouped_bars(ax, joints, {name: [np.nanmedian(e[:, j]) if np.isfinite(e[:, j]).any() else np.nan
+                                      for j in range(len(joints))] for name, e in pooled.items()}, colours)
     ax.set_ylabel("median pixel error, camera left out")
-    ax.legend(fontsize=7)
-    figure.tight_layout()
-    path = folder / "held_out_joints.png"
-    figure.savefig(path, dpi=100)
-    written.append(path)
+    written.append(_saved(figure, ax, folder / "held_out_joints.png"))
     return written
