@@ -78,7 +78,9 @@ two cameras or more and fails the gate in every one of them ``GATE_PATIENCE`` fr
 views agree with each other, not with the estimate: a lost limb, not one detector's mistake, which
 the other cameras would not repeat), the following frames take that joint ungated until the gate
 accepts it again (flagged "joint-reacquired"; ukf-lie-defensive had held caliscope's right wrist out for 67 frames running,
-300–460 px off in every webcam).
+300–460 px off in every webcam). Not for a latent prior (``reacquire = false``, ukf-gpdm): its few
+latent coordinates move every joint together, and a joint taken against it drags the body (caliscope
+under ukf-gpdm: median 34 → 114 px in the camera left out).
 
 Only a Gaussian filter: a robust (Student-t) likelihood has no R, and the Lie prior's transition
 (a mixture) has no single noise covariance; both are refused with a PriortrackError (use the
@@ -388,6 +390,8 @@ class UnscentedFilter(SequentialFilter):
         alpha, beta, kappa: Van der Merwe's sigma-point parameters (filterpy's).
         batched: f and h on all sigma points as one batch (True) or per point (filterpy's loop).
         gate_probability: p_gate of the validation gate (module docstring); 0 turns the gate off.
+        reacquire: take a joint every camera has seen away from the estimate too long ungated (module
+            docstring); off for a latent prior, which cannot move one joint alone (ukf-gpdm).
 
     It runs on the CPU in float64 (filterpy works in numpy): the model's tensors must be there.
 
@@ -399,7 +403,7 @@ class UnscentedFilter(SequentialFilter):
     requires = "gaussian"
 
     def __init__(self, model, alpha: float = ALPHA, beta: float = BETA, kappa: float = KAPPA, batched: bool = True,
-                 gate_probability: float = GATE_PROBABILITY):
+                 gate_probability: float = GATE_PROBABILITY, reacquire: bool = True):
         if not alpha > 0:
             raise PriortrackError(f"alpha must be positive, got {alpha}")
         if not 0 <= gate_probability < 1:
@@ -410,7 +414,7 @@ class UnscentedFilter(SequentialFilter):
         if not n + kappa > 0:
             raise PriortrackError(f"kappa must exceed −n = {-n}, got {kappa}")
         self.kf = BatchedUKF(self.unscented, ManifoldSigmaPoints(self.unscented, alpha, beta, kappa), batched)
-        self.gate_probability = gate_probability
+        self.gate_probability, self.reacquire = gate_probability, bool(reacquire)
         self.initialised = False
         self.frame, self.gated_frames = 0, 0
         #: (J,) per joint (an observation (…, J, coordinates); a flat one's points are J), the frames
@@ -545,7 +549,8 @@ class UnscentedFilter(SequentialFilter):
         S = np.einsum("i,ikc,ikd->kcd", self.kf.Wc, r, r) + diagonal_blocks(R[np.ix_(columns, columns)], b)
         d2 = block_distances(z[columns].reshape(-1, b) - z_hat, S)
         rejected = d2 > chi2.isf(self.gate_probability, b)
-        rejected &= ~self._reacquired(columns.reshape(-1, b)[:, 0] // b, rejected, flags)
+        if self.reacquire:
+            rejected &= ~self._reacquired(columns.reshape(-1, b)[:, 0] // b, rejected, flags)
         if not rejected.any():
             self.gated_frames = 0
             return usable
