@@ -1,7 +1,7 @@
 """Rerun recordings of real detections tracked by :func:`priortrack.experiments.real.track_detections`.
 
 In the calibration's world (its up axis): every camera as a pinhole with its image size, its
-detections (radius and brightness by confidence; red over them, those the unscented filter's
+detections (radius and brightness by confidence; green over them, those the unscented filter's
 validation gate held out, counted as ``gated/<camera>``) and the estimate's reprojection in its image, the
 3D estimate skeleton (a smoothed run: the smoothed one, and the filter's own as "filtered") and the
 particle cloud coloured by weight, and per-frame scalars: each
@@ -22,8 +22,9 @@ from priortrack.viz.logger import ESTIMATE_COLOR, step_events
 
 DETECTION_COLOR, MISMATCH_COLOR = (60, 200, 255), (255, 0, 200)
 FILTERED_COLOR = (150, 150, 150)
-#: The detections the unscented filter's validation gate held out, drawn over their camera's detections.
-GATED_COLOR = (255, 40, 40)
+#: The detections the unscented filter's validation gate held out, drawn over their camera's detections (green:
+#: apart from the detections' blue and the estimate's red).
+GATED_COLOR = (40, 220, 40)
 
 
 def record_detections(result, path: str | Path) -> Path:
