@@ -17,7 +17,8 @@ over the same joints against the truth, beside the DLT of every camera.
 
 The grid is cached, resumable and Dask-able as the motion-capture grid is
 (:func:`priortrack.experiments.compare.compare`): a run's key covers the detections', calibration's
-and truth's bytes. The summary pools every held-out camera's errors per preset (median and 90th
+and truth's bytes. A worker reads those files by their paths: on a remote scheduler's workers they
+must be where the paths say (a shared folder, given as absolute paths). The summary pools every held-out camera's errors per preset (median and 90th
 percentile, pixels) and breaks them down by camera and by joint.
 """
 
