@@ -53,6 +53,19 @@ SERIES = ("error_mm", "ess", "observed_fraction")
 SERIES_BYTES = 5 * 12 * 8 * 10**6
 
 
+def config_key(config, contents: bytes) -> str:
+    """The hash of a run's configuration (a dataclass with a ``filter``), 16 hex digits: its fields, the
+    torch threads of a run, priortrack's version, the preset file's text, then ``contents`` (the bytes of
+    the run's input files, or their digests)."""
+    from priortrack import __version__
+    from priortrack.experiments.presets import preset_path
+
+    digest = hashlib.sha256(json.dumps([asdict(config), RUN_THREADS, __version__], sort_keys=True).encode())
+    digest.update(preset_path(config.filter).read_bytes())
+    digest.update(contents)
+    return digest.hexdigest()[:16]
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """One run of the grid (plain values: what a Dask worker is sent)."""
@@ -68,15 +81,8 @@ class RunConfig:
     def key(self) -> str:
         """The configuration hash (module docstring), 16 hex digits; computed once (it reads the
         preset file, and a motion file's bytes)."""
-        from priortrack import __version__
-        from priortrack.experiments.presets import preset_path
-
-        digest = hashlib.sha256(json.dumps([asdict(self), RUN_THREADS, __version__], sort_keys=True).encode())
-        digest.update(preset_path(self.filter).read_bytes())
         motion = Path(self.motion)
-        if motion.is_file():
-            digest.update(motion.read_bytes())
-        return digest.hexdigest()[:16]
+        return config_key(self, motion.read_bytes() if motion.is_file() else b"")
 
     @property
     def label(self) -> str:

@@ -25,11 +25,10 @@ percentile, pixels) and breaks them down by camera and by joint.
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -82,16 +81,10 @@ class DetectionRunConfig:
     def key(self) -> str:
         """The configuration hash: the fields, priortrack's version, the preset file's text and the
         bytes of the detections, calibration and truth (16 hex digits)."""
-        from priortrack import __version__
-        from priortrack.experiments.compare import RUN_THREADS
-        from priortrack.experiments.presets import preset_path
+        from priortrack.experiments.compare import config_key
 
-        digest = hashlib.sha256(json.dumps([asdict(self), RUN_THREADS, __version__], sort_keys=True).encode())
-        digest.update(preset_path(self.filter).read_bytes())
-        for path in (self.detections, self.cameras, self.truth):
-            if path is not None:
-                digest.update(_digest(Path(path)))
-        return digest.hexdigest()[:16]
+        return config_key(self, b"".join(_digest(Path(p)) for p in (self.detections, self.cameras, self.truth)
+                                         if p is not None))
 
     @property
     def label(self) -> str:
@@ -242,15 +235,18 @@ def read_truth(path: str | Path, detections, calibration, joints: Sequence[str] 
 
 # ---- one run ------------------------------------------------------------------------------------
 
+def _finite(values) -> np.ndarray:
+    values = np.asarray(values, dtype=float)
+    return values[np.isfinite(values)]
+
+
 def _quantile(values: np.ndarray, q: float) -> float | None:
-    finite = np.asarray(values, dtype=float)
-    finite = finite[np.isfinite(finite)]
+    finite = _finite(values)
     return float(np.quantile(finite, q)) if len(finite) else None
 
 
 def _mean(values: np.ndarray) -> float | None:
-    finite = np.asarray(values, dtype=float)
-    finite = finite[np.isfinite(finite)]
+    finite = _finite(values)
     return float(finite.mean()) if len(finite) else None
 
 
@@ -341,6 +337,23 @@ def _pooled(runs: Sequence[dict], series: dict[str, dict[str, np.ndarray]], key:
     return np.concatenate(arrays) if arrays else np.empty((0, J))
 
 
+def _tracked_by_name(rows: Sequence[dict]) -> dict[str, list[dict]]:
+    """The runs that tracked, by preset, and as "DLT" each held-out camera's (and the all-camera run's)
+    first run that tracked: the DLT of the other cameras on its frames, the same for every preset."""
+    tracked = [r for r in rows if "error" not in r]
+    cameras = dict.fromkeys(r["held_out"] for r in tracked)
+    return {**{f: [r for r in tracked if r["filter"] == f] for f in dict.fromkeys(r["filter"] for r in rows)},
+            "DLT": [next(r for r in tracked if r["held_out"] == c) for c in cameras]}
+
+
+def held_out_errors(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """{preset, and "DLT": (N, J) the pixel errors in the cameras left out, every run's ticks stacked}."""
+    J = len(rows[0]["joints"])
+    return {name: _pooled([r for r in runs if r["held_out"] != ALL_CAMERAS], series,
+                          "dlt_px" if name == "DLT" else "error_px", J)
+            for name, runs in _tracked_by_name(rows).items()}
+
+
 def summary(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]]) -> dict:
     """The grid's table: {"held_out": {name: {"median_px", "p90_px", "ratio_median", "ratio_p90",
     "filtered_median_px", "filtered_p90_px", "by_camera": {camera: median}, "by_joint": {joint: median},
@@ -348,17 +361,14 @@ def summary(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]]) -> d
     error)]}; the DLT of the other cameras is the row "DLT" (its errors from each held-out camera's first
     run that tracked: the same frames). Pixel figures pool every held-out camera's ticks and joints;
     "mpjpe_mm" is the all-camera runs' mean against a truth; ratios are the preset's over DLT's."""
-    filters = list(dict.fromkeys(r["filter"] for r in rows))
     cameras = list(dict.fromkeys(r["held_out"] for r in rows if r["held_out"] != ALL_CAMERAS))
     joints = list(rows[0]["joints"])
-    tracked = [r for r in rows if "error" not in r]
-    baseline = [next(r for r in tracked if r["held_out"] == c) for c in cameras + [ALL_CAMERAS]
-                if any(r["held_out"] == c for r in tracked)]
+    pooled = held_out_errors(rows, series)
     table: dict[str, dict] = {}
-    for name, runs, key in [(f, [r for r in tracked if r["filter"] == f], "error_px") for f in filters] + \
-                           [("DLT", baseline, "dlt_px")]:
+    for name, runs in _tracked_by_name(rows).items():
+        key = "dlt_px" if name == "DLT" else "error_px"
         loco = [r for r in runs if r["held_out"] != ALL_CAMERAS]
-        errors = _pooled(loco, series, key, len(joints))
+        errors = pooled[name]
         entry = {"median_px": _quantile(errors, 0.5), "p90_px": _quantile(errors, 0.9),
                  "by_camera": {c: _quantile(_pooled([r for r in loco if r["held_out"] == c], series, key,
                                                     len(joints)), 0.5) for c in cameras},

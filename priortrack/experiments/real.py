@@ -471,10 +471,9 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
     ess = np.asarray(run.ess, dtype=float) if preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
     consumed = np.where(index[:, None] >= 0, confidence[:, index], 0.0)      # (C, T, 15): none at a tick without a frame
-    reprojection = np.array([median_reprojection(cam, joints, uv[c, index], consumed[c])
-                             for c, cam in enumerate(world_cameras)])
-    by_tick = np.stack([tick_reprojection(cam, joints, uv[c, index], consumed[c])
-                        for c, cam in enumerate(world_cameras)], axis=1)
+    errors = [pixel_errors(cam, joints, uv[c, index], consumed[c]) for c, cam in enumerate(world_cameras)]
+    reprojection = np.array([_median_of_seen(e) for e in errors])                # over every tick and joint
+    by_tick = np.stack([_tick_medians(e) for e in errors], axis=1)               # (T, C)
     gated = np.zeros(z.shape[:3], dtype=bool)                                      # (T, C, 15)
     for step in run.steps:
         if step.held_out is not None and step.frame < T:
@@ -715,17 +714,13 @@ def pixel_errors(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, conf
     return np.where(seen, np.linalg.norm(projected - uv, axis=-1), np.nan)
 
 
-def median_reprojection(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> float:
-    """Median pixel distance between the projected joints (T, J, 3) and the detections (T, J, 2) seen
-    (confidence > 0), over every tick and joint; NaN if none is."""
-    errors = pixel_errors(camera, joints, uv, confidence)
+def _median_of_seen(errors: np.ndarray) -> float:
+    """The median of :func:`pixel_errors` (T, J) over every tick and joint seen; NaN if none is."""
     return float(np.nanmedian(errors)) if np.isfinite(errors).any() else float("nan")
 
 
-def tick_reprojection(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:
-    """(T,) each tick's median pixel distance between the projected joints and the detections seen; NaN
-    where none is."""
-    errors = pixel_errors(camera, joints, uv, confidence)
+def _tick_medians(errors: np.ndarray) -> np.ndarray:
+    """(T,) each tick's median of :func:`pixel_errors` (T, J) over the joints seen; NaN where none is."""
     seen = np.isfinite(errors).any(axis=1)
     out = np.full(len(errors), np.nan)
     out[seen] = np.nanmedian(errors[seen], axis=1)

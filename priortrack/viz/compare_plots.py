@@ -107,18 +107,13 @@ def write_detection_plots(rows: Sequence[dict], series: dict[str, dict[str, np.n
     """Write the plots of a detections grid (module docstring) into ``folder``; returns the files written."""
     from matplotlib import colormaps
 
-    from priortrack.experiments.compare_detections import ALL_CAMERAS
+    from priortrack.experiments.compare_detections import held_out_errors
 
     folder.mkdir(parents=True, exist_ok=True)
     filters = list(dict.fromkeys(r["filter"] for r in rows))
     joints = list(rows[0]["joints"])
-    held_out = [r for r in rows if r["held_out"] != ALL_CAMERAS and "error_px" in series[r["config_hash"]]]
-    errors = {f: [series[r["config_hash"]]["error_px"] for r in held_out if r["filter"] == f] for f in filters}
-    first = {r["held_out"]: r for r in reversed(held_out)}              # each camera's first run that tracked
-    errors["DLT"] = [series[r["config_hash"]]["dlt_px"] for r in first.values()]
+    pooled = held_out_errors(rows, series)
     colours = {f: colormaps["tab10"](i % 10) for i, f in enumerate(filters)} | {"DLT": "black"}
-    pooled = {name: np.concatenate([np.reshape(a, (-1, len(joints))) for a in v]) if v else
-              np.empty((0, len(joints))) for name, v in errors.items()}
     written = []
     figure = _figure(figsize=(6, 4))
     ax = figure.subplots()
