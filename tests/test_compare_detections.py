@@ -160,12 +160,16 @@ def test_truth_files_of_either_kind_give_the_same_joints(trial):
     (dict(truth="truth.csv"), "give a .trc or .npz"),
     (dict(truth="few.npz"), "lacks the joints"),
     (dict(truth="slow.trc"), "is at 30 fps, the detections at 60"),
+    (dict(truth="nameless.npz"), "has no 'joints' array"),
+    (dict(truth="elsewhen.npz"), "covers none of the detections' frames"),
 ])
 def test_bad_arguments_are_refused_before_any_work(trial, change, message):
     folder, X, _ = trial
     np.savez(folder / "few.npz", joints=X[:, :4], joint_names=np.array(EVAL15_NAMES[:4]))
     write_trc(folder / "slow.trc", X[:, 3:], list(LIMBS), 30.0, up="z")
     (folder / "truth.csv").write_text("x\n")
+    np.savez(folder / "nameless.npz", points=X)
+    np.savez(folder / "elsewhen.npz", joints=X, frames=np.arange(len(X)) + 10_000)
     arguments = dict(filters=["ukf-real"], detections=str(folder / "pose"), cameras=str(DEFAULT_CALIBRATION),
                      seeds=1, keypoints="body25b", fps=60.0) | change
     if isinstance(arguments.get("truth"), str):

@@ -227,6 +227,8 @@ def test_the_real_track_benchmark_runs_the_whole_command(capsys):
     assert "frames must be in [3, 1800]" in capsys.readouterr().err
     assert main(["bench", "real-track", "--cameras", "1"]) == 2
     assert "cameras must be in [2, 12]" in capsys.readouterr().err
+    assert main(["bench", "real-track", "--fps", "500"]) == 2
+    assert "fps must be in [10, 120]" in capsys.readouterr().err
 
 
 def test_smoothing_real_format_input_lowers_the_error_and_the_jitter():
