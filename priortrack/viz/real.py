@@ -25,6 +25,8 @@ FILTERED_COLOR = (150, 150, 150)
 #: The detections the unscented filter's validation gate held out, drawn over their camera's detections (green:
 #: apart from the detections' blue and the estimate's red).
 GATED_COLOR = (40, 220, 40)
+#: Their radius, image pixels: twice a detection's widest (8), so that a ring of green shows around it.
+GATED_RADIUS = 16.0
 
 
 def record_detections(result, path: str | Path) -> Path:
@@ -49,7 +51,8 @@ def record_detections(result, path: str | Path) -> Path:
                 z = result.observations[t, c]
                 rec.points_2d("detections", z[:, :2], DETECTION_COLOR, camera=name, confidence=z[:, 2])
                 if result.gated[t, c].any():
-                    rec.points_2d("gated", z[result.gated[t, c], :2], GATED_COLOR, camera=name)
+                    rec.points_2d("gated", np.where(result.gated[t, c][:, None], z[:, :2], np.nan), GATED_COLOR,
+                                  camera=name, radius=GATED_RADIUS)
                     rec.scalar(f"gated/{name}", float(result.gated[t, c].sum()))
                 if np.isfinite(joints).all():
                     uv, _ = camera.project(torch.as_tensor(joints))

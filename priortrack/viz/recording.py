@@ -160,12 +160,13 @@ class Recording:
             image_from_camera=camera.K.cpu().numpy(), resolution=[camera.width, camera.height],
             camera_xyz=rr.ViewCoordinates.RDF), static=True)
 
-    def points_2d(self, name: str, uv, color=(255, 120, 0), camera: str = "camera", confidence=None) -> None:
-        """Log eval15 2D points, uv (15, 2) pixels with NaN where missing, in a camera's image; with
-        ``confidence`` (15,) in [0, 1], each point's radius (2–8 px) and brightness follow it."""
+    def points_2d(self, name: str, uv, color=(255, 120, 0), camera: str = "camera", confidence=None,
+                  radius: float = 4.0) -> None:
+        """Log eval15 2D points, uv (15, 2) pixels with NaN where missing, in a camera's image, ``radius``
+        pixels; with ``confidence`` (15,) in [0, 1], each point's radius (2–8 px) and brightness follow it."""
         uv = np.asarray(uv)
         seen = np.flatnonzero(np.all(np.isfinite(uv), axis=-1))
-        colors, radii = [color], 4.0
+        colors, radii = [color], radius
         if confidence is not None:
             c = np.clip(np.asarray(confidence, dtype=float)[seen], 0.0, 1.0)
             colors = (np.asarray(color)[None] * (0.35 + 0.65 * c[:, None])).astype(np.uint8)
