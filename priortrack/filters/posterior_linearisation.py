@@ -36,6 +36,8 @@ local diffusion UKF's worse.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import torch
 from scipy.stats import chi2
@@ -97,12 +99,14 @@ def _sigma_frames(model, points: ManifoldSigmaPoints, mu: list[np.ndarray], Sigm
         yield from zip(xi, moved, h)
 
 
-def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.ndarray],
-                            covariances: list[np.ndarray], data: np.ndarray, iterations: int = ITERATIONS,
+def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray],
+                            covariances: Sequence[np.ndarray], data: np.ndarray, iterations: int = ITERATIONS,
                             gate_probability: float = GATE_PROBABILITY) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Smoothed (μ_k (A,), Σ_k (n, n)) of the filtered ``means`` and ``covariances`` (module
     docstring) given each frame's ``data`` (T, *observation_shape), for a model in the unscented
-    filter's form and its sigma points. ``iterations`` = 0 is the unscented RTS smoother."""
+    filter's form and its sigma points (the filtered inputs read a frame at a time, as
+    :func:`~priortrack.filters.unscented_rts.unscented_rts` reads them). ``iterations`` = 0 is the
+    unscented RTS smoother."""
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
         raise PriortrackError(f"iterations must be a whole number ≥ 0, got {iterations!r}")
     if len(data) != len(means):
@@ -118,7 +122,10 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.n
         gamma = model.transport(torch.from_numpy(means[0]), torch.from_numpy(mu[0])).numpy()
         d = model.boxminus(torch.from_numpy(means[0])[None], torch.from_numpy(mu[0]))[0].numpy()
         P = gamma @ covariances[0] @ gamma.T
-        filtered, predicted, dynamics = [(d, P)], [], []
+        # per frame k < T − 1, what the RTS smoother of the linearised model needs of it, kept from the
+        # forward pass: G_k = P_k A_kᵀ (P⁻_{k+1})⁻¹, c_k = d_k − G_k d⁻_{k+1}, M_k = P_k − G_k P⁻_{k+1} G_kᵀ
+        # (two matrices a frame, not the filtered, predicted and dynamics three)
+        gains = []
         for k in range(1, T):
             current = next(frames)
             (xi_prev, moved_prev, _), (xi, _, h) = previous, current
@@ -126,10 +133,11 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.n
             y = model.boxminus(moved_prev, torch.from_numpy(mu[k])).numpy()
             A, b, Omega, _ = _regression(xi_prev, y, Sigma[k - 1], Wm, Wc)
             Q = model.process_covariance(torch.from_numpy(mu[k - 1])).numpy() + Omega
-            d, P = A @ d + b, A @ P @ A.T + Q
-            P = (P + P.T) / 2
-            predicted.append((d, P))
-            dynamics.append(A)
+            d_pred, P_pred = A @ d + b, A @ P @ A.T + Q
+            P_pred = (P_pred + P_pred.T) / 2
+            G = np.linalg.solve(P_pred, A @ P).T
+            gains.append((d - G @ d_pred, P - G @ P_pred @ G.T, G))
+            d, P = d_pred, P_pred
             obs = _observed(model, data[k], h, xi, Sigma[k], Wm, Wc, threshold)
             if obs is not None:
                 H, z_hat, R, z = obs
@@ -138,20 +146,14 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: list[np.n
                 d = d + K @ (z - z_hat - H @ d)
                 I_KH = np.eye(n) - K @ H
                 P = I_KH @ P @ I_KH.T + K @ R @ K.T
-            filtered.append((d, P))
-        # the RTS smoother of the linearised model, each frame's filtered, predicted and dynamics let go
-        # as it is used (with μ_k, Σ_k replaced in place below: the smoother's memory is 5 matrices a
-        # frame at its peak, not 7)
-        smoothed = [filtered.pop()]
-        for _ in range(T - 1):
-            (d, P), (d_pred, P_pred), A = filtered.pop(), predicted.pop(), dynamics.pop()
-            G = np.linalg.solve(P_pred, A @ P).T
-            d_s, P_s = smoothed[-1]
-            smoothed.append((d + G @ (d_s - d_pred), P + G @ (P_s - P_pred) @ G.T))
-        for k in range(T):
-            d_s, P_s = smoothed.pop()                                                  # frame k
+        # the RTS smoother backwards, d^s_k = c_k + G_k d^s_{k+1}, P^s_k = M_k + G_k P^s_{k+1} G_kᵀ, each
+        # frame's terms let go as they are used and μ_k, Σ_k replaced in place
+        for k in range(T - 1, -1, -1):
+            if k < T - 1:
+                c, M, G = gains.pop()
+                d, P = c + G @ d, M + G @ P @ G.T
             m_t = torch.from_numpy(mu[k])
-            m_new = model.boxplus(m_t[None], torch.from_numpy(d_s)[None])[0]
+            m_new = model.boxplus(m_t[None], torch.from_numpy(d)[None])[0]
             onto = model.transport(m_t, m_new).numpy()
-            mu[k], Sigma[k] = m_new.numpy(), repaired_covariance(onto @ P_s @ onto.T)[0]
+            mu[k], Sigma[k] = m_new.numpy(), repaired_covariance(onto @ P @ onto.T)[0]
     return mu, Sigma

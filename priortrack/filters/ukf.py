@@ -597,11 +597,12 @@ class UnscentedFilter(SequentialFilter):
         from priortrack.filters.posterior_linearisation import (FRAMES_AT_ONCE, SMOOTHER_ALPHA,
                                                                 posterior_linearisation)
         from priortrack.filters.smoothing import blockwise_spread
+        from priortrack.filters.step_store import Column
 
         points = self.kf.points_fn
         local = ManifoldSigmaPoints(self.unscented, SMOOTHER_ALPHA, points.offsets.beta, points.offsets.kappa)
-        means, covariances = posterior_linearisation(self.unscented, local, [s.mean.numpy() for s in snapshots],
-                                                     [s.covariance.numpy() for s in snapshots], observations,
+        means, covariances = posterior_linearisation(self.unscented, local, Column(snapshots, "mean", torch.Tensor.numpy),
+                                                     Column(snapshots, "covariance", torch.Tensor.numpy), observations,
                                                      gate_probability=self.gate_probability)
         Wc = torch.from_numpy(points.Wc)
 

@@ -19,6 +19,8 @@ model the unscented transform is exact and this is the Kalman RTS smoother.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import torch
 
@@ -26,15 +28,18 @@ from priortrack.errors import PriortrackError
 from priortrack.filters.ukf import ManifoldSigmaPoints, repaired_covariance
 
 
-def unscented_rts(model, points: ManifoldSigmaPoints, means: list[np.ndarray],
-                  covariances: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+def unscented_rts(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray],
+                  covariances: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """The smoothed (m^s_k (A,), P^s_k (n, n)) of the filtered ``means`` and ``covariances`` (module
-    docstring), for a model in the unscented filter's form (``UNSCENTED_INTERFACE``) and its sigma points."""
-    if len(means) != len(covariances) or not means:
+    docstring), for a model in the unscented filter's form (``UNSCENTED_INTERFACE``) and its sigma points.
+    The inputs are read one frame at a time, from the last (a :class:`~priortrack.filters.step_store.Column`
+    of a whole run's spilled steps is not held in memory at once)."""
+    if len(means) != len(covariances) or not len(means):
         raise PriortrackError(f"{len(means)} means and {len(covariances)} covariances: expected as many, at least one")
     smoothed_means, smoothed_covariances = [means[-1]], [covariances[-1]]
     Wm, Wc = torch.from_numpy(points.Wm), points.Wc
-    for m, P in zip(reversed(means[:-1]), reversed(covariances[:-1])):
+    for k in range(len(means) - 2, -1, -1):
+        m, P = means[k], covariances[k]
         m_t = torch.from_numpy(m)
         chi = torch.from_numpy(points.sigma_points(m, P))
         chi_next = model.mean_step(chi)
