@@ -15,5 +15,7 @@ EVAL15_NAMES = (
     "lhip", "lknee", "lankle",
     "rhip", "rknee", "rankle",
 )
+#: (6, 2) eval15's left and right joints (shoulders, elbows, wrists, hips, knees, ankles): what a detector swaps.
+EVAL15_MIRROR_PAIRS = np.array([(3, 6), (4, 7), (5, 8), (9, 12), (10, 13), (11, 14)])
 #: (15,) parent of each eval15 joint, -1 for the pelvis.
 EVAL15_PARENTS = np.array([-1, 0, 1, 1, 3, 4, 1, 6, 7, 0, 9, 10, 0, 12, 13])

@@ -13,7 +13,8 @@ points χ_i = μ_k ⊞ ξ_i of N(μ_k, Σ_k) (the filter's weights Wm, Wc; Σ_i 
 - statistical linear regression of f (eq. 9–11 of the paper): y_i = f(χ_i) ⊟ μ_{k+1},
   ȳ = Σ Wm_i y_i, Ψ = Σ Wc_i ξ_i (y_i − ȳ)ᵀ, Φ = Σ Wc_i (y_i − ȳ)(y_i − ȳ)ᵀ, A_k = Ψᵀ Σ_k⁻¹,
   b_k = ȳ, Ω_k = Φ − A_k Σ_k A_kᵀ, so δ_{k+1} = A_k δ_k + b_k + q, q ~ N(0, Q(μ_k) + Ω_k);
-- the same of h on the observed pixels: z_k = H_k δ_k + ẑ_k + r, r ~ N(0, R_k + Λ_k); a point whose
+- the same of h on the observed pixels (a detector's left/right swaps undone against the sigma points'
+  predicted pixels, as the filter undoes them): z_k = H_k δ_k + ẑ_k + r, r ~ N(0, R_k + Λ_k); a point whose
   d² = νᵀ S⁻¹ ν under the linearised prediction exceeds the filter's validation gate is left out
   (all of a frame's points are kept if every one fails, as the filter reopens its gate);
 - the Kalman filter and RTS smoother of that linear-Gaussian model, started from the filter's own
@@ -44,7 +45,7 @@ from scipy.stats import chi2
 
 from priortrack.errors import PriortrackError
 from priortrack.filters.ukf import (GATE_PROBABILITY, ManifoldSigmaPoints, block_distances, diagonal_blocks,
-                                   repaired_covariance)
+                                   repaired_covariance, swap_corrected)
 from priortrack.filters.unscented_rts import unscented_rts
 
 #: Relinearisations after the unscented RTS smoother's pass, by default.
@@ -66,12 +67,18 @@ def _regression(xi: np.ndarray, y: np.ndarray, Sigma: np.ndarray, Wm: np.ndarray
     return A, y_bar, Phi - A @ Sigma @ A.T, Phi
 
 
-def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.ndarray, Wm, Wc, threshold: float):
+def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.ndarray, Wm, Wc, threshold: float,
+              swaps: bool):
     """The linearised measurement of one frame: (H (k, n), ẑ (k,), R + Λ (k, k), z (k,)) on the
-    observed, predictable and validated pixels, or None where there are none."""
+    observed, predictable and validated pixels (a detector's left/right swaps undone first, as the
+    filter undoes them, if ``swaps``), or None where there are none."""
     gated, _ = model.gate(z)
     values, R = model.measurement(torch.as_tensor(gated, dtype=torch.float64))
     values, R = values.numpy(), R.numpy()
+    pairs = getattr(model, "mirror_pairs", None)
+    if swaps and pairs is not None:
+        values, R, _ = swap_corrected(values, R, h, Wm, Wc, pairs, model.observation_shape[-2], model.measurement_block,
+                                      threshold)
     usable = np.isfinite(values) & np.isfinite(h).all(axis=0)
     if not usable.any():
         return None
@@ -101,12 +108,14 @@ def _sigma_frames(model, points: ManifoldSigmaPoints, mu: list[np.ndarray], Sigm
 
 def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray],
                             covariances: Sequence[np.ndarray], data: np.ndarray, iterations: int = ITERATIONS,
-                            gate_probability: float = GATE_PROBABILITY) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                            gate_probability: float = GATE_PROBABILITY,
+                            swaps: bool = True) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Smoothed (μ_k (A,), Σ_k (n, n)) of the filtered ``means`` and ``covariances`` (module
     docstring) given each frame's ``data`` (T, *observation_shape), for a model in the unscented
     filter's form and its sigma points (the filtered inputs read a frame at a time, as
     :func:`~priortrack.filters.unscented_rts.unscented_rts` reads them). ``iterations`` = 0 is the
-    unscented RTS smoother."""
+    unscented RTS smoother; ``swaps`` undoes a detector's left/right swaps as the filter does
+    (:func:`~priortrack.filters.ukf.swap_corrected`)."""
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
         raise PriortrackError(f"iterations must be a whole number ≥ 0, got {iterations!r}")
     if len(data) != len(means):
@@ -138,7 +147,7 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[
             G = np.linalg.solve(P_pred, A @ P).T
             gains.append((d - G @ d_pred, P - G @ P_pred @ G.T, G))
             d, P = d_pred, P_pred
-            obs = _observed(model, data[k], h, xi, Sigma[k], Wm, Wc, threshold)
+            obs = _observed(model, data[k], h, xi, Sigma[k], Wm, Wc, threshold, swaps)
             if obs is not None:
                 H, z_hat, R, z = obs
                 S = H @ P @ H.T + R
