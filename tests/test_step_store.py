@@ -1,5 +1,6 @@
 """The whole-run smoother's steps within a memory budget: held, spilled to disk past it, read back equal;
-smoothing through spilled steps gives the same numbers as through steps in memory."""
+smoothing through spilled steps gives the same numbers as through steps in memory; the unscented
+smoother's own per-frame matrices likewise (RecordArray)."""
 
 import logging
 from pathlib import Path
@@ -16,7 +17,7 @@ from priortrack.data.detections import read_detections
 from priortrack.experiments.real import track_detections
 from priortrack.filters import particle
 from priortrack.filters.snapshot import Snapshot
-from priortrack.filters.step_store import Column, StepStore, parse_memory, step_bytes
+from priortrack.filters.step_store import Column, RecordArray, StepStore, parse_memory, step_bytes
 
 
 def _step(frame: int, resampled: bool, rng) -> Snapshot:
@@ -88,6 +89,45 @@ def test_smoothing_through_spilled_steps_gives_the_same_numbers(trial, caplog, m
     chunked = track_detections(detections, calibration, "pf-diffusion-local", fps=60, smooth=True, memory=0)
     np.testing.assert_allclose(chunked.joints, held.joints, rtol=0, atol=1e-6)
     np.testing.assert_allclose(chunked.spread, held.spread, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("memory", [None, 10 ** 6, 0])
+def test_record_array_reads_back_what_was_written_in_memory_or_in_its_file(memory, caplog):
+    """Records written in any order read back equal, by index, negative index and slice, and as one array;
+    past the budget (0 bytes) they live in a file, which close() removes; a record of another shape is refused."""
+    rng = np.random.default_rng(0)
+    values = rng.normal(size=(7, 3, 4))
+    with caplog.at_level(logging.INFO, logger="priortrack"):
+        records = RecordArray(7, (3, 4), memory)
+    for k in (6, 0, 3, 1, 2, 5, 4):
+        records[k] = values[k]
+    assert records.spilled == (memory == 0) == ("past the memory budget" in caplog.text)
+    assert len(records) == 7
+    np.testing.assert_array_equal(records[-1], values[6])
+    np.testing.assert_array_equal(records[2:5], values[2:5])
+    np.testing.assert_array_equal(np.array(records), values)
+    records[-2] = values[0]
+    np.testing.assert_array_equal(records[5], values[0])
+    if records.spilled:
+        folder = Path(records._directory.name)
+        assert (folder / "records.bin").stat().st_size == 7 * 12 * 8
+        with pytest.raises(PriortrackError, match=r"record of shape \(4, 3\): expected \(3, 4\)"):
+            records[0] = values[0].T
+        records.close()
+        assert not folder.exists()
+
+
+def test_unscented_smoothing_with_its_matrices_on_disk_gives_the_same_numbers(trial, caplog):
+    """ukf-real over the bundled real trial, smoothed over the whole run with every step and every smoother
+    matrix spilled (memory 0): the same smoothed joints and spread, to the bit, as all in memory."""
+    detections, calibration = trial
+    held = track_detections(detections, calibration, "ukf-real", fps=60, smooth=True)
+    with caplog.at_level(logging.INFO, logger="priortrack"):
+        spilled = track_detections(detections, calibration, "ukf-real", fps=60, smooth=True, memory=0)
+    assert "past the memory budget" in caplog.text
+    np.testing.assert_array_equal(spilled.joints, held.joints)
+    np.testing.assert_array_equal(spilled.spread, held.spread)
+    assert np.abs(held.joints - held.filtered_joints).max() > 1e-4                  # it did smooth
 
 
 def test_memory_is_for_detections(capsys):

@@ -180,6 +180,7 @@ def add_parsers(verbs) -> None:
                        help="smoothed trajectories a particle smoother draws (default 100)")
     track.add_argument("--memory", help="whole-run --smooth of --detections: the filter's steps held "
                                                        "in memory (e.g. 500MB, 2GB; default 1GB), the rest spilled to a "
-                                                       "temporary folder and read back by the smoother")
+                                                       "temporary folder and read back by the smoother; the unscented "
+                                                       "smoother's own per-frame matrices get as much again")
     track.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
     track.set_defaults(run=_track)

@@ -44,6 +44,7 @@ import torch
 from scipy.stats import chi2
 
 from priortrack.errors import PriortrackError
+from priortrack.filters.step_store import RecordArray
 from priortrack.filters.ukf import (GATE_PROBABILITY, ManifoldSigmaPoints, block_distances, diagonal_blocks,
                                    repaired_covariance, swap_corrected)
 from priortrack.filters.unscented_rts import unscented_rts
@@ -92,7 +93,7 @@ def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.nda
     return H[kept], z_hat[kept], (R_u + Lam)[np.ix_(kept, kept)], values[usable][kept]
 
 
-def _sigma_frames(model, points: ManifoldSigmaPoints, mu: list[np.ndarray], Sigma: list[np.ndarray]):
+def _sigma_frames(model, points: ManifoldSigmaPoints, mu: list[np.ndarray], Sigma: RecordArray):
     """Per frame k in order: the sigma points' offsets ξ (N, n) of N(μ_k, Σ_k), their images under the
     dynamics f(χ_i) (N, A) and the measurement h(χ_i) (N, m), computed ``FRAMES_AT_ONCE`` frames at a
     time (a whole recording's sigma points at once would not fit: 18,000 frames × 125 points)."""
@@ -108,19 +109,22 @@ def _sigma_frames(model, points: ManifoldSigmaPoints, mu: list[np.ndarray], Sigm
 
 def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray],
                             covariances: Sequence[np.ndarray], data: np.ndarray, iterations: int = ITERATIONS,
-                            gate_probability: float = GATE_PROBABILITY,
-                            swaps: bool = True) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                            gate_probability: float = GATE_PROBABILITY, swaps: bool = True,
+                            memory: int | None = None) -> tuple[list[np.ndarray], RecordArray]:
     """Smoothed (μ_k (A,), Σ_k (n, n)) of the filtered ``means`` and ``covariances`` (module
     docstring) given each frame's ``data`` (T, *observation_shape), for a model in the unscented
     filter's form and its sigma points (the filtered inputs read a frame at a time, as
     :func:`~priortrack.filters.unscented_rts.unscented_rts` reads them). ``iterations`` = 0 is the
     unscented RTS smoother; ``swaps`` undoes a detector's left/right swaps as the filter does
-    (:func:`~priortrack.filters.ukf.swap_corrected`)."""
+    (:func:`~priortrack.filters.ukf.swap_corrected`). The per-frame matrices (the smoothed Σ_k, and an
+    iteration's M_k and G_k) are :class:`~priortrack.filters.step_store.RecordArray` s of a third of
+    ``memory`` bytes each (None: in memory), so a run's length alone does not exhaust the memory."""
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
         raise PriortrackError(f"iterations must be a whole number ≥ 0, got {iterations!r}")
     if len(data) != len(means):
         raise PriortrackError(f"{len(data)} frames of data for {len(means)} filtered frames")
-    mu, Sigma = unscented_rts(model, points, means, covariances)
+    share = None if memory is None else memory // 3
+    mu, Sigma = unscented_rts(model, points, means, covariances, share)
     Wm, Wc = points.Wm, points.Wc
     threshold = chi2.isf(gate_probability, model.measurement_block) if gate_probability > 0 else np.inf
     T, n = len(mu), len(Sigma[0])
@@ -134,7 +138,7 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[
         # per frame k < T − 1, what the RTS smoother of the linearised model needs of it, kept from the
         # forward pass: G_k = P_k A_kᵀ (P⁻_{k+1})⁻¹, c_k = d_k − G_k d⁻_{k+1}, M_k = P_k − G_k P⁻_{k+1} G_kᵀ
         # (two matrices a frame, not the filtered, predicted and dynamics three)
-        gains = []
+        c, M, G = [None] * (T - 1), RecordArray(T - 1, (n, n), share), RecordArray(T - 1, (n, n), share)
         for k in range(1, T):
             current = next(frames)
             (xi_prev, moved_prev, _), (xi, _, h) = previous, current
@@ -144,8 +148,8 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[
             Q = model.process_covariance(torch.from_numpy(mu[k - 1])).numpy() + Omega
             d_pred, P_pred = A @ d + b, A @ P @ A.T + Q
             P_pred = (P_pred + P_pred.T) / 2
-            G = np.linalg.solve(P_pred, A @ P).T
-            gains.append((d - G @ d_pred, P - G @ P_pred @ G.T, G))
+            gain = np.linalg.solve(P_pred, A @ P).T
+            c[k - 1], M[k - 1], G[k - 1] = d - gain @ d_pred, P - gain @ P_pred @ gain.T, gain
             d, P = d_pred, P_pred
             obs = _observed(model, data[k], h, xi, Sigma[k], Wm, Wc, threshold, swaps)
             if obs is not None:
@@ -155,14 +159,16 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[
                 d = d + K @ (z - z_hat - H @ d)
                 I_KH = np.eye(n) - K @ H
                 P = I_KH @ P @ I_KH.T + K @ R @ K.T
-        # the RTS smoother backwards, d^s_k = c_k + G_k d^s_{k+1}, P^s_k = M_k + G_k P^s_{k+1} G_kᵀ, each
-        # frame's terms let go as they are used and μ_k, Σ_k replaced in place
+        # the RTS smoother backwards, d^s_k = c_k + G_k d^s_{k+1}, P^s_k = M_k + G_k P^s_{k+1} G_kᵀ, with μ_k
+        # and Σ_k replaced in place
         for k in range(T - 1, -1, -1):
             if k < T - 1:
-                c, M, G = gains.pop()
-                d, P = c + G @ d, M + G @ P @ G.T
+                gain = G[k]
+                d, P = c[k] + gain @ d, M[k] + gain @ P @ gain.T
             m_t = torch.from_numpy(mu[k])
             m_new = model.boxplus(m_t[None], torch.from_numpy(d)[None])[0]
             onto = model.transport(m_t, m_new).numpy()
             mu[k], Sigma[k] = m_new.numpy(), repaired_covariance(onto @ P @ onto.T)[0]
+        M.close()
+        G.close()
     return mu, Sigma

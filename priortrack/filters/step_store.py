@@ -1,4 +1,5 @@
-"""The steps a whole run's smoother reads, held in memory up to a budget and spilled to disk past it.
+"""The steps a whole run's smoother reads, and the smoother's own per-frame arrays, held in memory up to a
+budget and spilled to disk past it.
 
 A particle filter's step, as the smoother reads it (:meth:`Snapshot.for_smoothing`), is its states,
 weights, ancestors and translation covariances: pf-lie's 1,000 particles take 376 kB a tick, 6.8 GB
@@ -8,11 +9,16 @@ later step's arrays go to a ``.npy`` file of their own in a temporary folder (nu
 pickle) and are read back when the smoother asks for that step, so a run's length alone never
 exhausts the memory. The folder goes with :meth:`StepStore.close`
 (or when the store is collected).
+
+The unscented smoother's own per-frame matrices (the smoothed covariances, and the posterior-linearisation
+pass's gains: three n × n matrices a frame, 93 kB for ukf-real) are :class:`RecordArray` s of the same
+budget: in memory where they fit, else records of a temporary file read and written one at a time.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -155,3 +161,67 @@ class Column(Sequence):
         steps = self.steps
         array = steps.array(index, self.name) if isinstance(steps, StepStore) else getattr(steps[index], self.name)
         return array if self.transform is None or array is None else self.transform(array)
+
+
+class RecordArray(Sequence):
+    """``length`` float64 records of one ``shape``, indexed by record: a numpy array where they total at most
+    ``memory`` bytes (None: no limit), else the fixed-size records of a temporary file, each read or written
+    alone (numpy's raw float64 bytes), so that the array does not hold the process's memory.
+
+    ``a[k]`` reads record k ((*shape) array; a slice: the records stacked), ``a[k] = value`` writes it;
+    :meth:`close` removes the file."""
+
+    def __init__(self, length: int, shape: tuple[int, ...], memory: int | None = None, folder: str | Path | None = None):
+        self.shape, self._count = tuple(shape), math.prod(shape)
+        self._length = int(length)
+        size = self._length * self._count * 8
+        self._directory: tempfile.TemporaryDirectory | None = None
+        if memory is None or size <= memory:
+            self._data, self._file = np.empty((self._length, *self.shape)), None
+            return
+        self._data = None
+        self._directory = tempfile.TemporaryDirectory(prefix="priortrack-records-", dir=folder)
+        self._file = open(Path(self._directory.name) / "records.bin", "w+b")
+        self._file.truncate(size)
+        log.info("%d records of %s (%.0f MB) past the memory budget: kept in %s", self._length, self.shape,
+                 size / 1024 ** 2, self._directory.name)
+
+    @property
+    def spilled(self) -> bool:
+        """Whether the records are in a file."""
+        return self._file is not None
+
+    def __len__(self) -> int:
+        return self._length
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            if self._file is None:
+                return self._data[index]
+            return np.stack([self[k] for k in range(*index.indices(self._length))])
+        k = range(self._length)[index]
+        if self._file is None:
+            return self._data[k]
+        self._file.seek(k * self._count * 8)
+        return np.fromfile(self._file, dtype=np.float64, count=self._count).reshape(self.shape)
+
+    def __setitem__(self, index: int, value: np.ndarray) -> None:
+        k = range(self._length)[index]
+        if self._file is None:
+            self._data[k] = value
+            return
+        value = np.ascontiguousarray(value, dtype=np.float64)
+        if value.shape != self.shape:
+            raise PriortrackError(f"record of shape {value.shape}: expected {self.shape}")
+        self._file.seek(k * self._count * 8)
+        value.tofile(self._file)
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(self[:], dtype=dtype)
+
+    def close(self) -> None:
+        """Remove the records' file (the array is unusable after)."""
+        if self._file is not None:
+            self._file.close()
+            self._directory.cleanup()
+            self._file = self._directory = None

@@ -664,17 +664,19 @@ class UnscentedFilter(SequentialFilter):
         (:mod:`priortrack.filters.posterior_linearisation`, its sigma points at ``SMOOTHER_ALPHA``; the
         generator and the particle smoother's options are not needed): the joints of each smoothed
         mean (W, J, 3) and their spread over the smoothed Gaussian's sigma points, at the filter's α
-        (W, J) (and no trajectories to count)."""
+        (W, J) (and no trajectories to count). Steps in a :class:`~priortrack.filters.step_store.StepStore`
+        lend the smoother their memory budget for its own per-frame matrices too."""
         from priortrack.filters.posterior_linearisation import (FRAMES_AT_ONCE, SMOOTHER_ALPHA,
                                                                 posterior_linearisation)
         from priortrack.filters.smoothing import blockwise_spread
-        from priortrack.filters.step_store import Column
+        from priortrack.filters.step_store import Column, StepStore
 
         points = self.kf.points_fn
         local = ManifoldSigmaPoints(self.unscented, SMOOTHER_ALPHA, points.offsets.beta, points.offsets.kappa)
         means, covariances = posterior_linearisation(self.unscented, local, Column(snapshots, "mean", torch.Tensor.numpy),
                                                      Column(snapshots, "covariance", torch.Tensor.numpy), observations,
-                                                     gate_probability=self.gate_probability, swaps=self.swaps)
+                                                     gate_probability=self.gate_probability, swaps=self.swaps,
+                                                     memory=snapshots.memory if isinstance(snapshots, StepStore) else None)
         Wc = torch.from_numpy(points.Wc)
 
         def decode(frames: slice):
@@ -683,4 +685,7 @@ class UnscentedFilter(SequentialFilter):
             joints = self.unscented.observe(sigmas.flatten(0, 1)).reshape(sigmas.shape[:2] + (-1, 3)).transpose(0, 1)
             return joints, self.unscented.observe(torch.from_numpy(np.stack(means[frames]))), Wc
 
-        return *blockwise_spread(len(means), FRAMES_AT_ONCE, decode), None
+        try:
+            return *blockwise_spread(len(means), FRAMES_AT_ONCE, decode), None
+        finally:
+            covariances.close()

@@ -25,20 +25,25 @@ import numpy as np
 import torch
 
 from priortrack.errors import PriortrackError
+from priortrack.filters.step_store import RecordArray
 from priortrack.filters.ukf import ManifoldSigmaPoints, repaired_covariance
 
 
-def unscented_rts(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray],
-                  covariances: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+def unscented_rts(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray], covariances: Sequence[np.ndarray],
+                  memory: int | None = None) -> tuple[list[np.ndarray], RecordArray]:
     """The smoothed (m^s_k (A,), P^s_k (n, n)) of the filtered ``means`` and ``covariances`` (module
     docstring), for a model in the unscented filter's form (``UNSCENTED_INTERFACE``) and its sigma points.
     The inputs are read one frame at a time, from the last (a :class:`~priortrack.filters.step_store.Column`
-    of a whole run's spilled steps is not held in memory at once)."""
+    of a whole run's spilled steps is not held in memory at once); the smoothed covariances are a
+    :class:`~priortrack.filters.step_store.RecordArray` within ``memory`` bytes (None: in memory)."""
     if len(means) != len(covariances) or not len(means):
         raise PriortrackError(f"{len(means)} means and {len(covariances)} covariances: expected as many, at least one")
-    smoothed_means, smoothed_covariances = [means[-1]], [covariances[-1]]
+    T = len(means)
+    smoothed_means = [None] * T
+    smoothed_covariances = RecordArray(T, covariances[-1].shape, memory)
+    smoothed_means[-1], smoothed_covariances[-1] = means[-1], covariances[-1]
     Wm, Wc = torch.from_numpy(points.Wm), points.Wc
-    for k in range(len(means) - 2, -1, -1):
+    for k in range(T - 2, -1, -1):
         m, P = means[k], covariances[k]
         m_t = torch.from_numpy(m)
         chi = torch.from_numpy(points.sigma_points(m, P))
@@ -49,12 +54,12 @@ def unscented_rts(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray
         P_pred = (r_next.T * Wc) @ r_next + model.process_covariance(m_t).numpy()
         D = (r.T * Wc) @ r_next
         G = np.linalg.solve(P_pred.T, D.T).T
-        m_s_next = torch.from_numpy(smoothed_means[-1])
+        m_s_next = torch.from_numpy(smoothed_means[k + 1])
         into_pred = model.transport(m_s_next, m_pred).numpy()
         innovation = model.boxminus(m_s_next[None], m_pred)[0].numpy()
         m_s = model.boxplus(m_t[None], torch.from_numpy(G @ innovation)[None])[0]
-        P_s = P + G @ (into_pred @ smoothed_covariances[-1] @ into_pred.T - P_pred) @ G.T
+        P_s = P + G @ (into_pred @ smoothed_covariances[k + 1] @ into_pred.T - P_pred) @ G.T
         onto = model.transport(m_t, m_s).numpy()
-        smoothed_means.append(m_s.numpy())
-        smoothed_covariances.append(repaired_covariance(onto @ P_s @ onto.T)[0])
-    return smoothed_means[::-1], smoothed_covariances[::-1]
+        smoothed_means[k] = m_s.numpy()
+        smoothed_covariances[k] = repaired_covariance(onto @ P_s @ onto.T)[0]
+    return smoothed_means, smoothed_covariances
