@@ -18,7 +18,8 @@
    ``height`` and fitted to the first ticks' detections in 2D, its depth from its image size
    (:func:`priortrack.body.ik.inverse_kinematics_2d`). From several, each tick's joints are triangulated (confidence-weighted DLT through the
    lens distortion); the first two consecutive ticks with at least ``START_JOINTS`` joints
-   triangulated start the filter: the body (the prior's skeleton, or CMU subject 35's) is scaled to
+   triangulated, each reprojecting into every camera about as well as the trial's typical tick
+   (:func:`start_ticks`: not a tick where one camera swapped left and right), start the filter: the body (the prior's skeleton, or CMU subject 35's) is scaled to
    the person's own distances, each bone's the median over every tick of the whole trial whose
    triangulation measures it, left and right averaged (robust to a detector's swaps and outliers on
    some frames, and to a first second where the person is half in view; reported as the summary's
@@ -90,6 +91,9 @@ log = logging.getLogger(__name__)
 CROSS_VIEW_GATE = 0.1
 #: Joints a tick needs triangulated to start the filter there.
 START_JOINTS = 14
+#: A start tick's worst camera reprojects its triangulation within this many times the trial's median tick's
+#: (:func:`start_ticks`).
+START_CONSISTENCY = 3.0
 #: Ticks fitted together by inverse kinematics for the start (the first two start the filter), as
 #: long as each has MIN_FIT_JOINTS joints.
 START_TICKS, MIN_FIT_JOINTS = 8, 8
@@ -398,7 +402,9 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         X = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3),
                         np.nan_to_num(z[..., 2]).transpose(1, 0, 2))             # (T, 15, 3), working frame
         counts = np.isfinite(X).all(axis=-1).sum(axis=-1)
-    good = np.flatnonzero((counts[1:] >= START_JOINTS) & (counts[:-1] >= START_JOINTS))
+    residual = None if single else np.nanmax(np.stack(
+        [np.nan_to_num(median_reprojection(camera, X, z[:, c]), nan=-np.inf) for c, camera in enumerate(cameras)]), axis=0)
+    good = start_ticks(counts, residual)
     if not len(good):
         raise PriortrackError(f"no two consecutive frames have {START_JOINTS} joints "
                               f"{'detected' if single else 'seen by two cameras'}: cannot start (per tick: "
@@ -559,6 +565,39 @@ def better_fitting(motion, preset: Preset, below: float, cache=None) -> dict | N
     return best
 
 
+def median_reprojection(camera: PinholeCamera, X: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(T,) each tick's median pixel distance between the joints X (T, 15, 3) projected through ``camera``
+    and its detections z (T, 15, 3: u, v, confidence), over the joints it saw (NaN below 4 of them)."""
+    seen = np.isfinite(z[..., 0]) & (np.nan_to_num(z[..., 2]) > 0)
+    error = np.where(seen, np.linalg.norm(camera.project(X)[0] - z[..., :2], axis=-1), np.nan)
+    enough = np.isfinite(error).sum(axis=-1) >= 4
+    out = np.full(len(error), np.nan)
+    out[enough] = np.nanmedian(error[enough], axis=-1)
+    return out
+
+
+def start_ticks(counts: np.ndarray, residual: np.ndarray | None = None) -> np.ndarray:
+    """The ticks t (ascending) where t and t + 1 both have START_JOINTS joints (``counts`` (T,)) and, given
+    ``residual`` (T,) (each tick's worst camera's median reprojection of its triangulation, px), both
+    reproject within START_CONSISTENCY times the median such tick's: a start on a tick where one camera
+    swapped left and right, or saw someone else, fitted the body to wrong joints (real-format 07_10, seed 2:
+    its first start tick's triangulation 276 mm off, the tracked walk's error doubled). Where no tick pair
+    is consistent, the counts alone decide (logged)."""
+    enough = counts >= START_JOINTS
+    good = np.flatnonzero(enough[1:] & enough[:-1])
+    if residual is None or not len(good):
+        return good
+    consistent = enough & (residual <= START_CONSISTENCY * np.nanmedian(residual[enough]))
+    steady = np.flatnonzero(consistent[1:] & consistent[:-1])
+    if not len(steady):
+        log.info("no two consecutive ticks triangulate consistently in every camera: starting on the first "
+                 "with %d joints", START_JOINTS)
+        return good
+    if steady[0] != good[0]:
+        log.info("start: ticks %d–%d skipped (a camera's detections disagree with the others')", good[0], steady[0] - 1)
+    return steady
+
+
 def cross_view_check(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[str, ...]) -> int:
     """Leave out (NaN, in place) at each tick the camera, if any, that follows someone else: the camera
     without which the others agree best (the smallest median reprojection error of their own
@@ -571,24 +610,17 @@ def cross_view_check(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[s
     agreement = np.full(z.shape[:2], np.inf)                                       # (T, C): the others', px
     distance = np.zeros(z.shape[:2])                                               # (T, C): c's, in gates
 
-    def median_error(camera: PinholeCamera, X: np.ndarray, c: int) -> np.ndarray:
-        error = np.where(seen[:, c], np.linalg.norm(camera.project(X)[0] - z[:, c, :, :2], axis=-1), np.nan)
-        enough = np.isfinite(error).sum(axis=-1) >= 4
-        out = np.full(len(error), np.nan)
-        out[enough] = np.nanmedian(error[enough], axis=-1)
-        return out
-
     for c, camera in enumerate(cameras):
         others = [k for k in range(C) if k != c]
         pixels, weights = z[:, others, :, :2], z[:, others][..., 2]                  # (T, C−1, 15, 2), (T, C−1, 15)
         X = triangulate([cameras[k] for k in others],
                         np.where(seen[:, others, :, None], pixels, np.nan).transpose(1, 0, 2, 3),
                         np.where(seen[:, others], weights, 0.0).transpose(1, 0, 2))                  # (T, 15, 3)
-        medians = np.stack([median_error(cameras[k], X, k) for k in others])        # the worst of the others'
+        medians = np.stack([median_reprojection(cameras[k], X, z[:, k]) for k in others])   # the worst of the others'
         agreement[:, c] = np.where(np.isfinite(medians).any(axis=0), np.nan_to_num(medians, nan=-np.inf).max(axis=0),
                                    np.inf)
         gate = CROSS_VIEW_GATE * math.hypot(camera.width, camera.height)
-        distance[:, c] = np.nan_to_num(median_error(camera, X, c) / gate, nan=0.0)
+        distance[:, c] = np.nan_to_num(median_reprojection(camera, X, z[:, c]) / gate, nan=0.0)
     suspect = np.argmin(agreement, axis=1)
     ticks = np.flatnonzero(np.take_along_axis(distance, suspect[:, None], 1)[:, 0] > 1)
     for c in np.unique(suspect[ticks]):
