@@ -432,25 +432,31 @@ def test_a_joint_every_camera_agrees_on_is_reacquired_after_the_gate_held_it_out
     assert np.median(wrist) < 0.06 and np.median(others) < 0.03, (np.median(wrist), np.median(others))
 
 
+def _walk_with_a_camera_swapped(folder, seed: int, frames: slice):
+    """A held-out walk (35_29) written as a detector would through the 4 cameras (seed), camera 2's left and
+    right swapped on ``frames``: (the calibration, the truth X (T, 15, 3))."""
+    from priortrack.data.keypoints import LAYOUTS
+    from priortrack.experiments.real_format import DEFAULT_CALIBRATION, detector_keypoints, placed_walk, write_openpose
+
+    calibration = read_calibration(DEFAULT_CALIBRATION)
+    X = placed_walk("walkjog:35_29", "z")
+    keypoints = detector_keypoints(X, [PinholeCamera.from_calibration(c) for c in calibration.cameras],
+                                   np.random.default_rng(seed))
+    names = LAYOUTS["body25b"]
+    left = [names.index(n) for n in names if n.startswith("left_")]
+    right = [names.index("right_" + names[k][5:]) for k in left]
+    keypoints[1, frames, left + right] = keypoints[1, frames, right + left]
+    write_openpose(keypoints, folder)
+    return calibration, X
+
+
 def test_a_cameras_left_right_swap_is_undone_and_tracked_through(tmp_path):
     """One of the 4 cameras sees a held-out walk with left and right swapped (every pair) for 40 frames, as a
     detector misreading the person's facing does: ukf-real undoes the swaps (flagged "swap-corrected" on
     most of those ticks; 16 of 18 here, the others where the camera sees left and right close together and the
     labels fit as well), so the swapped camera's points are used, not held out by the gate, and the limbs' error over
     those ticks is below the same filter's with swaps = false (which keeps the labels)."""
-    from priortrack.data.keypoints import LAYOUTS
-    from priortrack.experiments.real_format import DEFAULT_CALIBRATION, detector_keypoints, placed_walk, write_openpose
-
-    calibration = read_calibration(DEFAULT_CALIBRATION)
-    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
-    X = placed_walk("walkjog:35_29", "z")
-    keypoints = detector_keypoints(X, cameras, np.random.default_rng(3))
-    names = LAYOUTS["body25b"]
-    left = [names.index(n) for n in names if n.startswith("left_")]
-    right = [names.index("right_" + names[k][5:]) for k in left]
-    swapped = slice(30, 70)
-    keypoints[1, swapped, left + right] = keypoints[1, swapped, right + left]
-    write_openpose(keypoints, tmp_path / "pose")
+    calibration, X = _walk_with_a_camera_swapped(tmp_path / "pose", 3, slice(30, 70))
     preset = (Path(__file__).parents[1] / "filters" / "ukf-real.toml").read_text().replace(
         'kappa = 0.0', 'kappa = 0.0\nswaps = false')
     (tmp_path / "kept.toml").write_text(preset)
@@ -491,19 +497,9 @@ def test_a_swap_in_one_camera_on_the_first_frames_does_not_start_the_track(tmp_p
     frames every camera agrees on, and the track is as good as without the swap (seed 4: 6.3 mm mean, its
     first tick 21 mm; unswapped 5.8 and 19 mm); starting on the swapped frames (the check off) fitted the
     body to them: 57–73 mm over the first ticks, 32 mm mean."""
-    from priortrack.data.keypoints import LAYOUTS
     from priortrack.experiments import real
-    from priortrack.experiments.real_format import DEFAULT_CALIBRATION, detector_keypoints, placed_walk, write_openpose
 
-    calibration = read_calibration(DEFAULT_CALIBRATION)
-    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
-    X = placed_walk("walkjog:35_29", "z")
-    keypoints = detector_keypoints(X, cameras, np.random.default_rng(4))
-    names = LAYOUTS["body25b"]
-    left = [names.index(n) for n in names if n.startswith("left_")]
-    right = [names.index("right_" + names[k][5:]) for k in left]
-    keypoints[1, :12, left + right] = keypoints[1, :12, right + left]
-    write_openpose(keypoints, tmp_path)
+    calibration, X = _walk_with_a_camera_swapped(tmp_path, 4, slice(0, 12))
     detections = read_detections(tmp_path, keypoints="body25b")
 
     def errors():
