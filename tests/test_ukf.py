@@ -313,13 +313,17 @@ def test_swap_correction_exchanges_a_pair_only_where_the_exchange_lies_nearer_th
     noise); the knees as labelled are kept; an elbow pair with one side missing is left alone; the same
     in the second camera's order."""
     from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS
-    from priortrack.filters.ukf import swap_corrected
+    from priortrack.filters.ukf import predicted_points, swap_corrected
 
     rng = np.random.default_rng(0)
     J, b, C = 15, 2, 2
     z_hat = rng.uniform(0, 1000, size=(C, J, b))
     predicted = np.repeat(z_hat.reshape(1, -1), 3, axis=0)                   # 3 sigma points, all at ẑ
     Wm = Wc = np.full(3, 1 / 3)
+
+    def points(sigmas):                                                      # every point's ẑ (K, b), P (K, b, b)
+        return predicted_points(sigmas.reshape(len(sigmas), -1, b), Wm, Wc)
+
     z = z_hat + rng.normal(0, 2.0, size=z_hat.shape)
     z[1, [5, 8]] = z[1, [8, 5]]                                              # camera 2's wrists swapped
     z[1, 4] = np.nan                                                         # its left elbow missing
@@ -327,14 +331,14 @@ def test_swap_correction_exchanges_a_pair_only_where_the_exchange_lies_nearer_th
     variances_swapped = variances.reshape(C, J, b).copy()
     variances_swapped[1, [5, 8]] = variances_swapped[1, [8, 5]]
     gate = 13.8                                                              # χ²₂ at p = 0.001
-    corrected, R, count = swap_corrected(z.ravel(), np.diag(variances), predicted, Wm, Wc, EVAL15_MIRROR_PAIRS, J, b, gate)
+    corrected, R, count = swap_corrected(z.ravel(), np.diag(variances), *points(predicted), EVAL15_MIRROR_PAIRS, J, b, gate)
     expected = z.copy()
     expected[1, [5, 8]] = expected[1, [8, 5]]
     assert count == 1
     np.testing.assert_array_equal(corrected, expected.ravel())
     np.testing.assert_array_equal(np.diag(R), variances_swapped.ravel())
     assert np.count_nonzero(R - np.diag(np.diag(R))) == 0
-    unchanged, _, none = swap_corrected(expected.ravel(), np.diag(variances), predicted, Wm, Wc, EVAL15_MIRROR_PAIRS, J, b, gate)
+    unchanged, _, none = swap_corrected(expected.ravel(), np.diag(variances), *points(predicted), EVAL15_MIRROR_PAIRS, J, b, gate)
     assert none == 0
     np.testing.assert_array_equal(unchanged, expected.ravel())
     # a lost limb: the right wrist predicted 80 px off, the detections as labelled; the exchange would be
@@ -342,9 +346,9 @@ def test_swap_correction_exchanges_a_pair_only_where_the_exchange_lies_nearer_th
     lost = z_hat.copy()
     lost[0, 8] = z_hat[0, 5] + [3.0, 0.0]                                   # right wrist predicted on the left one
     predicted_lost = np.repeat(lost.reshape(1, -1), 3, axis=0)
-    held, _, none = swap_corrected(expected.ravel(), np.diag(variances), predicted_lost, Wm, Wc, EVAL15_MIRROR_PAIRS, J, b, gate)
+    held, _, none = swap_corrected(expected.ravel(), np.diag(variances), *points(predicted_lost), EVAL15_MIRROR_PAIRS, J, b, gate)
     assert none == 0
     np.testing.assert_array_equal(held, expected.ravel())
     # no gate, no exchange
-    _, _, none = swap_corrected(z.ravel(), np.diag(variances), predicted, Wm, Wc, EVAL15_MIRROR_PAIRS, J, b, np.inf)
+    _, _, none = swap_corrected(z.ravel(), np.diag(variances), *points(predicted), EVAL15_MIRROR_PAIRS, J, b, np.inf)
     assert none == 0

@@ -402,8 +402,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         X = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3),
                         np.nan_to_num(z[..., 2]).transpose(1, 0, 2))             # (T, 15, 3), working frame
         counts = np.isfinite(X).all(axis=-1).sum(axis=-1)
-    residual = None if single else np.nanmax(np.stack(
-        [np.nan_to_num(median_reprojection(camera, X, z[:, c]), nan=-np.inf) for c, camera in enumerate(cameras)]), axis=0)
+    residual = None if single else np.stack(                                       # (T,): each tick's worst camera
+        [np.nan_to_num(median_reprojection(camera, X, z[:, c]), nan=-np.inf) for c, camera in enumerate(cameras)]).max(axis=0)
     good = start_ticks(counts, residual)
     if not len(good):
         raise PriortrackError(f"no two consecutive frames have {START_JOINTS} joints "
@@ -563,17 +563,6 @@ def better_fitting(motion, preset: Preset, below: float, cache=None) -> dict | N
         if found["below_p1_fraction"] < (below if best is None else best["below_p1_fraction"]):
             best = {"preset": name, "verdict": found["verdict"], "below_p1_fraction": found["below_p1_fraction"]}
     return best
-
-
-def median_reprojection(camera: PinholeCamera, X: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """(T,) each tick's median pixel distance between the joints X (T, 15, 3) projected through ``camera``
-    and its detections z (T, 15, 3: u, v, confidence), over the joints it saw (NaN below 4 of them)."""
-    seen = np.isfinite(z[..., 0]) & (np.nan_to_num(z[..., 2]) > 0)
-    error = np.where(seen, np.linalg.norm(camera.project(X)[0] - z[..., :2], axis=-1), np.nan)
-    enough = np.isfinite(error).sum(axis=-1) >= 4
-    out = np.full(len(error), np.nan)
-    out[enough] = np.nanmedian(error[enough], axis=-1)
-    return out
 
 
 def start_ticks(counts: np.ndarray, residual: np.ndarray | None = None) -> np.ndarray:
@@ -751,9 +740,16 @@ def _median_of_seen(errors: np.ndarray) -> float:
     return float(np.nanmedian(errors)) if np.isfinite(errors).any() else float("nan")
 
 
-def _tick_medians(errors: np.ndarray) -> np.ndarray:
-    """(T,) each tick's median of :func:`pixel_errors` (T, J) over the joints seen; NaN where none is."""
-    seen = np.isfinite(errors).any(axis=1)
+def _tick_medians(errors: np.ndarray, least: int = 1) -> np.ndarray:
+    """(T,) each tick's median of :func:`pixel_errors` (T, J) over the joints seen; NaN where fewer than
+    ``least`` are."""
+    seen = np.isfinite(errors).sum(axis=1) >= least
     out = np.full(len(errors), np.nan)
     out[seen] = np.nanmedian(errors[seen], axis=1)
     return out
+
+
+def median_reprojection(camera: PinholeCamera, X: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(T,) each tick's median pixel distance between the joints X (T, 15, 3) projected through ``camera``
+    and its detections z (T, 15, 3: u, v, confidence), over the joints it saw (NaN below 4 of them)."""
+    return _tick_medians(pixel_errors(camera, X, z[..., :2], z[..., 2]), least=4)

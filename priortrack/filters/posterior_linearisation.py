@@ -41,12 +41,11 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-from scipy.stats import chi2
 
 from priortrack.errors import PriortrackError
 from priortrack.filters.step_store import RecordArray
 from priortrack.filters.ukf import (GATE_PROBABILITY, ManifoldSigmaPoints, block_distances, diagonal_blocks,
-                                   repaired_covariance, swap_corrected)
+                                   gate_threshold, predicted_points, repaired_covariance, swap_corrected)
 from priortrack.filters.unscented_rts import unscented_rts
 
 #: Relinearisations after the unscented RTS smoother's pass, by default.
@@ -78,8 +77,9 @@ def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.nda
     values, R = values.numpy(), R.numpy()
     pairs = getattr(model, "mirror_pairs", None)
     if swaps and pairs is not None:
-        values, R, _ = swap_corrected(values, R, h, Wm, Wc, pairs, model.observation_shape[-2], model.measurement_block,
-                                      threshold)
+        b = model.measurement_block
+        z_hat, P = predicted_points(h.reshape(len(h), -1, b), Wm, Wc)
+        values, R, _ = swap_corrected(values, R, z_hat, P, pairs, model.observation_shape[-2], b, threshold)
     usable = np.isfinite(values) & np.isfinite(h).all(axis=0)
     if not usable.any():
         return None
@@ -126,7 +126,7 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[
     share = None if memory is None else memory // 3
     mu, Sigma = unscented_rts(model, points, means, covariances, share)
     Wm, Wc = points.Wm, points.Wc
-    threshold = chi2.isf(gate_probability, model.measurement_block) if gate_probability > 0 else np.inf
+    threshold = gate_threshold(gate_probability, model.measurement_block)
     T, n = len(mu), len(Sigma[0])
     for _ in range(iterations):
         frames = _sigma_frames(model, points, mu, Sigma)

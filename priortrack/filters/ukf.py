@@ -302,13 +302,19 @@ def predicted_points(Z: np.ndarray, Wm: np.ndarray, Wc: np.ndarray) -> tuple[np.
     return z_hat, np.einsum("i,ikc,ikd->kcd", Wc, r, r)
 
 
-def swap_corrected(z: np.ndarray, R: np.ndarray, predicted: np.ndarray, Wm: np.ndarray, Wc: np.ndarray,
-                   pairs: np.ndarray, joints: int, b: int, threshold: float) -> tuple[np.ndarray, np.ndarray, int]:
+def gate_threshold(gate_probability: float, b: int) -> float:
+    """The validation gate's bound on d² for points of ``b`` coordinates: χ²_b(1 − p_gate), inf for p_gate = 0
+    (no gate)."""
+    return float(chi2.isf(gate_probability, b)) if gate_probability > 0 else np.inf
+
+
+def swap_corrected(z: np.ndarray, R: np.ndarray, z_hat: np.ndarray, P: np.ndarray, pairs: np.ndarray, joints: int,
+                   b: int, threshold: float) -> tuple[np.ndarray, np.ndarray, int]:
     """A detector's left/right swaps undone, camera by camera (module docstring): for a mirror pair (l, r)
     (``pairs`` (p, 2), joint indices of a camera's ``joints``) seen in a camera, its two detections are
     exchanged where d²(z_r; l) + d²(z_l; r) < d²(z_l; l) + d²(z_r; r), d²(z; k) = (z − ẑ_k)ᵀ (P_k + R_z)⁻¹
-    (z − ẑ_k) with ẑ_k, P_k the predicted measurement of joint k's point (:func:`predicted_points` of
-    ``predicted`` (N, m), the sigma points' measurements) and R_z the detection's own noise (the nearer
+    (z − ẑ_k) with ẑ_k, P_k the predicted measurement of joint k's point (``z_hat`` (K, b) and ``P`` (K, b, b)
+    of every point, :func:`predicted_points`; NaN where unpredictable) and R_z the detection's own noise (the nearer
     association of the two detections to the two joints), and only where the labels fail the gate
     (d² > ``threshold``) at one of the two joints and the exchanged association passes it at both: a
     prediction that lost a limb is not a reason to relabel what the detector saw. z (m,) points of ``b``
@@ -317,13 +323,14 @@ def swap_corrected(z: np.ndarray, R: np.ndarray, predicted: np.ndarray, Wm: np.n
     cameras = len(z) // (b * joints)
     left = (np.arange(cameras)[:, None] * joints + pairs[:, 0]).ravel()
     right = (np.arange(cameras)[:, None] * joints + pairs[:, 1]).ravel()
-    points = np.isfinite(z).reshape(-1, b).all(axis=1) & np.isfinite(predicted).reshape(len(predicted), -1, b).all(axis=(0, 2))
+    points = np.isfinite(z).reshape(-1, b).all(axis=1) & np.isfinite(z_hat).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
     seen = points[left] & points[right]
     left, right = left[seen], right[seen]
     if not len(left):
         return z, R, 0
-    columns = (np.concatenate([left, right])[:, None] * b + np.arange(b)).ravel()
-    z_hat, P = predicted_points(predicted[:, columns].reshape(len(predicted), -1, b), Wm, Wc)
+    both = np.concatenate([left, right])
+    columns = (both[:, None] * b + np.arange(b)).ravel()
+    z_hat, P = z_hat[both], P[both]
     noise = diagonal_blocks(R[np.ix_(columns, columns)], b)
     observed = z[columns].reshape(-1, b)
     n = len(left)
@@ -481,6 +488,8 @@ class UnscentedFilter(SequentialFilter):
             raise PriortrackError(f"kappa must exceed −n = {-n}, got {kappa}")
         self.kf = BatchedUKF(self.unscented, ManifoldSigmaPoints(self.unscented, alpha, beta, kappa), batched)
         self.gate_probability, self.reacquire, self.swaps = gate_probability, bool(reacquire), bool(swaps)
+        #: The gate's bound on a point's d² (inf without a gate).
+        self.threshold = gate_threshold(gate_probability, self.unscented.measurement_block)
         self.initialised = False
         self.frame, self.gated_frames = 0, 0
         #: (J,) per joint (an observation (…, J, coordinates); a flat one's points are J), the frames
@@ -588,14 +597,16 @@ class UnscentedFilter(SequentialFilter):
             flags.append("no-observation")
             kf.update(None)
             return
-        pairs = getattr(self.unscented, "mirror_pairs", None)
-        if self.swaps and pairs is not None:
+        kept = usable
+        if self.gate_probability:
             b = self.unscented.measurement_block
-            z, R, swapped = swap_corrected(z, R, predicted, kf.Wm, kf.Wc, pairs, len(self.lost_frames), b,
-                                           chi2.isf(self.gate_probability, b) if self.gate_probability else np.inf)
-            if swapped:
-                flags.append("swap-corrected")
-        kept = self._validated(z, R, predicted, usable, flags)
+            z_hat, P = predicted_points(predicted.reshape(len(predicted), -1, b), kf.Wm, kf.Wc)   # every point's
+            pairs = getattr(self.unscented, "mirror_pairs", None)
+            if self.swaps and pairs is not None:
+                z, R, swapped = swap_corrected(z, R, z_hat, P, pairs, len(self.lost_frames), b, self.threshold)
+                if swapped:
+                    flags.append("swap-corrected")
+            kept = self._validated(z, R, z_hat, P, usable, flags)
         self.held_out = (usable & ~kept).reshape(-1, self.unscented.measurement_block).any(axis=1)
         usable = kept
         if not usable.any():
@@ -607,21 +618,19 @@ class UnscentedFilter(SequentialFilter):
         kf.P, repaired = repaired_covariance(gamma @ kf.P @ gamma.T)
         kf.repairs += repaired
 
-    def _validated(self, z: np.ndarray, R: np.ndarray, predicted: np.ndarray, usable: np.ndarray,
+    def _validated(self, z: np.ndarray, R: np.ndarray, z_hat: np.ndarray, P: np.ndarray, usable: np.ndarray,
                    flags: list[str]) -> np.ndarray:
         """The validation gate (module docstring): ``usable`` (m,) without the points whose
-        d²_k = ν_kᵀ S_kk⁻¹ ν_k exceeds χ²_b(1 − p_gate), ν = z − ẑ, S_kk = Σ_i Wc_i (Z_ik − ẑ_k)(Z_ik − ẑ_k)ᵀ
-        + R_kk, from the sigma points' measurements ``predicted`` (2n + 1, m)."""
-        if self.gate_probability == 0:
-            return usable
+        d²_k = ν_kᵀ S_kk⁻¹ ν_k exceeds χ²_b(1 − p_gate), ν = z − ẑ, S_kk = P_k + R_kk, with every point's
+        predicted measurement ẑ (K, b) and its covariance P (K, b, b) (:func:`predicted_points`)."""
         b = self.unscented.measurement_block
         columns = np.flatnonzero(usable)
-        z_hat, P = predicted_points(predicted[:, columns].reshape(len(predicted), -1, b), self.kf.Wm, self.kf.Wc)
-        S = P + diagonal_blocks(R[np.ix_(columns, columns)], b)
-        d2 = block_distances(z[columns].reshape(-1, b) - z_hat, S)
-        rejected = d2 > chi2.isf(self.gate_probability, b)
+        points = columns.reshape(-1, b)[:, 0] // b
+        S = P[points] + diagonal_blocks(R[np.ix_(columns, columns)], b)
+        d2 = block_distances(z[columns].reshape(-1, b) - z_hat[points], S)
+        rejected = d2 > self.threshold
         if self.reacquire:
-            rejected &= ~self._reacquired(columns.reshape(-1, b)[:, 0] // b, rejected, flags)
+            rejected &= ~self._reacquired(points, rejected, flags)
         if not rejected.any():
             self.gated_frames = 0
             return usable
