@@ -81,3 +81,84 @@ def test_a_long_motion_is_fitted_in_chunks(monkeypatch):
     np.testing.assert_array_equal(chunked.channels[20:40], ik.inverse_kinematics(X[20:40], 30.0,
                                                                                    skeleton=chunked.skeleton).channels)
     assert np.linalg.norm(joint_positions(chunked, "eval15") - X, axis=-1).mean() < 0.01
+
+
+def test_the_fit_is_a_minimum_of_its_objective(walk, monkeypatch):
+    """Run to its last step, the Levenberg–Marquardt fit of noisy joints ends where torch's autograd finds the
+    objective's gradient (module docstring: data, λ pull to rest, μ smoothness) vanishing, to 10⁻⁵ of its size
+    at the start; its usual stop (TOLERANCE) is within 0.1 mm of there."""
+    import torch
+
+    from priortrack.body import ik
+    from priortrack.body.fk import ForwardKinematics
+    from priortrack.body.layout import eval15_indices
+
+    X = walk + np.random.default_rng(0).normal(0.0, 0.01, walk.shape)
+    stopped = inverse_kinematics(X, 30.0)
+    monkeypatch.setattr(ik._LevenbergMarquardt, "TOLERANCE", 0.0)
+    motion = inverse_kinematics(X, 30.0)
+    assert np.sqrt(((joint_positions(stopped) - joint_positions(motion)) ** 2).mean()) < 1e-4
+    skeleton = motion.skeleton
+    fk = ForwardKinematics(skeleton, dtype=torch.float64)
+    rotation = np.ones(skeleton.num_channels, dtype=bool)
+    rotation[skeleton.trans_channels[skeleton.trans_channels >= 0]] = False
+
+    def gradient(channels: np.ndarray) -> np.ndarray:
+        theta = torch.tensor(channels, requires_grad=True)
+        joints = fk(theta, joints=eval15_indices(skeleton))
+        value = (((joints - torch.as_tensor(X)) ** 2).sum() + ik.REGULARISATION * (theta[:, rotation] ** 2).sum()
+                 + ik.SMOOTHNESS * ((theta[1:] - theta[:-1]) ** 2).sum())
+        value.backward()
+        return theta.grad.numpy()
+
+    start = np.zeros_like(motion.channels)
+    start[:, skeleton.trans_channels[0]] = motion.channels[:, skeleton.trans_channels[0]]
+    assert np.abs(gradient(motion.channels)).max() < 1e-5 * np.abs(gradient(start)).max()
+
+
+def test_moving_channels_are_those_that_move_a_joint():
+    """Every channel outside the set leaves the eval15 joints where they are, from any pose; every one in it
+    moves one of them from a generic pose (finite differences)."""
+    from priortrack.body.fk import ForwardKinematics
+    from priortrack.body.ik import moving_channels
+    from priortrack.body.layout import eval15_indices
+
+    skeleton = cmu_skeleton("35")
+    index = eval15_indices(skeleton)
+    moving = moving_channels(skeleton, index)
+    pose = np.random.default_rng(1).uniform(-0.5, 0.5, skeleton.num_channels)
+    shifted = pose + 1e-3 * np.eye(skeleton.num_channels)
+    fk = ForwardKinematics(skeleton)
+    moved = np.abs(fk(shifted, joints=index).numpy() - fk(pose, joints=index).numpy()).max(axis=(1, 2)) > 1e-9
+    np.testing.assert_array_equal(np.flatnonzero(moved), moving)
+
+
+def test_the_pull_to_a_priors_poses():
+    """Without a pose spread, λ on every rotation channel toward 0 (none on translations); with one, the root's
+    rotations keep that, and every channel below it is pulled to its training mean with weight λ / max(σ, floor)²
+    (CMU 35's clavicles, which its walks never move, at the floor); a spread of another layout is refused."""
+    from priortrack.body.ik import REGULARISATION, SPREAD_FLOOR, PoseSpread, pull
+    from priortrack.data.motion import Motion
+
+    skeleton = cmu_skeleton("35")
+    translation = skeleton.trans_channels[skeleton.trans_channels >= 0]
+    root = skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0]
+    weights, centre = pull(skeleton, None)
+    assert (weights[translation] == 0).all() and np.count_nonzero(weights) == skeleton.num_channels - len(translation)
+    np.testing.assert_array_equal(weights[weights > 0], REGULARISATION)
+    np.testing.assert_array_equal(centre, 0.0)
+
+    walks = [load_motion(f"cmu:35_0{k}") for k in (1,)] + [load_motion("walkjog:35_02")]
+    walks = [Motion(skeleton, m.channels, m.fps, m.name) for m in walks]
+    pose = PoseSpread.of(walks)
+    channels = np.concatenate([m.channels for m in walks])
+    weights, centre = pull(skeleton, pose)
+    body = np.setdiff1d(np.flatnonzero(pull(skeleton, None)[0]), root)
+    np.testing.assert_allclose(weights[body], REGULARISATION / np.maximum(channels.std(axis=0), SPREAD_FLOOR)[body] ** 2)
+    np.testing.assert_allclose(centre[body], channels.mean(axis=0)[body])
+    np.testing.assert_array_equal(weights[root], REGULARISATION)
+    np.testing.assert_array_equal(centre[root], 0.0)
+    clavicles = [skeleton.channel_names.index(n) for n in ("lclavicle.ry", "rclavicle.rz")]
+    np.testing.assert_allclose(weights[clavicles], REGULARISATION / SPREAD_FLOOR ** 2)
+    with pytest.raises(PriortrackError, match="pose spread of 3 channels"):
+        pull(skeleton, PoseSpread(np.zeros(3), np.ones(3)))

@@ -14,13 +14,20 @@ joints on the bone's path (CMU's clavicles and neck both start at the thorax's e
 
 **The pose.** The channels θ (T, C) minimise, over the frames at once,
 
-    Σ_t Σ_j m_tj |(M FK(θ_t))_j − X_tj|² + λ Σ_t |θ_t^rot|² + μ Σ_t |θ_t − θ_{t−1}|²,
+    Σ_t Σ_j m_tj |(M FK(θ_t))_j − X_tj|² + λ Σ_t Σ_c w_c (θ_tc − θ̄_c)² + μ Σ_t |θ_t − θ_{t−1}|²,
 
-m_tj = 0 where X_tj is NaN, λ = ``REGULARISATION`` (a small pull to the rest pose that fixes the
-dofs the 15 joints do not see: wrist and foot twists, fingers) and μ = ``SMOOTHNESS`` (consecutive
-frames alike: a joint missing in one frame follows its neighbours, and the root does not jump
-where a frame lacks a limb), by L-BFGS in float64. The start
-puts the root at the pelvis and turns it about the vertical to the best of ``HEADINGS`` headings.
+m_tj = 0 where X_tj is NaN, λ = ``REGULARISATION`` a small pull to rest over the rotation channels c,
+μ = ``SMOOTHNESS`` (consecutive frames alike: a joint missing in one frame follows its neighbours, and
+the root does not jump where a frame lacks a limb). The pull fixes the dofs the 15 joints do not see
+(wrist and foot twists, fingers) and chooses among the poses that fit them equally: w_c = 1, θ̄_c = 0;
+or, given a prior's pose spread (:class:`PoseSpread`), below the root w_c = 1 / max(σ_c, ``SPREAD_FLOOR``)²
+and θ̄_c its training motions' mean. A tracker's start on a prior of joint angles takes the latter: a
+converged fit otherwise traded a back twist for clavicle angles of a radian, which the walking priors'
+state leaves out (CMU 35's clavicles never move), and a walk's track went from 6 to 22 mm
+(:func:`priortrack.experiments.real.pose_spread`). Solved by
+Levenberg–Marquardt in float64 (:class:`_LevenbergMarquardt`; 200 iterations of torch's L-BFGS, used
+before, stopped short of convergence and cost an import of torch's compiler stack). The start puts
+the root at the pelvis and turns it about the vertical to the best of ``HEADINGS`` headings.
 The world is Y-up, as the mocap the priors learned from (turn a Z-up calibration's world first:
 :func:`priortrack.geometry.frames.to_y_up`).
 
@@ -34,9 +41,10 @@ length / its length in pixels).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
+import scipy.linalg
 import torch
 
 from priortrack.body.fk import ForwardKinematics
@@ -47,14 +55,15 @@ from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
 from priortrack.threads import torch_threads
 
-#: λ, the weight (m² per rad²) of the pull of the rotation channels to zero.
+#: λ, the weight (m² per rad², or per σ_c²) of the pull of the rotation channels to rest.
 REGULARISATION = 1e-4
+#: The least spread σ_c (radians) of a channel in the pull to a prior's poses: the channels its training motions
+#: never move (CMU 35's clavicles) are held there, not fixed.
+SPREAD_FLOOR = 0.05
 #: μ, the weight (m² per unit of channel change) of the difference between consecutive frames.
 SMOOTHNESS = 1e-2
 #: Root headings tried for the start.
 HEADINGS = 12
-#: L-BFGS iterations of the fit.
-ITERATIONS = 200
 #: torch threads of a fit: its tensors are small (a frame's ~30 joints × T), and with a second process on a
 #: 2-core machine two threads took 40–308 s for a 120-frame fit that one thread does in 4–5 s (both threads
 #: spin-waiting for a core the other process holds).
@@ -138,10 +147,11 @@ def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | N
 
 
 def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = None, name: str = "ik",
-                       joint_map: np.ndarray | None = None, skeleton: Skeleton | None = None) -> Motion:
+                       joint_map: np.ndarray | None = None, skeleton: Skeleton | None = None,
+                       pose: PoseSpread | None = None) -> Motion:
     """A Motion whose eval15 joints (through ``joint_map`` M, if given) best match X (T, 15, 3) metres in
     a Y-up world (NaN = unknown), on ``skeleton``, or else the template (default: CMU subject 35)
-    scaled to X (:func:`fitted_skeleton`)."""
+    scaled to X (:func:`fitted_skeleton`); the pull to rest is ``pose``'s, if given (module docstring)."""
     if template is None:
         from priortrack.data.bundled import cmu_skeleton
 
@@ -163,7 +173,7 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
     parts = [slice(start, min(start + CHUNK, len(X))) for start in range(0, len(X), CHUNK)]
     channels = np.concatenate([
         _fit(skeleton, part.stop - part.start,
-             lambda joints, part=part: ((joints - target[part]) ** 2 * mask[part]).sum(), pelvis[part], M)
+             lambda joints, part=part: ((joints - target[part]) * mask[part]).flatten(-2), pelvis[part], M, pose)
         for part in parts])
     return Motion(skeleton, channels, float(fps), name)
 
@@ -185,9 +195,11 @@ ANKLE_HEIGHT = 0.07
 
 
 def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: float, skeleton: Skeleton,
-                          joint_map: np.ndarray | None = None, name: str = "ik") -> Motion:
+                          joint_map: np.ndarray | None = None, name: str = "ik",
+                          pose: PoseSpread | None = None) -> Motion:
     """A Motion of ``skeleton`` whose eval15 joints (through ``joint_map`` M) project through ``camera``
-    (a Y-up world) onto uv (T, 15, 2) pixels, weighted by ``weights`` (T, 15) (0 = unseen)."""
+    (a Y-up world) onto uv (T, 15, 2) pixels, weighted by ``weights`` (T, 15) (0 = unseen); the pull to rest
+    is ``pose``'s, if given."""
     uv, weights = np.asarray(uv, dtype=np.float64), np.asarray(weights, dtype=np.float64)
     seen = np.isfinite(uv).all(axis=-1) & (weights > 0)
     if uv.ndim != 3 or uv.shape[1:] != (15, 2) or weights.shape != uv.shape[:2]:
@@ -213,57 +225,188 @@ def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: floa
     target = torch.as_tensor(np.where(seen[..., None], uv, 0.0))
     w = torch.as_tensor(np.where(seen, weights, 0.0))[..., None] * (depth / camera.fx) ** 2
 
-    def data(joints: torch.Tensor) -> torch.Tensor:
+    def residuals(joints: torch.Tensor) -> torch.Tensor:
         projected, _ = camera.project(joints)
-        return (torch.where(torch.isfinite(projected), projected - target, 0.0) ** 2 * w).sum()
+        return (torch.where(torch.isfinite(projected), projected - target, 0.0) * w.sqrt()).flatten(-2)
 
-    channels = _fit(skeleton, len(uv), data, pelvis, M)
+    channels = _fit(skeleton, len(uv), residuals, pelvis, M, pose)
     return Motion(skeleton, channels, float(fps), name)
 
 
-def _fit(skeleton: Skeleton, T: int, data, pelvis: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """Channels (T, C) minimising data(M FK(θ)) + the regularisation and smoothness (module docstring),
-    from the root at ``pelvis`` (T, 3) turned to the best of HEADINGS headings, on IK_THREADS torch threads."""
+@dataclass(frozen=True)
+class PoseSpread:
+    """θ̄ (C,) and σ (C,): the mean and standard deviation of each channel over a prior's training motions,
+    in the channel layout they share with the skeleton fitted (CMU subject 35's for every bundled prior)."""
+
+    mean: np.ndarray
+    std: np.ndarray
+
+    @classmethod
+    def of(cls, motions) -> PoseSpread:
+        """The spread of ``motions`` (a non-empty sequence of Motions with one channel layout)."""
+        layouts = {m.skeleton.channel_names for m in motions}
+        if len(layouts) != 1:
+            raise PriortrackError(f"pose spread: the motions have {len(layouts)} channel layouts; expected one")
+        channels = np.concatenate([m.channels for m in motions])
+        return cls(channels.mean(axis=0), channels.std(axis=0))
+
+
+def pull(skeleton: Skeleton, pose: PoseSpread | None) -> tuple[np.ndarray, np.ndarray]:
+    """The pull to rest's weights λ w_c (C,) and centres θ̄_c (C,) (module docstring): λ and 0 on every
+    rotation channel; with ``pose``, λ / max(σ_c, ``SPREAD_FLOOR``)² and θ̄_c on those below the root."""
+    rotation = np.ones(skeleton.num_channels, dtype=bool)
+    rotation[skeleton.trans_channels[skeleton.trans_channels >= 0]] = False
+    weights, centre = np.where(rotation, REGULARISATION, 0.0), np.zeros(skeleton.num_channels)
+    if pose is None:
+        return weights, centre
+    if pose.mean.shape != (skeleton.num_channels,):
+        raise PriortrackError(f"pose spread of {pose.mean.shape[0]} channels for skeleton {skeleton.name!r}'s "
+                              f"{skeleton.num_channels}")
+    body = rotation.copy()
+    body[skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0]] = False
+    weights[body] = REGULARISATION / np.maximum(pose.std[body], SPREAD_FLOOR) ** 2
+    centre[body] = pose.mean[body]
+    return weights, centre
+
+
+def _fit(skeleton: Skeleton, T: int, residuals, pelvis: np.ndarray, M: np.ndarray,
+         pose: PoseSpread | None) -> np.ndarray:
+    """Channels θ (T, C) minimising |r(M FK(θ))|² + the regularisation and smoothness (module docstring),
+    from the root at ``pelvis`` (T, 3) turned to the best of HEADINGS headings, on IK_THREADS torch threads.
+    ``residuals`` maps joints (..., T, 15, 3) to the data residuals r (..., T, R) of each frame."""
     with torch_threads(IK_THREADS):
-        return _fit_threads(skeleton, T, data, pelvis, M)
+        return _LevenbergMarquardt(skeleton, T, residuals, M, pose).fit(pelvis)
 
 
-def _fit_threads(skeleton: Skeleton, T: int, data, pelvis: np.ndarray, M: np.ndarray) -> np.ndarray:
-    fk = ForwardKinematics(skeleton, dtype=torch.float64)
-    index = eval15_indices(skeleton)
-    rotation = torch.ones(skeleton.num_channels, dtype=torch.bool)
-    rotation[torch.as_tensor(skeleton.trans_channels[skeleton.trans_channels >= 0])] = False
-    root_t = skeleton.trans_channels[0]
-    heading_slot = int(np.argmax(np.abs(skeleton.rot_axes[0, :, 1])))           # the root's turn about y
-    heading_channel = int(skeleton.rot_channels[0, heading_slot])
+class _LevenbergMarquardt:
+    """The fit of :func:`_fit` by Levenberg–Marquardt over the channels that move an eval15 joint (the
+    others' optimum is their start, 0: only the pull to rest acts on them).
 
-    M = torch.as_tensor(M)
+    With J_t (R, K) the Jacobian of frame t's residuals r_t over those K channels (forward differences:
+    one FK of T (K + 1) rows), each step solves
 
-    def loss(theta: torch.Tensor) -> torch.Tensor:
-        joints = torch.einsum("ij,tjk->tik", M, fk(theta, joints=index))
-        return (data(joints) + REGULARISATION * (theta[:, rotation] ** 2).sum()
-                + SMOOTHNESS * ((theta[1:] - theta[:-1]) ** 2).sum())
+        (A + ν D) δ = −g,   A = blockdiag(J_tᵀ J_t) + λ I_rot + μ L ⊗ I_K,   g = Jᵀ r + λ θ_rot + μ L θ,
 
-    def start(heading: float) -> torch.Tensor:
-        theta = torch.zeros((T, skeleton.num_channels), dtype=torch.float64)
-        rest = (M @ fk(torch.zeros(skeleton.num_channels, dtype=torch.float64), joints=index))[0]
-        theta[:, torch.as_tensor(root_t)] = torch.as_tensor(pelvis) - rest
+    D = diag A + ``DAMPING_FLOOR`` × its mean, L the (T, T) path Laplacian of the smoothness (1 at the ends, 2
+    inside, −1 beside): A is banded with bandwidth K (unknowns frame by frame), one banded Cholesky a step. A
+    step that lowers the objective is taken and ν shrinks; else ν grows. Stops after a step that lowers the
+    objective by less than ``TOLERANCE`` per data residual, or after ``MAX_STEPS``."""
+
+    #: Forward-difference step of the Jacobian, radians or metres.
+    STEP = 1e-7
+    #: A step lowering the objective by less than this per data residual ((0.1 mm)², m²) ends the fit: on a
+    #: tracked 12 s balance (359 ticks) 0.8 s, and 100 steps move its joints by 0.05 mm RMS more in 2.6 s.
+    TOLERANCE = 1e-8
+    #: Start of the damping ν, and the damping past which no step is tried.
+    DAMPING, MAX_DAMPING = 1.0, 1e10
+    #: The damping's scale is diag A plus this fraction of its mean: with diag A alone, steps ran along the
+    #: directions the targets barely fix (a twist held by the pull to rest only) into worse minima (a tracked
+    #: 12 s balance: 0.86 against 0.69; a caliscope start from ν = 10⁻³: 0.19 against 0.041).
+    DAMPING_FLOOR = 0.3
+    #: Levenberg–Marquardt steps at most.
+    MAX_STEPS = 100
+
+    def __init__(self, skeleton: Skeleton, T: int, residuals, M: np.ndarray, pose: PoseSpread | None):
+        self.skeleton, self.T, self.residuals = skeleton, T, residuals
+        self.fk = ForwardKinematics(skeleton, dtype=torch.float64)
+        self.index = eval15_indices(skeleton)
+        self.M = torch.as_tensor(M)
+        self.moving = moving_channels(skeleton, self.index)
+        self.weights, self.centre = pull(skeleton, pose)                        # (C,) λ w_c, θ̄_c
+        self.lam = self.weights[self.moving]
+
+    def data(self, theta: np.ndarray) -> np.ndarray:
+        """r (..., T, R) of channels θ (..., T, C)."""
+        shape = theta.shape[:-1]
+        joints = self.fk(torch.as_tensor(theta.reshape(-1, theta.shape[-1])), joints=self.index)
+        joints = torch.einsum("ij,bjk->bik", self.M, joints).reshape(*shape, 15, 3)
+        return self.residuals(joints).numpy()
+
+    def objective(self, theta: np.ndarray, r: np.ndarray) -> float:
+        return float((r ** 2).sum() + (self.weights * (theta - self.centre) ** 2).sum()
+                     + SMOOTHNESS * ((theta[1:] - theta[:-1]) ** 2).sum())
+
+    def start(self, pelvis: np.ndarray) -> np.ndarray:
+        """θ (T, C) of the best of HEADINGS root headings, the root at ``pelvis``."""
+        skeleton = self.skeleton
+        heading_slot = int(np.argmax(np.abs(skeleton.rot_axes[0, :, 1])))           # the root's turn about y
+        heading_channel = int(skeleton.rot_channels[0, heading_slot])
+        rest = (self.M.numpy() @ self.fk(np.zeros(skeleton.num_channels), joints=self.index).numpy())[0]
+        theta = np.zeros((HEADINGS, self.T, skeleton.num_channels))
+        theta[..., skeleton.trans_channels[0]] = pelvis - rest
         if heading_channel >= 0:
-            theta[:, heading_channel] = heading
+            theta[..., heading_channel] = (2 * math.pi * np.arange(HEADINGS) / HEADINGS)[:, None]
+        r = self.data(theta)
+        return theta[int(np.argmin([self.objective(th, rh) for th, rh in zip(theta, r)]))]
+
+    def jacobian(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """r (T, R) at θ and J (T, R, K) over the moving channels."""
+        K = len(self.moving)
+        shifted = np.repeat(theta[None], K + 1, axis=0)                            # (K + 1, T, C)
+        shifted[np.arange(1, K + 1), :, self.moving] += self.STEP
+        r = self.data(shifted)
+        return r[0], np.moveaxis((r[1:] - r[0]) / self.STEP, 0, -1)
+
+    def solve(self, blocks: np.ndarray, g: np.ndarray, nu: float) -> tuple[np.ndarray, float]:
+        """δ (T, K) of (A + ν D) δ = −g, A from its diagonal blocks (T, K, K) and the smoothness, and the
+        decrease of the objective that the Gauss–Newton model predicts for it, −gᵀδ + ν δᵀ D δ."""
+        T, K = g.shape
+        degree = np.full(T, 2.0)
+        degree[[0, -1]] = 1.0 if T > 1 else 0.0
+        bands = np.zeros((K + 1, T * K))                                          # lower banded storage
+        for d in range(K):
+            bands[d].reshape(T, K)[:, :K - d] = np.diagonal(blocks, offset=-d, axis1=1, axis2=2)
+        bands[0] += (SMOOTHNESS * degree[:, None]).repeat(K, axis=1).ravel()
+        diagonal = bands[0] + self.DAMPING_FLOOR * bands[0].mean()
+        bands[0] += nu * diagonal
+        bands[K, :(T - 1) * K] = -SMOOTHNESS
+        delta = scipy.linalg.solveh_banded(bands, -g.ravel(), lower=True)
+        return delta.reshape(T, K), float(-g.ravel() @ delta + nu * (delta * diagonal) @ delta)
+
+    def fit(self, pelvis: np.ndarray) -> np.ndarray:
+        """θ (T, C): Nielsen's damping update (ν × max(1/3, 1 − (2ρ − 1)³) on a step whose actual decrease is
+        ρ > 0 times the predicted one; else ν doubles its last growth) from ν = ``DAMPING``."""
+        theta = self.start(pelvis)
+        moving, K = self.moving, len(self.moving)
+        nu, growth = self.DAMPING, 2.0
+        cost = self.objective(theta, self.data(theta))
+        for _ in range(self.MAX_STEPS):
+            r, J = self.jacobian(theta)
+            x = theta[:, moving]
+            smooth = np.zeros_like(x)
+            smooth[1:] += x[1:] - x[:-1]
+            smooth[:-1] += x[:-1] - x[1:]
+            g = np.einsum("trk,tr->tk", J, r) + self.lam * (x - self.centre[moving]) + SMOOTHNESS * smooth
+            blocks = np.einsum("trk,trl->tkl", J, J)
+            blocks[:, np.arange(K), np.arange(K)] += self.lam
+            while nu < self.MAX_DAMPING:
+                delta, predicted = self.solve(blocks, g, nu)
+                trial = theta.copy()
+                trial[:, moving] += delta
+                trial_cost = self.objective(trial, self.data(trial))
+                rho = (cost - trial_cost) / predicted if predicted > 0 else -1.0
+                if rho > 0:
+                    nu, growth = nu * max(1 / 3, 1 - (2 * rho - 1) ** 3), 2.0
+                    break
+                nu, growth = nu * growth, growth * 2
+            else:
+                break                                   # no step lowers the objective: converged to the Jacobian's precision
+            decrease, theta, cost = cost - trial_cost, trial, trial_cost
+            if decrease < self.TOLERANCE * r.size:
+                break
         return theta
 
-    with torch.no_grad():
-        candidates = [start(2 * math.pi * k / HEADINGS) for k in range(HEADINGS)]
-        best = min(candidates, key=lambda th: float(loss(th)))
-    theta = best.clone().requires_grad_(True)
-    optimiser = torch.optim.LBFGS([theta], max_iter=ITERATIONS, tolerance_grad=1e-10, tolerance_change=1e-14,
-                                  history_size=20, line_search_fn="strong_wolfe")
 
-    def closure():
-        optimiser.zero_grad()
-        value = loss(theta)
-        value.backward()
-        return value
-
-    optimiser.step(closure)
-    return theta.detach().numpy()
+def moving_channels(skeleton: Skeleton, joints: np.ndarray) -> np.ndarray:
+    """(K,) ascending channels that move one of ``joints``: a joint's rotations move its descendants, its
+    translations itself and its descendants."""
+    above = np.zeros(skeleton.num_joints, dtype=bool)                        # joints with a chosen descendant
+    for j in np.asarray(joints, dtype=int):
+        k = int(skeleton.parents[j])
+        while k >= 0:
+            above[k] = True
+            k = int(skeleton.parents[k])
+    chosen = np.zeros(skeleton.num_joints, dtype=bool)
+    chosen[np.asarray(joints, dtype=int)] = True
+    channels = np.concatenate([skeleton.rot_channels[above].ravel(), skeleton.trans_channels[above | chosen].ravel()])
+    return np.unique(channels[channels >= 0])

@@ -63,7 +63,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from priortrack.body.ik import body_measures, fitted_skeleton, inverse_kinematics, inverse_kinematics_2d, scaled_to_height
+from priortrack.body.ik import (PoseSpread, body_measures, fitted_skeleton, inverse_kinematics, inverse_kinematics_2d,
+                                scaled_to_height)
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -182,6 +183,9 @@ class DetectionTrack:
     fit_check: dict | None = None
     reprojection_by_tick: np.ndarray | None = field(default=None, repr=False)
     gated: np.ndarray | None = field(default=None, repr=False)
+    #: The prior's pose spread that the fit-check's inverse kinematics pulls the body's channels to (None: to
+    #: rest); the BVH's pulls them to rest (the joints as tracked, not as the prior would have them).
+    pose_spread: PoseSpread | None = field(default=None, repr=False)
 
     def in_world(self, body: np.ndarray, definitions: bool = True) -> np.ndarray:
         """Points (..., 3) of the filter's Y-up working frame (a snapshot's estimate, best or cloud, the
@@ -420,11 +424,13 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     if skeleton is None:                           # else the user's own body, as given (not scaled)
         skeleton = (scaled_to_height(template, height) if single else
                     fitted_skeleton(template, X, M))
+    pose = pose_spread(preset, prior, skeleton)
     if single:
         ticks = z[first:window, 0]
-        fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M)
+        fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
+                                       pose=pose)
     else:
-        fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton)
+        fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton, pose=pose)
     known = steady_start(fitted)
     # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
     observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind == "ukf" else DEFAULT_NU,
@@ -490,7 +496,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                             up, A, skeleton, estimates, world_cameras, z,
                             run.snapshots, run.steps, rejected,
                             None if smoothed is None else in_world(run.estimates, A), lag if smooth else None,
-                            interrupted=run.interrupted, reprojection_by_tick=by_tick, gated=gated)
+                            interrupted=run.interrupted, reprojection_by_tick=by_tick, gated=gated, pose_spread=pose)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible
@@ -535,7 +541,8 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[di
     if reason is not None:
         log.info("no fit-check of the tracked motion: %s", reason)
         return None, None
-    motion = inverse_kinematics(result.body_joints[ticks], result.fps, skeleton=result.skeleton, name="tracked")
+    motion = inverse_kinematics(result.body_joints[ticks], result.fps, skeleton=result.skeleton, name="tracked",
+                                pose=result.pose_spread)
     ell, reference_values = frame_log_density(prior, motion), reference(preset)
     found = verdict(ell, reference_values)
     implausible = np.zeros(len(ticks), dtype=bool)
@@ -563,6 +570,27 @@ def better_fitting(motion, preset: Preset, below: float, cache=None) -> dict | N
         if found["below_p1_fraction"] < (below if best is None else best["below_p1_fraction"]):
             best = {"preset": name, "verdict": found["verdict"], "below_p1_fraction": found["below_p1_fraction"]}
     return best
+
+
+def pose_spread(preset: Preset, prior, skeleton: Skeleton) -> PoseSpread | None:
+    """The pose spread of the preset's training motions (:class:`~priortrack.body.ik.PoseSpread`), which the
+    start's and the fit-check's inverse kinematics pull the body to, where the prior's state is the body's
+    joint angles (an :class:`~priortrack.priors.spaces.AngleSpace`, or a GPDM's on one): it keeps only the
+    channels its training moves, so a start that turned the others (CMU 35's clavicles) lost them on entering
+    the filter. None (logged: a pull to rest) for a prior of bone directions (no channels to keep), a preset
+    without training motions, or motions that do not share the skeleton's channels (a user's own skeleton)."""
+    from priortrack.priors.spaces import AngleSpace
+
+    motions = preset.training_motions
+    reason = ("the prior's state is not the body's joint angles"
+              if not isinstance(getattr(prior.space, "angles", prior.space), AngleSpace)
+              else "the preset names no training motions" if not motions
+              else "its training motions' channels are not the body's"
+              if any(m.skeleton.channel_names != skeleton.channel_names for m in motions) else None)
+    if reason is not None:
+        log.info("inverse kinematics pulls the body to rest: %s", reason)
+        return None
+    return PoseSpread.of(motions)
 
 
 def start_ticks(counts: np.ndarray, residual: np.ndarray | None = None) -> np.ndarray:
