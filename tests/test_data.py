@@ -295,3 +295,28 @@ def test_a_motion_played_at_another_pace():
     np.testing.assert_allclose(slow.channels[::2][:len(walk)], walk.channels[:len(slow.channels[::2])], atol=1e-12)
     with pytest.raises(PriortrackError, match="pace must be a speed"):
         walk.played_at(0.0)
+
+
+def test_amc_read_a_bone_at_a_time_equals_line_by_line(tmp_path):
+    """Every bundled AMC is read by the fast path (each bone's lines of every frame at once), to the bit what
+    the line-by-line reader gives; a file whose frames list their bones in different orders (legal AMC) is
+    read line by line, to the same channels."""
+    from priortrack.data import amc
+    from priortrack.data.asf import _Lines
+    from priortrack.data.bundled import cmu_skeleton
+
+    for path in sorted(ASF_AMC_DIR.glob("*.amc")):
+        skeleton = cmu_skeleton(path.stem.split("_")[0])
+        by_bone = {}
+        for c, name in enumerate(skeleton.channel_names):
+            by_bone.setdefault(name.split(".", 1)[0], []).append(c)
+        lines = _Lines(path, "AMC")
+        fast = amc._regular_frames(lines, by_bone, skeleton.num_channels)
+        assert fast is not None, path.name
+        np.testing.assert_array_equal(fast, amc._line_by_line(lines, by_bone, skeleton), err_msg=path.name)
+    lines = _amc_text()
+    second = next(k for k, line in enumerate(lines) if line.strip() == "2")
+    lines[second + 1], lines[second + 2] = lines[second + 2], lines[second + 1]      # frame 2: two bones swapped
+    (tmp_path / "shuffled.amc").write_text("".join(lines))
+    skeleton = read_asf(ASF_AMC_DIR / "07.asf")
+    np.testing.assert_array_equal(read_amc(tmp_path / "shuffled.amc", skeleton), read_amc(ASF_AMC_DIR / "07_01.amc", skeleton))

