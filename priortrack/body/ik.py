@@ -279,8 +279,9 @@ def _fit(skeleton: Skeleton, T: int, residuals, pelvis: np.ndarray, M: np.ndarra
 
 
 class _LevenbergMarquardt:
-    """The fit of :func:`_fit` by Levenberg–Marquardt over the channels that move an eval15 joint (the
-    others' optimum is their start, 0: only the pull to rest acts on them).
+    """The fit of :func:`_fit` by Levenberg–Marquardt over the channels that move an eval15 joint. The others
+    stay at 0, as before under L-BFGS: they move no joint, and their term of the objective is the pull alone
+    (its optimum 0, or θ̄_c with a pose spread).
 
     With J_t (R, K) the Jacobian of frame t's residuals r_t over those K channels (forward differences:
     one FK of T (K + 1) rows), each step solves
