@@ -512,3 +512,22 @@ def test_a_swap_in_one_camera_on_the_first_frames_does_not_start_the_track(tmp_p
     assert start >= 12 and unchecked_start == 0
     assert checked[0] < 0.03 and checked.mean() < 0.01, (checked[:4], checked.mean())
     assert unchecked[:4].min() > 0.04 and unchecked.mean() > 2 * checked.mean(), (unchecked[:4], unchecked.mean())
+
+
+def test_the_start_pulls_to_the_priors_poses_only_where_its_state_is_joint_angles():
+    """pose_spread: ukf-real's prior (local diffusion on joint angles) gets its training motions' per-channel mean
+    and spread; a prior of bone directions (ukf-lie-defensive) and a skeleton with other channels get none (a pull
+    to rest)."""
+    from priortrack.data.bundled import cmu_skeleton
+    from priortrack.experiments.presets import load_preset
+    from priortrack.experiments.real import pose_spread
+
+    angles, directions = load_preset("ukf-real"), load_preset("ukf-lie-defensive")
+    skeleton = cmu_skeleton("35")
+    spread = pose_spread(angles, angles.prior(), skeleton)
+    channels = np.concatenate([m.channels for m in angles.training_motions])
+    np.testing.assert_allclose(spread.mean, channels.mean(axis=0))
+    np.testing.assert_allclose(spread.std, channels.std(axis=0))
+    assert pose_spread(directions, directions.prior(), skeleton) is None
+    other = replace(skeleton, channel_names=tuple(f"x{c}" for c in range(skeleton.num_channels)))
+    assert pose_spread(angles, angles.prior(), other) is None
