@@ -24,8 +24,8 @@
    triangulation measures it, left and right averaged (robust to a detector's swaps and outliers on
    some frames, and to a first second where the person is half in view; reported as the summary's
    ``bones_m``), and fitted to the two ticks by
-   inverse kinematics over ``START_TICKS`` ticks (:mod:`priortrack.body.ik`), both in the detector's
-   joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
+   inverse kinematics over ``START_TICKS`` ticks (:mod:`priortrack.body.ik`; for a prior on joint angles
+   pulled to its training poses, :func:`pose_spread`), both in the detector's joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
    its neck the mid-shoulders), which the observation model uses too. The two start frames are
    steadied (:func:`steady_start`): the root's translation on the least-squares line through the
    fitted ticks (a velocity from eight noisy frames, not two), its rotation the same in both (no
