@@ -399,15 +399,9 @@ class _LevenbergMarquardt:
 
 
 def moving_channels(skeleton: Skeleton, joints: np.ndarray) -> np.ndarray:
-    """(K,) ascending channels that move one of ``joints``: a joint's rotations move its descendants, its
-    translations itself and its descendants."""
-    above = np.zeros(skeleton.num_joints, dtype=bool)                        # joints with a chosen descendant
-    for j in np.asarray(joints, dtype=int):
-        k = int(skeleton.parents[j])
-        while k >= 0:
-            above[k] = True
-            k = int(skeleton.parents[k])
-    chosen = np.zeros(skeleton.num_joints, dtype=bool)
-    chosen[np.asarray(joints, dtype=int)] = True
-    channels = np.concatenate([skeleton.rot_channels[above].ravel(), skeleton.trans_channels[above | chosen].ravel()])
+    """(K,) ascending channels that move one of ``joints``: those of the smallest skeleton placing them
+    (:meth:`~priortrack.data.skeleton.Skeleton.pruned`: their ancestors' rotations and translations, the
+    joints' own translations; channels keep their indices)."""
+    pruned, _ = skeleton.pruned(joints)
+    channels = np.concatenate([pruned.rot_channels.ravel(), pruned.trans_channels.ravel()])
     return np.unique(channels[channels >= 0])
