@@ -136,7 +136,10 @@ def test_moving_channels_are_those_that_move_a_joint():
 def test_the_pull_to_a_priors_poses():
     """Without a pose spread, λ on every rotation channel toward 0 (none on translations); with one, the root's
     rotations keep that, and every channel below it is pulled to its training mean with weight λ / max(σ, floor)²
-    (CMU 35's clavicles, which its walks never move, at the floor); a spread of another layout is refused."""
+    (CMU 35's clavicles, which its walks never move, at the floor); a spread of another layout, or of motions of
+    two layouts, is refused."""
+    from dataclasses import replace
+
     from priortrack.body.ik import REGULARISATION, SPREAD_FLOOR, PoseSpread, pull
     from priortrack.data.motion import Motion
 
@@ -162,3 +165,6 @@ def test_the_pull_to_a_priors_poses():
     np.testing.assert_allclose(weights[clavicles], REGULARISATION / SPREAD_FLOOR ** 2)
     with pytest.raises(PriortrackError, match="pose spread of 3 channels"):
         pull(skeleton, PoseSpread(np.zeros(3), np.ones(3)))
+    renamed = replace(skeleton, channel_names=tuple(f"x{c}" for c in range(skeleton.num_channels)))
+    with pytest.raises(PriortrackError, match="the motions have 2 channel layouts; expected one"):
+        PoseSpread.of([walks[0], Motion(renamed, walks[1].channels, walks[1].fps, walks[1].name)])
