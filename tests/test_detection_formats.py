@@ -121,7 +121,7 @@ def test_freemocap_npy_and_npz_with_the_detectors_names(tmp_path):
     np.save(tmp_path / "mediapipe_2dData_numCams_numFrames_numTrackedPoints_pixelXY.npy", xy)
     d = read_detections(tmp_path / "mediapipe_2dData_numCams_numFrames_numTrackedPoints_pixelXY.npy")
     assert d.layout == "mediapipe33" and d.camera_names == ("cam_0", "cam_1") and d.keypoints.shape == (2, 5, 33, 3)
-    np.testing.assert_array_equal(d.keypoints[..., :2], xy[:, :, :33])
+    np.testing.assert_array_equal(d.keypoints[..., :2], xy[:, :, :33].astype(np.float32))
     assert d.keypoints[1, 1, 11, 2] == 1.0 and np.isnan(d.keypoints[0, 1, 11]).all()
 
     order = np.random.default_rng(1).permutation(25)

@@ -32,7 +32,8 @@ def test_real_openpose_body25b_needs_its_layout_named_and_reads():
     raw = json.loads((POSE2SIM / "pose" / "cam02_json" / "Static_cam_02.00005.json").read_text())
     expected = np.array(raw["people"][0]["pose_keypoints_2d"]).reshape(25, 3)
     expected[expected[:, 2] == 0, :2] = np.nan                            # OpenPose's (0, 0, 0): not found
-    np.testing.assert_array_equal(d.keypoints[1, 5], expected)
+    assert d.keypoints.dtype == np.float32
+    np.testing.assert_array_equal(d.keypoints[1, 5], expected.astype(np.float32))
     uv, conf = d.eval15(min_confidence=0.3)
     k = d.keypoint_names.index
     body = d.keypoints[2, 7]
@@ -91,11 +92,11 @@ def test_several_people_the_same_one_is_followed_and_a_jump_is_not_taken(tmp_pat
     _openpose_frame(folder, 3, [_person(500), _person(102)])
     d = read_detections(folder)
     assert d.layout == "coco17" and d.switches == (1,)
-    np.testing.assert_array_equal(d.keypoints[0, 1].ravel(), _person(101))
+    np.testing.assert_array_equal(d.keypoints[0, 1].ravel(), np.float32(_person(101)))
     assert np.isnan(d.keypoints[0, 2]).all()
-    np.testing.assert_array_equal(d.keypoints[0, 3].ravel(), _person(102))
+    np.testing.assert_array_equal(d.keypoints[0, 3].ravel(), np.float32(_person(102)))
     pinned = read_detections(folder, person=1)
-    np.testing.assert_array_equal(pinned.keypoints[0, 0].ravel(), _person(100))
+    np.testing.assert_array_equal(pinned.keypoints[0, 0].ravel(), np.float32(_person(100)))
     assert np.isnan(pinned.keypoints[0, 2]).all()
 
 

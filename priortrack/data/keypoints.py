@@ -131,13 +131,15 @@ def layout_for(name: str | None, count: int, where: str) -> str:
 
 def to_eval15(keypoints: np.ndarray, names: tuple[str, ...], min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
     """(..., K, 3) keypoints (x, y, confidence) named ``names`` → eval15 pixels (..., 15, 2), NaN where
-    missing, and confidences (..., 15), 0 where missing. A keypoint is observed when x, y and its
-    confidence are finite and the confidence is at least ``min_confidence`` (and above 0)."""
+    missing, and confidences (..., 15), 0 where missing, in the keypoints' float dtype (float64 for
+    integers). A keypoint is observed when x, y and its confidence are finite and the confidence is at
+    least ``min_confidence`` (and above 0)."""
     index = {n: i for i, n in enumerate(names)}
     xy, conf = keypoints[..., :2], keypoints[..., 2]
     seen = np.isfinite(xy).all(axis=-1) & np.isfinite(conf) & (conf >= min_confidence) & (conf > 0)
-    uv = np.full(keypoints.shape[:-2] + (15, 2), np.nan)
-    confidence = np.zeros(keypoints.shape[:-2] + (15,))
+    dtype = keypoints.dtype if keypoints.dtype.kind == "f" else np.float64
+    uv = np.full(keypoints.shape[:-2] + (15, 2), np.nan, dtype=dtype)
+    confidence = np.zeros(keypoints.shape[:-2] + (15,), dtype=dtype)
     for j, joint in enumerate(EVAL15_NAMES):
         options = [parts for parts in EVAL15_PARTS[joint] if all(p in index for p in parts)]
         if not options:
