@@ -161,3 +161,32 @@ def test_caliscope_recording_tracks_from_its_own_files(tmp_path, caplog, capsys)
     index = {str(n): i for i, n in enumerate(result["joint_names"])}
     torso = np.nanmedian(result["joints"][:, index["neck"]] - result["joints"][:, index["pelvis"]], axis=0)
     assert np.degrees(np.arccos(torso @ level / np.linalg.norm(torso))) < 12
+
+
+@pytest.mark.parametrize("left_out", ["cam_1", "cam_2"])
+def test_caliscope_seated_person_starts_from_the_joints_its_other_cameras_see(left_out, caplog):
+    """Without cam_1 or cam_2 the other webcams triangulate the seated person's upper body only (8 joints;
+    the legs under the desk are seen by one camera): the start fits those 8 joints, the bones no tick
+    measures take the template's proportions and the summary names them, and the estimate reprojects into
+    every camera still used within the detector's error (the whole recording's up, as compare gives it)."""
+    from dataclasses import replace
+
+    from priortrack.data.calibration import Calibration
+    from priortrack.experiments.real import match_cameras, track_detections, up_from_detections
+    from priortrack.geometry.camera import PinholeCamera
+
+    detections, calibration = read_detections(CALISCOPE / "xy_HOLISTIC.csv"), read_calibration(CALISCOPE / "config.toml")
+    matched = match_cameras(detections, calibration, None)
+    up = up_from_detections([PinholeCamera.from_calibration(c) for c in matched], *detections.eval15(0.3),
+                            calibration.source)
+    kept = [c for c, name in enumerate(detections.camera_names) if name != left_out]
+    seen = replace(detections, keypoints=detections.keypoints[kept],
+                   camera_names=tuple(detections.camera_names[c] for c in kept), switches=(0,) * len(kept))
+    with caplog.at_level(logging.WARNING, logger="priortrack"):
+        result = track_detections(seen, Calibration(tuple(matched[c] for c in kept), up, calibration.source,
+                                                    calibration.format, calibration.units), "ukf-real", fps=30)
+    assert "the trial shows 8 joints in most ticks" in caplog.text
+    summary = result.summary()
+    assert summary["bones_unmeasured"] == ["trunk", "hip_width", "thigh", "shin"]
+    assert max(summary["reprojection_px"].values()) < 20, summary["reprojection_px"]
+    assert np.isfinite(result.joints).all()

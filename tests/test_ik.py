@@ -41,6 +41,30 @@ def test_detector_definitions(walk):
     assert np.linalg.norm(fitted - targets, axis=-1).mean() < 0.008
 
 
+def test_bones_no_frame_measures_take_the_measured_bones_scale(walk):
+    """A seated person's legs, never seen: the template's leg bones are scaled by the median of the measured
+    bones' factors (its proportions) and named; the arms are scaled as with the whole body seen; nothing
+    measured is refused."""
+    from priortrack.body.ik import unmeasured_measures
+    from priortrack.body.layout import eval15_indices
+    from priortrack.data.motion import Motion
+
+    template = cmu_skeleton("35")
+    upper = walk.copy()
+    upper[:, [0, 9, 10, 11, 12, 13, 14]] = np.nan                    # pelvis, hips, knees, ankles: never seen
+    assert unmeasured_measures(upper) == ["trunk", "hip_width", "thigh", "shin"] and unmeasured_measures(walk) == []
+    whole, seated = fitted_skeleton(template, walk), fitted_skeleton(template, upper)
+    index = eval15_indices(template)
+    arms, legs = index[[4, 5, 7, 8]], index[[10, 11, 13, 14]]        # elbows, wrists; knees, ankles
+    np.testing.assert_allclose(seated.offsets[arms], whole.offsets[arms], rtol=1e-12)
+    rest = joint_positions(Motion(template, np.zeros((1, template.num_channels)), 30.0, "rest"))
+    factors = measured_distances(upper) / measured_distances(rest)
+    assert np.isfinite(factors).sum() == 7                           # head, shoulders ×2, upper arms ×2, forearms ×2
+    np.testing.assert_allclose(seated.offsets[legs], np.nanmedian(factors) * template.offsets[legs], rtol=1e-12)
+    with pytest.raises(PriortrackError, match="no bone is measured"):
+        fitted_skeleton(template, np.full_like(walk, np.nan))
+
+
 def test_missing_joints_follow_their_neighbours(walk):
     holes = walk.copy()
     holes[2, [10, 11]] = np.nan                                   # a leg unseen in one frame

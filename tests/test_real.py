@@ -492,6 +492,27 @@ def test_the_start_skips_ticks_whose_triangulation_a_camera_disagrees_with():
     assert start_ticks(counts, residual).tolist() == [1, 2, 3, 4, 5, 8]
 
 
+def test_the_start_needs_the_joints_the_trial_shows():
+    """start_joints: START_JOINTS where the trial shows as many in VIEW_SHARE of its ticks; else the joints it
+    shows (logged, naming those missing); fewer than MIN_START_JOINTS refused, naming the joints seen; and
+    start_ticks takes the count."""
+    from priortrack.experiments.real import MIN_START_JOINTS, START_JOINTS, VIEW_SHARE, start_joints, start_ticks
+
+    seen = np.ones((10, 15), dtype=bool)
+    seen[:3, 10] = False                                              # a knee hidden for 3 ticks
+    assert start_joints(seen, "triangulated") == START_JOINTS
+    seen[:, 9:] = False                                               # the legs never
+    seen[: int(10 * VIEW_SHARE), 0] = False                           # the pelvis in half the ticks: shown
+    assert start_joints(seen, "triangulated") == 9
+    seen[:, 0] = False
+    seen[: int(10 * VIEW_SHARE) + 1, 8] = False                       # a wrist in fewer than half: not shown
+    assert start_joints(seen, "triangulated") == 7 >= MIN_START_JOINTS
+    seen[:, 5:] = False
+    with pytest.raises(PriortrackError, match="only 4 joints .neck, head, lshoulder, lelbow. are triangulated"):
+        start_joints(seen, "triangulated")
+    assert start_ticks(np.array([8, 8, 7, 8, 8]), None, 8).tolist() == [0, 3]
+
+
 def test_a_swap_in_one_camera_on_the_first_frames_does_not_start_the_track(tmp_path, monkeypatch):
     """A held-out walk whose camera 2 swaps left and right on its first 12 frames: the start waits for the
     frames every camera agrees on, and the track is as good as without the swap (seed 4: 6.3 mm mean, its

@@ -10,7 +10,8 @@ s = d_measured / d_template of the distance that measures it in the targets' def
 over frames; left and right averaged): upper arm, forearm, thigh and shin for the limbs, the
 shoulder and hip widths for the neck→shoulder and pelvis→hip bones, mid-hips to mid-shoulders for the
 trunk, mid-shoulders to the head for the head. The factor scales the rest offsets of the skeleton
-joints on the bone's path (CMU's clavicles and neck both start at the thorax's end).
+joints on the bone's path (CMU's clavicles and neck both start at the thorax's end). A bone no frame
+measures (a seated person's legs) takes the median factor of the measured ones.
 
 **The pose.** The channels θ (T, C) minimise, over the frames at once,
 
@@ -40,6 +41,7 @@ length / its length in pixels).
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, replace
 
@@ -54,6 +56,8 @@ from priortrack.data.motion import Motion
 from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
 from priortrack.threads import torch_threads
+
+log = logging.getLogger(__name__)
 
 #: λ, the weight (m² per rad², or per σ_c²) of the pull of the rotation channels to rest.
 REGULARISATION = 1e-4
@@ -95,15 +99,13 @@ def _distance(X: np.ndarray, pair) -> np.ndarray:
 
 def measured_distances(X: np.ndarray) -> np.ndarray:
     """(14,) the median over frames X (T, 15, 3) of the distance measuring each eval15 bone (left and
-    right averaged), NaN frames left out."""
+    right averaged), NaN frames left out; NaN for a bone no frame measures."""
     X = np.asarray(X, dtype=np.float64)
-    out = np.empty(14)
+    out = np.full(14, np.nan)
     for j, (pair, mirror) in _MEASURES.items():
         values = _distance(X, pair) if mirror is None else np.concatenate([_distance(X, pair), _distance(X, mirror)])
-        out[j - 1] = np.nanmedian(values) if np.isfinite(values).any() else np.nan
-    if not np.isfinite(out).all():
-        missing = [j for j in range(1, 15) if not np.isfinite(out[j - 1])]
-        raise PriortrackError(f"body size: the distances measuring eval15 joints {missing} are never measured")
+        if np.isfinite(values).any():
+            out[j - 1] = np.nanmedian(values)
     return out
 
 
@@ -118,6 +120,13 @@ def _rest(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     return points, points[eval15_indices(skeleton)]
 
 
+def unmeasured_measures(X: np.ndarray) -> list[str]:
+    """The names of :data:`BODY_MEASURES` that no frame of X (T, 15, 3) measures (:func:`fitted_skeleton`
+    gives them the template's proportions)."""
+    distances = measured_distances(X)
+    return [name for name, j in BODY_MEASURES.items() if not np.isfinite(distances[j - 1])]
+
+
 def body_measures(skeleton: Skeleton, joint_map: np.ndarray | None = None) -> dict[str, float]:
     """{measure: metres} of :data:`BODY_MEASURES` on the skeleton's rest pose, in the targets'
     definitions (``joint_map`` M applied): the body a tracker fitted, as a person would measure it."""
@@ -128,12 +137,21 @@ def body_measures(skeleton: Skeleton, joint_map: np.ndarray | None = None) -> di
 
 def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | None = None) -> Skeleton:
     """The template scaled so that its distances (module docstring) match those of the targets X
-    (T, 15, 3), both in the targets' definitions (``joint_map`` M applied to the template)."""
+    (T, 15, 3), both in the targets' definitions (``joint_map`` M applied to the template). A bone no
+    frame measures (legs under a desk, seen by one camera or none) is scaled as the measured ones are (their
+    median ratio to the template's: its proportions), logged; none measured is refused."""
     index = eval15_indices(template)
     offsets = template.offsets.copy()
     points, rest = _rest(template)
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
     scale = measured_distances(X) / measured_distances((M @ rest)[None])
+    unmeasured = ~np.isfinite(scale)
+    if unmeasured.all():
+        raise PriortrackError("body size: no bone is measured (no frame has both ends of any eval15 bone)")
+    if unmeasured.any():
+        scale[unmeasured] = np.median(scale[~unmeasured])
+        log.info("body size: %s never measured; scaled ×%.3f as the measured bones are (the template's "
+                 "proportions)", ", ".join(unmeasured_measures(X)), scale[unmeasured][0])
     for j in range(1, 15):
         parent = EVAL15_PARENTS[j]
         chain, k = [], int(index[j])

@@ -18,12 +18,13 @@
    ``height`` and fitted to the first ticks' detections in 2D, its depth from its image size
    (:func:`priortrack.body.ik.inverse_kinematics_2d`). From several, each tick's joints are triangulated (confidence-weighted DLT through the
    lens distortion); the first two consecutive ticks with at least ``START_JOINTS`` joints
-   triangulated, each reprojecting into every camera about as well as the trial's typical tick
+   triangulated (where the trial never shows as many, a person seated at a desk: the joints it shows in
+   most ticks, :func:`start_joints`), each reprojecting into every camera about as well as the trial's typical tick
    (:func:`start_ticks`: not a tick where one camera swapped left and right), start the filter: the body (the prior's skeleton, or CMU subject 35's) is scaled to
    the person's own distances, each bone's the median over every tick of the whole trial whose
    triangulation measures it, left and right averaged (robust to a detector's swaps and outliers on
    some frames, and to a first second where the person is half in view; reported as the summary's
-   ``bones_m``), and fitted to the two ticks by
+   ``bones_m``; a bone no tick measures scaled as the measured ones, named in ``bones_unmeasured``), and fitted to the two ticks by
    inverse kinematics over ``START_TICKS`` ticks (:mod:`priortrack.body.ik`; for a prior on joint angles
    pulled to its training poses, :func:`pose_spread`), both in the detector's joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
    its neck the mid-shoulders), which the observation model uses too. The two start frames are
@@ -64,7 +65,7 @@ import numpy as np
 import torch
 
 from priortrack.body.ik import (PoseSpread, body_measures, fitted_skeleton, inverse_kinematics, inverse_kinematics_2d,
-                                scaled_to_height)
+                                scaled_to_height, unmeasured_measures)
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -90,8 +91,12 @@ log = logging.getLogger(__name__)
 #: A camera's person at a tick is someone else's if the others' triangulation reprojects this far from
 #: it (median over its joints), as a fraction of the image diagonal.
 CROSS_VIEW_GATE = 0.1
-#: Joints a tick needs triangulated to start the filter there.
+#: Joints a tick needs triangulated to start the filter there …
 START_JOINTS = 14
+#: … or, where the trial never shows as many (a person seated at a desk, legs under it or seen by one camera),
+#: every joint it shows (triangulated, or detected with one camera) in at least VIEW_SHARE of its ticks, and
+#: no fewer than MIN_START_JOINTS (below that the inverse kinematics is not posed: the start is refused).
+VIEW_SHARE, MIN_START_JOINTS = 0.5, 6
 #: A start tick's worst camera reprojects its triangulation within this many times the trial's median tick's
 #: (:func:`start_ticks`).
 START_CONSISTENCY = 3.0
@@ -186,6 +191,9 @@ class DetectionTrack:
     #: The prior's pose spread that the fit-check's inverse kinematics pulls the body's channels to (None: to
     #: rest); the BVH's pulls them to rest (the joints as tracked, not as the prior would have them).
     pose_spread: PoseSpread | None = field(default=None, repr=False)
+    #: The body measures (:data:`~priortrack.body.ik.BODY_MEASURES`) no tick measured, which took the template's
+    #: proportions (a seated person's legs; :func:`~priortrack.body.ik.fitted_skeleton`).
+    bones_unmeasured: tuple[str, ...] = ()
 
     def in_world(self, body: np.ndarray, definitions: bool = True) -> np.ndarray:
         """Points (..., 3) of the filter's Y-up working frame (a snapshot's estimate, best or cloud, the
@@ -201,7 +209,7 @@ class DetectionTrack:
     def summary(self) -> dict:
         """The JSON summary: frames, seconds, median reprojection error per camera, mismatch fraction, the
         world's up (an axis, or the vector given or found from the person), the tracked body's measures
-        (:func:`~priortrack.body.ik.body_measures`, metres)."""
+        (:func:`~priortrack.body.ik.body_measures`, metres) and those of them no tick measured."""
         return {"filter": self.filter, "frames": int(len(self.joints)), "fps": self.fps, "seconds": self.seconds,
                 "reprojection_px": {n: float(e) for n, e in zip(self.camera_names, self.reprojection_px)},
                 "mismatch_fraction": self.mismatch_fraction, "cross_view_rejections": self.cross_view_rejections,
@@ -209,6 +217,7 @@ class DetectionTrack:
                 "smoothed": self.filtered_joints is not None, "lag": self.lag, "fit_check": self.fit_check,
                 "interrupted": self.interrupted,
                 "bones_m": None if self.skeleton is None else body_measures(self.skeleton, detector_map()),
+                "bones_unmeasured": list(self.bones_unmeasured),
                 "up": self.up if isinstance(self.up, str) else [float(v) for v in self.up]}
 
     def save_npz(self, path: str | Path) -> Path:
@@ -401,16 +410,18 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     rejected = cross_view_check(cameras, z, detections.camera_names)
     single = len(cameras) == 1
     if single:                                     # joints detected per tick; else triangulated per tick
-        counts = ((np.nan_to_num(z[:, 0, :, 2]) > 0) & np.isfinite(z[:, 0, :, 0])).sum(axis=-1)
+        seen = (np.nan_to_num(z[:, 0, :, 2]) > 0) & np.isfinite(z[:, 0, :, 0])
     else:
         X = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3),
                         np.nan_to_num(z[..., 2]).transpose(1, 0, 2))             # (T, 15, 3), working frame
-        counts = np.isfinite(X).all(axis=-1).sum(axis=-1)
+        seen = np.isfinite(X).all(axis=-1)
+    counts = seen.sum(axis=-1)
+    needed = start_joints(seen, 'detected' if single else 'seen by two cameras')
     residual = None if single else np.stack(                                       # (T,): each tick's worst camera
         [np.nan_to_num(median_reprojection(camera, X, z[:, c]), nan=-np.inf) for c, camera in enumerate(cameras)]).max(axis=0)
-    good = start_ticks(counts, residual)
+    good = start_ticks(counts, residual, needed)
     if not len(good):
-        raise PriortrackError(f"no two consecutive frames have {START_JOINTS} joints "
+        raise PriortrackError(f"no two consecutive frames have {needed} joints "
                               f"{'detected' if single else 'seen by two cameras'}: cannot start (per tick: "
                               f"{counts[:10].tolist()}…)")
     first = int(good[0])
@@ -419,11 +430,13 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     M = detector_map()
     template = getattr(prior.space, "skeleton", None) or cmu_skeleton("35")
     window = first + KNOWN_FRAMES
-    while window < min(first + START_TICKS, len(counts)) and counts[window] >= MIN_FIT_JOINTS:
+    while window < min(first + START_TICKS, len(counts)) and counts[window] >= min(MIN_FIT_JOINTS, needed):
         window += 1
+    unmeasured = ()
     if skeleton is None:                           # else the user's own body, as given (not scaled)
         skeleton = (scaled_to_height(template, height) if single else
                     fitted_skeleton(template, X, M))
+        unmeasured = () if single else tuple(unmeasured_measures(X))
     pose = pose_spread(preset, prior, skeleton)
     if single:
         ticks = z[first:window, 0]
@@ -496,7 +509,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                             up, A, skeleton, estimates, world_cameras, z,
                             run.snapshots, run.steps, rejected,
                             None if smoothed is None else in_world(run.estimates, A), lag if smooth else None,
-                            interrupted=run.interrupted, reprojection_by_tick=by_tick, gated=gated, pose_spread=pose)
+                            interrupted=run.interrupted, reprojection_by_tick=by_tick, gated=gated, pose_spread=pose,
+                            bones_unmeasured=unmeasured)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible
@@ -593,14 +607,31 @@ def pose_spread(preset: Preset, prior, skeleton: Skeleton) -> PoseSpread | None:
     return PoseSpread.of(motions)
 
 
-def start_ticks(counts: np.ndarray, residual: np.ndarray | None = None) -> np.ndarray:
-    """The ticks t (ascending) where t and t + 1 both have START_JOINTS joints (``counts`` (T,)) and, given
+def start_joints(seen: np.ndarray, how: str) -> int:
+    """The joints a start tick needs (:data:`START_JOINTS`, or fewer where the trial never shows as many)
+    from ``seen`` (T, 15) bool, each tick's joints ``how`` seen (triangulated or detected); logged when fewer,
+    refused below MIN_START_JOINTS."""
+    shown = (seen.mean(axis=0) >= VIEW_SHARE) if len(seen) else np.zeros(15, dtype=bool)
+    if shown.sum() >= START_JOINTS:
+        return START_JOINTS
+    if shown.sum() < MIN_START_JOINTS:
+        raise PriortrackError(f"only {int(shown.sum())} joints ({', '.join(np.array(EVAL15_NAMES)[shown]) or 'none'}) "
+                              f"are {how} in at least {VIEW_SHARE:.0%} of the ticks; the start needs "
+                              f"{MIN_START_JOINTS} (place the cameras so that two see the upper body)")
+    log.warning("the trial shows %d joints in most ticks (%s; %s missing): the start fits those, and the bones it "
+                "never measures take the template's proportions", int(shown.sum()),
+                ", ".join(np.array(EVAL15_NAMES)[shown]), ", ".join(np.array(EVAL15_NAMES)[~shown]))
+    return int(shown.sum())
+
+
+def start_ticks(counts: np.ndarray, residual: np.ndarray | None = None, needed: int = START_JOINTS) -> np.ndarray:
+    """The ticks t (ascending) where t and t + 1 both have ``needed`` joints (``counts`` (T,)) and, given
     ``residual`` (T,) (each tick's worst camera's median reprojection of its triangulation, px), both
     reproject within START_CONSISTENCY times the median such tick's: a start on a tick where one camera
     swapped left and right, or saw someone else, fitted the body to wrong joints (real-format 07_10, seed 2:
     its first start tick's triangulation 276 mm off, the tracked walk's error doubled). Where no tick pair
     is consistent, the counts alone decide (logged)."""
-    enough = counts >= START_JOINTS
+    enough = counts >= needed
     good = np.flatnonzero(enough[1:] & enough[:-1])
     if residual is None or not len(good):
         return good
@@ -608,7 +639,7 @@ def start_ticks(counts: np.ndarray, residual: np.ndarray | None = None) -> np.nd
     steady = np.flatnonzero(consistent[1:] & consistent[:-1])
     if not len(steady):
         log.info("no two consecutive ticks triangulate consistently in every camera: starting on the first "
-                 "with %d joints", START_JOINTS)
+                 "with %d joints", needed)
         return good
     if steady[0] != good[0]:
         log.info("start: ticks %d–%d skipped (a camera's detections disagree with the others')", good[0], steady[0] - 1)
