@@ -192,3 +192,32 @@ def test_the_pull_to_a_priors_poses():
     renamed = replace(skeleton, channel_names=tuple(f"x{c}" for c in range(skeleton.num_channels)))
     with pytest.raises(PriortrackError, match="the motions have 2 channel layouts; expected one"):
         PoseSpread.of([walks[0], Motion(renamed, walks[1].channels, walks[1].fps, walks[1].name)])
+
+
+def test_one_cameras_depth_from_the_least_foreshortened_length():
+    """depth / f from a body's image: neck to mid-ankles where shown; without the legs, each frame's least ratio
+    L / ℓ over the upper body's lengths, which foreshortening can only raise (a length turned away from the image
+    plane looks shorter); nothing to measure is refused."""
+    from priortrack.body.ik import _metres_per_pixel
+
+    rest = np.zeros((15, 3))
+    rest[1], rest[2] = [0, 1.5, 0], [0, 1.75, 0]                               # neck, head
+    rest[[3, 4, 5]] = [[0.2, 1.45, 0], [0.5, 1.45, 0], [0.75, 1.45, 0]]       # left shoulder, elbow, wrist
+    rest[[6, 7, 8]] = [[-0.2, 1.45, 0], [-0.5, 1.45, 0], [-0.75, 1.45, 0]]
+    rest[[0, 9, 12]] = [[0, 1.0, 0], [0.1, 1.0, 0], [-0.1, 1.0, 0]]
+    rest[[10, 11, 13, 14]] = [[0.1, 0.5, 0], [0.1, 0.05, 0], [-0.1, 0.5, 0], [-0.1, 0.05, 0]]
+    scale = 0.004                                                               # depth / f, metres per pixel
+    uv = np.repeat((rest[:, :2] / scale)[None], 5, axis=0)                     # (5, 15, 2): facing the camera
+    seen = np.ones((5, 15), dtype=bool)
+    assert _metres_per_pixel(rest, uv, seen) == pytest.approx(scale, rel=1e-12)
+    seen[:, [0, 9, 10, 11, 12, 13, 14]] = False                                 # legs under the desk
+    turned = uv.copy()
+    turned[:, 3:9, 0] *= 0.7                                                    # the body turned 46° about the vertical
+    turned[:, [4, 5]] = turned[:, [3]] + (turned[:, [4, 5]] - turned[:, [3]]) * 0.5     # the left arm pointing away
+    assert _metres_per_pixel(rest, turned, seen) == pytest.approx(scale, rel=1e-12)     # the neck to the head
+    noisy = uv + np.random.default_rng(0).normal(0, 1.0, uv.shape)
+    assert _metres_per_pixel(rest, noisy, seen) == pytest.approx(scale, rel=0.05)
+    seen[:] = False
+    seen[:, [0, 9]] = True
+    with pytest.raises(PriortrackError, match="no depth for the body"):
+        _metres_per_pixel(rest, uv, seen)

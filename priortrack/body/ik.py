@@ -36,7 +36,8 @@ The world is Y-up, as the mocap the priors learned from (turn a Z-up calibration
 squared pixel error of the projected joints, scaled by (depth / f)² to metres at the subject; the
 body is the template scaled to a given standing height; the start's root sits on the ray through
 the detected pelvis at the depth where the body's size matches its image (f × neck-to-ankles
-length / its length in pixels).
+length / its length in pixels; for a body whose legs are never seen, the least such depth over the upper
+body's lengths, which foreshortening can only lengthen).
 """
 
 from __future__ import annotations
@@ -223,18 +224,13 @@ def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: floa
     if uv.ndim != 3 or uv.shape[1:] != (15, 2) or weights.shape != uv.shape[:2]:
         raise PriortrackError(f"inverse kinematics: pixels {uv.shape} and weights {weights.shape}; expected "
                               f"(T, 15, 2) and (T, 15)")
-    if (seen.sum(axis=1) < 8).any():
-        raise PriortrackError(f"inverse kinematics from one camera: frames {np.flatnonzero(seen.sum(axis=1) < 8).tolist()}"
-                              f" have fewer than 8 detected joints")
+    if (seen.sum(axis=1) < 6).any():
+        raise PriortrackError(f"inverse kinematics from one camera: frames {np.flatnonzero(seen.sum(axis=1) < 6).tolist()}"
+                              f" have fewer than 6 detected joints")
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
     index = eval15_indices(skeleton)
     rest = M @ ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels))[index].numpy()
-    size_3d = np.linalg.norm(rest[1] - (rest[11] + rest[14]) / 2)                # neck to mid-ankles, metres
-    ankles = np.where(seen[:, [11, 14]].all(axis=1)[:, None], uv[:, [11, 14]].mean(axis=1), np.nan)
-    size_px = np.nanmedian(np.linalg.norm(uv[:, 1] - ankles, axis=-1))
-    if not np.isfinite(size_px) or size_px < 1:
-        raise PriortrackError("inverse kinematics from one camera: the neck and both ankles are never seen together")
-    depth = camera.fx * size_3d / size_px
+    depth = camera.fx * _metres_per_pixel(rest, uv, seen)
     K = camera.K.double().numpy()
     R, t = camera.R.double().numpy(), camera.t.double().numpy()
     centre = np.where(seen[:, :1], uv[:, 0], np.nanmean(np.where(seen[..., None], uv, np.nan), axis=1))
@@ -249,6 +245,37 @@ def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: floa
 
     channels = _fit(skeleton, len(uv), residuals, pelvis, M, pose)
     return Motion(skeleton, channels, float(fps), name)
+
+
+#: The image lengths that give a body's depth from one camera, as eval15 joint pairs: neck to mid-ankles; else,
+#: for a body whose legs are never seen, the upper body's (shoulder width, neck to head, upper arms, forearms).
+_FULL_LENGTH = ((1,), (11, 14))
+_UPPER_LENGTHS = (((3,), (6,)), ((1,), (2,)), ((3,), (4,)), ((6,), (7,)), ((4,), (5,)), ((7,), (8,)))
+
+
+def _metres_per_pixel(rest: np.ndarray, uv: np.ndarray, seen: np.ndarray) -> float:
+    """depth / f of a body whose rest joints are ``rest`` (15, 3) seen at uv (T, 15, 2) (``seen`` (T, 15)):
+    the median over frames of L / ℓ, L a length on the body, ℓ its image. Neck to mid-ankles where the frames
+    show it. Else each frame's least L / ℓ over the upper body's lengths: a length turned away from the image
+    plane looks shorter, ℓ = (f / depth) L cos φ, so each ratio bounds depth / f from above and the least is
+    the tightest (arms along the image plane, shoulders facing the camera)."""
+    def ratios(pair) -> np.ndarray:
+        a, b = (list(ends) for ends in pair)
+        shown = seen[:, a + b].all(axis=1)
+        image = np.linalg.norm(uv[:, a].mean(axis=1) - uv[:, b].mean(axis=1), axis=-1)
+        body = np.linalg.norm(rest[a].mean(axis=0) - rest[b].mean(axis=0))
+        return np.where(shown & (image >= 1), body / np.where(image >= 1, image, 1.0), np.nan)
+
+    full = ratios(_FULL_LENGTH)
+    if np.isfinite(full).any():
+        return float(np.nanmedian(full))
+    upper = np.stack([ratios(pair) for pair in _UPPER_LENGTHS], axis=1)               # (T, 6)
+    least = np.where(np.isfinite(upper).any(axis=1), np.nanmin(np.where(np.isfinite(upper), upper, np.inf), axis=1),
+                     np.nan)
+    if not np.isfinite(least).any():
+        raise PriortrackError("inverse kinematics from one camera: neither the neck and both ankles nor any length "
+                              "of the upper body (shoulders, neck to head, arms) is ever seen: no depth for the body")
+    return float(np.nanmedian(least))
 
 
 @dataclass(frozen=True)
