@@ -107,6 +107,18 @@ def test_a_long_motion_is_fitted_in_chunks(monkeypatch):
     assert np.linalg.norm(joint_positions(chunked, "eval15") - X, axis=-1).mean() < 0.01
 
 
+def test_the_jacobian_taken_a_few_frames_at_a_time_is_the_whole_ones(monkeypatch):
+    """The normal equations built JACOBIAN_FRAMES frames at a time (bounded memory) are those of the whole
+    chunk's Jacobian at once, and so is the fit."""
+    from priortrack.body import ik
+
+    X = joint_positions(load_motion("cmu:49_18").resample(30)[:30], "eval15")
+    X = X + np.random.default_rng(0).normal(0, 0.01, X.shape)
+    whole = ik.inverse_kinematics(X, 30.0).channels
+    monkeypatch.setattr(ik._LevenbergMarquardt, "JACOBIAN_FRAMES", 7)
+    np.testing.assert_allclose(ik.inverse_kinematics(X, 30.0).channels, whole, rtol=0, atol=1e-10)
+
+
 def test_the_fit_is_a_minimum_of_its_objective(walk, monkeypatch):
     """Run to its last step, the Levenberg–Marquardt fit of noisy joints ends where torch's autograd finds the
     objective's gradient (module docstring: data, λ pull to rest, μ smoothness) vanishing, to 10⁻⁵ of its size

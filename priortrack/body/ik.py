@@ -192,7 +192,8 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
     parts = [slice(start, min(start + CHUNK, len(X))) for start in range(0, len(X), CHUNK)]
     channels = np.concatenate([
         _fit(skeleton, part.stop - part.start,
-             lambda joints, part=part: ((joints - target[part]) * mask[part]).flatten(-2), pelvis[part], M, pose)
+             lambda joints, frames, part=part: ((joints - target[part][frames]) * mask[part][frames]).flatten(-2),
+             pelvis[part], M, pose)
         for part in parts])
     return Motion(skeleton, channels, float(fps), name)
 
@@ -239,9 +240,9 @@ def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: floa
     target = torch.as_tensor(np.where(seen[..., None], uv, 0.0))
     w = torch.as_tensor(np.where(seen, weights, 0.0))[..., None] * (depth / camera.fx) ** 2
 
-    def residuals(joints: torch.Tensor) -> torch.Tensor:
+    def residuals(joints: torch.Tensor, frames: slice) -> torch.Tensor:
         projected, _ = camera.project(joints)
-        return (torch.where(torch.isfinite(projected), projected - target, 0.0) * w.sqrt()).flatten(-2)
+        return (torch.where(torch.isfinite(projected), projected - target[frames], 0.0) * w[frames].sqrt()).flatten(-2)
 
     channels = _fit(skeleton, len(uv), residuals, pelvis, M, pose)
     return Motion(skeleton, channels, float(fps), name)
@@ -318,7 +319,8 @@ def _fit(skeleton: Skeleton, T: int, residuals, pelvis: np.ndarray, M: np.ndarra
          pose: PoseSpread | None) -> np.ndarray:
     """Channels θ (T, C) minimising |r(M FK(θ))|² + the regularisation and smoothness (module docstring),
     from the root at ``pelvis`` (T, 3) turned to the best of HEADINGS headings, on IK_THREADS torch threads.
-    ``residuals`` maps joints (..., T, 15, 3) to the data residuals r (..., T, R) of each frame."""
+    ``residuals(joints, frames)`` maps joints (..., F, 15, 3) of the frames ``frames`` (a slice of the T) to their
+    data residuals r (..., F, R)."""
     with torch_threads(IK_THREADS):
         return _LevenbergMarquardt(skeleton, T, residuals, M, pose).fit(pelvis)
 
@@ -329,7 +331,7 @@ class _LevenbergMarquardt:
     (its optimum 0, or θ̄_c with a pose spread).
 
     With J_t (R, K) the Jacobian of frame t's residuals r_t over those K channels (forward differences:
-    one FK of T (K + 1) rows), each step solves
+    K + 1 FK rows a frame, ``JACOBIAN_FRAMES`` frames at a time), each step solves
 
         (A + ν D) δ = −g,   A = blockdiag(J_tᵀ J_t) + λ I_rot + μ L ⊗ I_K,   g = Jᵀ r + λ θ_rot + μ L θ,
 
@@ -351,6 +353,9 @@ class _LevenbergMarquardt:
     DAMPING_FLOOR = 0.3
     #: Levenberg–Marquardt steps at most.
     MAX_STEPS = 100
+    #: Frames whose Jacobian is taken at once (their K + 1 = 45 shifted copies through the FK): a whole 600-frame
+    #: chunk at once held 134 MB more than its fit otherwise needs.
+    JACOBIAN_FRAMES = 100
 
     def __init__(self, skeleton: Skeleton, T: int, residuals, M: np.ndarray, pose: PoseSpread | None):
         self.skeleton, self.T, self.residuals = skeleton, T, residuals
@@ -361,12 +366,12 @@ class _LevenbergMarquardt:
         self.weights, self.centre = pull(skeleton, pose)                        # (C,) λ w_c, θ̄_c
         self.lam = self.weights[self.moving]
 
-    def data(self, theta: np.ndarray) -> np.ndarray:
-        """r (..., T, R) of channels θ (..., T, C)."""
+    def data(self, theta: np.ndarray, frames: slice = slice(None)) -> np.ndarray:
+        """r (..., F, R) of channels θ (..., F, C) of the frames ``frames``."""
         shape = theta.shape[:-1]
         joints = self.fk(torch.as_tensor(theta.reshape(-1, theta.shape[-1])), joints=self.index)
         joints = torch.einsum("ij,bjk->bik", self.M, joints).reshape(*shape, 15, 3)
-        return self.residuals(joints).numpy()
+        return self.residuals(joints, frames).numpy()
 
     def objective(self, theta: np.ndarray, r: np.ndarray) -> float:
         return float((r ** 2).sum() + (self.weights * (theta - self.centre) ** 2).sum()
@@ -385,13 +390,23 @@ class _LevenbergMarquardt:
         r = self.data(theta)
         return theta[int(np.argmin([self.objective(th, rh) for th, rh in zip(theta, r)]))]
 
-    def jacobian(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """r (T, R) at θ and J (T, R, K) over the moving channels."""
+    def normal_equations(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """r (T, R) at θ, and each frame's J_tᵀ J_t (T, K, K) and J_tᵀ r_t (T, K), J_t (R, K) over the moving
+        channels by forward differences, ``JACOBIAN_FRAMES`` frames at a time (their K + 1 shifted copies)."""
         K = len(self.moving)
-        shifted = np.repeat(theta[None], K + 1, axis=0)                            # (K + 1, T, C)
-        shifted[np.arange(1, K + 1), :, self.moving] += self.STEP
-        r = self.data(shifted)
-        return r[0], np.moveaxis((r[1:] - r[0]) / self.STEP, 0, -1)
+        r, JJ, Jr = None, np.empty((self.T, K, K)), np.empty((self.T, K))
+        for start in range(0, self.T, self.JACOBIAN_FRAMES):
+            frames = slice(start, min(start + self.JACOBIAN_FRAMES, self.T))
+            shifted = np.repeat(theta[None, frames], K + 1, axis=0)                 # (K + 1, F, C)
+            shifted[np.arange(1, K + 1), :, self.moving] += self.STEP
+            rows = self.data(shifted, frames)
+            J = np.moveaxis((rows[1:] - rows[0]) / self.STEP, 0, -1)              # (F, R, K)
+            if r is None:
+                r = np.empty((self.T, rows.shape[-1]))
+            r[frames] = rows[0]
+            JJ[frames] = np.einsum("trk,trl->tkl", J, J)
+            Jr[frames] = np.einsum("trk,tr->tk", J, rows[0])
+        return r, JJ, Jr
 
     def solve(self, blocks: np.ndarray, g: np.ndarray, nu: float) -> tuple[np.ndarray, float]:
         """δ (T, K) of (A + ν D) δ = −g, A from its diagonal blocks (T, K, K) and the smoothness, and the
@@ -417,13 +432,12 @@ class _LevenbergMarquardt:
         nu, growth = self.DAMPING, 2.0
         cost = self.objective(theta, self.data(theta))
         for _ in range(self.MAX_STEPS):
-            r, J = self.jacobian(theta)
+            r, blocks, Jr = self.normal_equations(theta)
             x = theta[:, moving]
             smooth = np.zeros_like(x)
             smooth[1:] += x[1:] - x[:-1]
             smooth[:-1] += x[:-1] - x[1:]
-            g = np.einsum("trk,tr->tk", J, r) + self.lam * (x - self.centre[moving]) + SMOOTHNESS * smooth
-            blocks = np.einsum("trk,trl->tkl", J, J)
+            g = Jr + self.lam * (x - self.centre[moving]) + SMOOTHNESS * smooth
             blocks[:, np.arange(K), np.arange(K)] += self.lam
             while nu < self.MAX_DAMPING:
                 delta, predicted = self.solve(blocks, g, nu)
