@@ -163,28 +163,37 @@ def test_caliscope_recording_tracks_from_its_own_files(tmp_path, caplog, capsys)
     assert np.degrees(np.arccos(torso @ level / np.linalg.norm(torso))) < 12
 
 
-@pytest.mark.parametrize("left_out", ["cam_1", "cam_2"])
-def test_caliscope_seated_person_starts_from_the_joints_its_other_cameras_see(left_out, caplog):
-    """Without cam_1 or cam_2 the other webcams triangulate the seated person's upper body only (8 joints;
-    the legs under the desk are seen by one camera): the start fits those 8 joints, the bones no tick
-    measures take the template's proportions and the summary names them, and the estimate reprojects into
-    every camera still used within the detector's error (the whole recording's up, as compare gives it)."""
+def _caliscope_cameras(kept: list[str]):
+    """caliscope's detections and calibration of the cameras ``kept`` only, with the whole recording's up (found
+    from the person in all 4, as compare --detections gives it to each run)."""
     from dataclasses import replace
 
     from priortrack.data.calibration import Calibration
-    from priortrack.experiments.real import match_cameras, track_detections, up_from_detections
+    from priortrack.experiments.real import match_cameras, up_from_detections
     from priortrack.geometry.camera import PinholeCamera
 
     detections, calibration = read_detections(CALISCOPE / "xy_HOLISTIC.csv"), read_calibration(CALISCOPE / "config.toml")
     matched = match_cameras(detections, calibration, None)
     up = up_from_detections([PinholeCamera.from_calibration(c) for c in matched], *detections.eval15(0.3),
                             calibration.source)
-    kept = [c for c, name in enumerate(detections.camera_names) if name != left_out]
-    seen = replace(detections, keypoints=detections.keypoints[kept],
-                   camera_names=tuple(detections.camera_names[c] for c in kept), switches=(0,) * len(kept))
+    index = [detections.camera_names.index(name) for name in kept]
+    seen = replace(detections, keypoints=detections.keypoints[index], camera_names=tuple(kept),
+                   switches=(0,) * len(index))
+    return seen, Calibration(tuple(matched[c] for c in index), up, calibration.source, calibration.format,
+                             calibration.units)
+
+
+@pytest.mark.parametrize("left_out", ["cam_1", "cam_2"])
+def test_caliscope_seated_person_starts_from_the_joints_its_other_cameras_see(left_out, caplog):
+    """Without cam_1 or cam_2 the other webcams triangulate the seated person's upper body only (8 joints;
+    the legs under the desk are seen by one camera): the start fits those 8 joints, the bones no tick
+    measures take the template's proportions and the summary names them, and the estimate reprojects into
+    every camera still used within the detector's error (the whole recording's up, as compare gives it)."""
+    from priortrack.experiments.real import track_detections
+
+    seen, calibration = _caliscope_cameras([name for name in ("cam_0", "cam_1", "cam_2", "cam_3") if name != left_out])
     with caplog.at_level(logging.WARNING, logger="priortrack"):
-        result = track_detections(seen, Calibration(tuple(matched[c] for c in kept), up, calibration.source,
-                                                    calibration.format, calibration.units), "ukf-real", fps=30)
+        result = track_detections(seen, calibration, "ukf-real", fps=30)
     assert "the trial shows 8 joints in most ticks" in caplog.text
     summary = result.summary()
     assert summary["bones_unmeasured"] == ["trunk", "hip_width", "thigh", "shin"]
@@ -197,22 +206,11 @@ def test_caliscope_one_webcam_that_never_sees_the_legs_tracks_the_upper_body(cap
     those, its depth from the upper body's least foreshortened length, with a warning that says what that costs;
     the upper body lands within 0.3 m (median) of the 4-camera track (one camera's depth: 164 mm when measured)
     and reprojects within the detector's error."""
-    from dataclasses import replace
+    from priortrack.experiments.real import track_detections
 
-    from priortrack.data.calibration import Calibration
-    from priortrack.experiments.real import match_cameras, track_detections, up_from_detections
-    from priortrack.geometry.camera import PinholeCamera
-
-    detections, calibration = read_detections(CALISCOPE / "xy_HOLISTIC.csv"), read_calibration(CALISCOPE / "config.toml")
-    matched = match_cameras(detections, calibration, None)
-    up = up_from_detections([PinholeCamera.from_calibration(c) for c in matched], *detections.eval15(0.3),
-                            calibration.source)
-    every = track_detections(detections, Calibration(tuple(matched), up, calibration.source, calibration.format,
-                                                     calibration.units), "ukf-real", fps=30)
-    one = replace(detections, keypoints=detections.keypoints[:1], camera_names=("cam_0",), switches=(0,))
+    every = track_detections(*_caliscope_cameras(["cam_0", "cam_1", "cam_2", "cam_3"]), "ukf-real", fps=30)
     with caplog.at_level(logging.WARNING, logger="priortrack"):
-        result = track_detections(one, Calibration(matched[:1], up, calibration.source, calibration.format,
-                                                   calibration.units), "ukf-real", fps=30)
+        result = track_detections(*_caliscope_cameras(["cam_0"]), "ukf-real", fps=30)
     assert "the trial shows 6 joints in most ticks" in caplog.text and "from one camera without the legs" in caplog.text
     assert result.summary()["reprojection_px"]["cam_0"] < 15
     T = min(len(result.joints), len(every.joints))

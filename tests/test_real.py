@@ -500,16 +500,16 @@ def test_the_start_needs_the_joints_the_trial_shows():
 
     seen = np.ones((10, 15), dtype=bool)
     seen[:3, 10] = False                                              # a knee hidden for 3 ticks
-    assert start_joints(seen, "triangulated") == START_JOINTS
+    assert start_joints(seen, False) == START_JOINTS
     seen[:, 9:] = False                                               # the legs never
     seen[: int(10 * VIEW_SHARE), 0] = False                           # the pelvis in half the ticks: shown
-    assert start_joints(seen, "triangulated") == 9
+    assert start_joints(seen, False) == 9
     seen[:, 0] = False
     seen[: int(10 * VIEW_SHARE) + 1, 8] = False                       # a wrist in fewer than half: not shown
-    assert start_joints(seen, "triangulated") == 7 >= MIN_START_JOINTS
+    assert start_joints(seen, False) == 7 >= MIN_START_JOINTS
     seen[:, 5:] = False
     with pytest.raises(PriortrackError, match="only 4 joints .neck, head, lshoulder, lelbow. are triangulated"):
-        start_joints(seen, "triangulated")
+        start_joints(seen, False)
     assert start_ticks(np.array([8, 8, 7, 8, 8]), None, 8).tolist() == [0, 3]
 
 

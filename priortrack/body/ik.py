@@ -124,7 +124,11 @@ def _rest(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
 def unmeasured_measures(X: np.ndarray) -> list[str]:
     """The names of :data:`BODY_MEASURES` that no frame of X (T, 15, 3) measures (:func:`fitted_skeleton`
     gives them the template's proportions)."""
-    distances = measured_distances(X)
+    return _unmeasured(measured_distances(X))
+
+
+def _unmeasured(distances: np.ndarray) -> list[str]:
+    """The names of :data:`BODY_MEASURES` whose distance (of :func:`measured_distances`' 14) is NaN."""
     return [name for name, j in BODY_MEASURES.items() if not np.isfinite(distances[j - 1])]
 
 
@@ -145,14 +149,15 @@ def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | N
     offsets = template.offsets.copy()
     points, rest = _rest(template)
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-    scale = measured_distances(X) / measured_distances((M @ rest)[None])
+    measured = measured_distances(X)
+    scale = measured / measured_distances((M @ rest)[None])
     unmeasured = ~np.isfinite(scale)
     if unmeasured.all():
         raise PriortrackError("body size: no bone is measured (no frame has both ends of any eval15 bone)")
     if unmeasured.any():
         scale[unmeasured] = np.median(scale[~unmeasured])
         log.info("body size: %s never measured; scaled ×%.3f as the measured bones are (the template's "
-                 "proportions)", ", ".join(unmeasured_measures(X)), scale[unmeasured][0])
+                 "proportions)", ", ".join(_unmeasured(measured)), scale[unmeasured][0])
     for j in range(1, 15):
         parent = EVAL15_PARENTS[j]
         chain, k = [], int(index[j])
@@ -265,18 +270,17 @@ def _metres_per_pixel(rest: np.ndarray, uv: np.ndarray, seen: np.ndarray) -> flo
         shown = seen[:, a + b].all(axis=1)
         image = np.linalg.norm(uv[:, a].mean(axis=1) - uv[:, b].mean(axis=1), axis=-1)
         body = np.linalg.norm(rest[a].mean(axis=0) - rest[b].mean(axis=0))
-        return np.where(shown & (image >= 1), body / np.where(image >= 1, image, 1.0), np.nan)
+        return np.divide(body, image, out=np.full(len(image), np.nan), where=shown & (image >= 1))
 
     full = ratios(_FULL_LENGTH)
     if np.isfinite(full).any():
         return float(np.nanmedian(full))
     upper = np.stack([ratios(pair) for pair in _UPPER_LENGTHS], axis=1)               # (T, 6)
-    least = np.where(np.isfinite(upper).any(axis=1), np.nanmin(np.where(np.isfinite(upper), upper, np.inf), axis=1),
-                     np.nan)
-    if not np.isfinite(least).any():
+    least = np.where(np.isfinite(upper), upper, np.inf).min(axis=1)                  # inf: no length in the frame
+    if np.isinf(least).all():
         raise PriortrackError("inverse kinematics from one camera: neither the neck and both ankles nor any length "
                               "of the upper body (shoulders, neck to head, arms) is ever seen: no depth for the body")
-    return float(np.nanmedian(least))
+    return float(np.median(least[np.isfinite(least)]))
 
 
 @dataclass(frozen=True)

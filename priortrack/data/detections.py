@@ -206,7 +206,7 @@ def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Det
     frames = np.array(sorted(set().union(*(frames.keys() for frames in per_camera))))
     check_frames(frames, str(path))
     K = len(LAYOUTS[layout])
-    out = np.full((len(folders), len(frames), K, 3), np.nan)
+    out = np.full((len(folders), len(frames), K, 3), np.nan, dtype=np.float32)
     switches = []
     for c, by_frame in enumerate(per_camera):
         people = [by_frame.get(int(n), []) for n in frames]
@@ -365,7 +365,7 @@ def _read_npy(path: Path, keypoints: str | None) -> Detections:
     kp = kp[:, :, :K].astype(np.float32)
     if D == 2:
         log.warning("%s: no confidence in the array; every point is taken at confidence 1", path)
-        kp = np.concatenate([kp, np.ones(kp.shape[:-1] + (1,))], axis=-1)
+        kp = np.concatenate([kp, np.ones(kp.shape[:-1] + (1,), dtype=np.float32)], axis=-1)
     if np.isinf(kp).any():
         raise PriortrackError(f"{path}: inf at {np.argwhere(np.isinf(kp))[0].tolist()}; NaN marks a missing point")
     if (kp[..., 2] < 0).any():

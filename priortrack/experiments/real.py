@@ -416,7 +416,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                         np.nan_to_num(z[..., 2]).transpose(1, 0, 2))             # (T, 15, 3), working frame
         seen = np.isfinite(X).all(axis=-1)
     counts = seen.sum(axis=-1)
-    needed = start_joints(seen, 'detected' if single else 'seen by two cameras')
+    needed = start_joints(seen, single)
     residual = None if single else np.stack(                                       # (T,): each tick's worst camera
         [np.nan_to_num(median_reprojection(camera, X, z[:, c]), nan=-np.inf) for c, camera in enumerate(cameras)]).max(axis=0)
     good = start_ticks(counts, residual, needed)
@@ -607,22 +607,23 @@ def pose_spread(preset: Preset, prior, skeleton: Skeleton) -> PoseSpread | None:
     return PoseSpread.of(motions)
 
 
-def start_joints(seen: np.ndarray, how: str) -> int:
+def start_joints(seen: np.ndarray, single: bool) -> int:
     """The joints a start tick needs (:data:`START_JOINTS`, or fewer where the trial never shows as many)
-    from ``seen`` (T, 15) bool, each tick's joints ``how`` seen (triangulated or detected); logged when fewer,
-    refused below MIN_START_JOINTS."""
+    from ``seen`` (T, 15) bool, each tick's joints triangulated (``single``: detected by the one camera); logged
+    when fewer, refused below MIN_START_JOINTS."""
+    how = "detected" if single else "triangulated"
     shown = (seen.mean(axis=0) >= VIEW_SHARE) if len(seen) else np.zeros(15, dtype=bool)
     if shown.sum() >= START_JOINTS:
         return START_JOINTS
     if shown.sum() < MIN_START_JOINTS:
         raise PriortrackError(f"only {int(shown.sum())} joints ({', '.join(np.array(EVAL15_NAMES)[shown]) or 'none'}) "
                               f"are {how} in at least {VIEW_SHARE:.0%} of the ticks; the start needs "
-                              f"{MIN_START_JOINTS} (the upper body in view of {'the camera' if how == 'detected' else 'two cameras'})")
+                              f"{MIN_START_JOINTS} (the upper body in view of {'the camera' if single else 'two cameras'})")
     log.warning("the trial shows %d joints in most ticks (%s; %s missing): the start fits those%s", int(shown.sum()),
                 ", ".join(np.array(EVAL15_NAMES)[shown]), ", ".join(np.array(EVAL15_NAMES)[~shown]),
                 "; from one camera without the legs the body's depth rests on the upper body's image size (walks "
                 "with the legs hidden, on the real-format bench: 0.4–1.1 m off along the ray, against 0.1–0.2 m with "
-                "them)" if how == "detected" and not shown[[11, 14]].any() else "")
+                "them)" if single and not shown[[11, 14]].any() else "")
     return int(shown.sum())
 
 
