@@ -174,8 +174,7 @@ def _caliscope_cameras(kept: list[str]):
 
     detections, calibration = read_detections(CALISCOPE / "xy_HOLISTIC.csv"), read_calibration(CALISCOPE / "config.toml")
     matched = match_cameras(detections, calibration, None)
-    up = up_from_detections([PinholeCamera.from_calibration(c) for c in matched], *detections.eval15(0.3),
-                            calibration.source)
+    up = up_from_detections([PinholeCamera.from_calibration(c) for c in matched], detections, 0.3, calibration.source)
     index = [detections.camera_names.index(name) for name in kept]
     seen = replace(detections, keypoints=detections.keypoints[index], camera_names=tuple(kept),
                    switches=(0,) * len(index))

@@ -191,15 +191,18 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
                               f"fewer than 6 known joints")
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
     skeleton = skeleton or fitted_skeleton(template, X, M)
-    target = torch.as_tensor(np.where(seen[..., None], X, 0.0))
-    mask = torch.as_tensor(seen, dtype=torch.float64)[..., None]
     pelvis = np.where(seen[:, :1, None], X[:, :1], np.nanmean(X, axis=1, keepdims=True))[:, 0]
-    parts = [slice(start, min(start + CHUNK, len(X))) for start in range(0, len(X), CHUNK)]
-    channels = np.concatenate([
-        _fit(skeleton, part.stop - part.start,
-             lambda joints, frames, part=part: ((joints - target[part][frames]) * mask[part][frames]).flatten(-2),
-             pelvis[part], M, pose)
-        for part in parts])
+
+    def residual(part: slice):
+        """The residual closure of the frames ``part`` (their targets built here: a chunk's, not the run's)."""
+        target = torch.as_tensor(np.where(seen[part, :, None], X[part], 0.0))
+        mask = torch.as_tensor(seen[part], dtype=torch.float64)[..., None]
+        return lambda joints, frames: ((joints - target[frames]) * mask[frames]).flatten(-2)
+
+    channels = np.empty((len(X), skeleton.num_channels))
+    for start in range(0, len(X), CHUNK):
+        part = slice(start, min(start + CHUNK, len(X)))
+        channels[part] = _fit(skeleton, part.stop - part.start, residual(part), pelvis[part], M, pose)
     return Motion(skeleton, channels, float(fps), name)
 
 

@@ -77,7 +77,7 @@ def _track_detections(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from priortrack.data.calibration import read_calibration
-    from priortrack.data.detections import read_detections
+    from priortrack.data.detections import open_detections
     from priortrack.experiments.real import RESULT_SUFFIXES, track_detections
     from priortrack.filters.step_store import DEFAULT_MEMORY, parse_memory
 
@@ -101,7 +101,7 @@ def _track_detections(args: argparse.Namespace) -> None:
             raise PriortrackError(f"--camera-map must be FOLDER=CAMERA,…, got {args.camera_map!r}")
         camera_map = dict(pairs)
     skeleton = _skeleton(args.skeleton) if args.skeleton else None
-    detections = read_detections(args.detections, keypoints=args.keypoints, person=args.person)
+    detections = open_detections(args.detections, keypoints=args.keypoints, person=args.person)   # npz, npy: in blocks
     if args.frames is not None:
         detections = detections.head(args.frames)
     calibration = read_calibration(args.cameras, units=args.units)

@@ -44,7 +44,7 @@ import numpy as np
 
 from priortrack.data.caliscope import is_caliscope_csv, read_caliscope
 from priortrack.data.keypoints import LAYOUTS, layout_for, layout_of_names, to_eval15
-from priortrack.data.npz import read_npz
+from priortrack.data.npz import ArrayOnDisk, npz_member_on_disk, read_npz
 from priortrack.errors import PriortrackError
 
 log = logging.getLogger(__name__)
@@ -96,20 +96,41 @@ class Detections:
 
     def head(self, n: int) -> "Detections":
         """The first ``n`` frames (all of them if there are fewer)."""
-        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-            raise PriortrackError(f"frames must be a positive count, got {n!r}")
+        n = _count(n)
         return replace(self, keypoints=self.keypoints[:, :n], frames=self.frames[:n])
 
-    def eval15(self, min_confidence: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
-        """(C, T, 15, 2) eval15 pixels, NaN where missing or below ``min_confidence``, and their
-        confidences (C, T, 15) (:func:`priortrack.data.keypoints.to_eval15`)."""
-        if not 0 <= min_confidence < 1:
-            raise PriortrackError(f"min_confidence must be in [0, 1), got {min_confidence}")
-        return to_eval15(self.keypoints, self.keypoint_names, min_confidence)
+    def eval15(self, min_confidence: float = 0.3, start: int = 0, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(C, T, 15, 2) eval15 pixels of the frames [start, stop) (all by default), NaN where missing or
+        below ``min_confidence``, and their confidences (C, T, 15) (:func:`priortrack.data.keypoints.to_eval15`)."""
+        return _eval15(self.keypoints[:, start:stop], self.keypoint_names, min_confidence)
+
+    def load(self) -> "Detections":
+        """These detections (already in memory; :meth:`DetectionFile.load` reads a file's)."""
+        return self
+
+
+def _count(n) -> int:
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise PriortrackError(f"frames must be a positive count, got {n!r}")
+    return n
+
+
+def _eval15(keypoints: np.ndarray, names: tuple[str, ...], min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    if not 0 <= min_confidence < 1:
+        raise PriortrackError(f"min_confidence must be in [0, 1), got {min_confidence}")
+    return to_eval15(keypoints, names, min_confidence)
 
 
 def read_detections(path: str | Path, keypoints: str | None = None, person: int | None = None) -> Detections:
     """Read detections (module docstring): an OpenPose folder, a COCO results ``.json``, or an ``.npz``."""
+    return open_detections(path, keypoints, person).load()
+
+
+def open_detections(path: str | Path, keypoints: str | None = None,
+                    person: int | None = None) -> "Detections | DetectionFile":
+    """:func:`read_detections`, except that an ``.npy``, or an ``.npz`` whose keypoints are stored
+    uncompressed (``np.savez``), is opened as a :class:`DetectionFile` (its keypoints read a block of frames
+    at a time when tracked); the other formats (and a compressed npz) are read whole."""
     path = Path(path)
     if person is not None and (isinstance(person, bool) or not isinstance(person, int) or person < 0):
         raise PriortrackError(f"person must be a non-negative index, got {person!r}")
@@ -119,11 +140,11 @@ def read_detections(path: str | Path, keypoints: str | None = None, person: int 
         raise PriortrackError(f"detections {path} do not exist")
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return _read_npz(path, keypoints)
+        return _npz_source(path, keypoints)
     if suffix == ".json":
         return _read_coco_results(path, keypoints, person)
     if suffix == ".npy":
-        return _read_npy(path, keypoints)
+        return _npy_source(path, keypoints)
     if suffix == ".csv" and is_caliscope_csv(path):
         return read_caliscope(path, keypoints)
     raise PriortrackError(f"{path}: detections are a folder of OpenPose JSON files, a COCO results .json, an .npz, "
@@ -298,16 +319,20 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
     return Detections(followed[None], layout, (path.stem,), frames, None, str(path), (switches,))
 
 
-def _read_npz(path: Path, keypoints: str | None) -> Detections:
-    arrays = read_npz(path, MAX_NPZ_BYTES, "detections file")
-    for key in ("keypoints", "keypoint_names"):
-        if key not in arrays:
-            raise PriortrackError(f"{path}: the array {key!r} is missing")
-    kp = arrays["keypoints"]
-    if kp.ndim != 4 or kp.shape[-1] != 3 or kp.dtype.kind not in "fiu":
-        raise PriortrackError(f"{path}: keypoints has shape {kp.shape} ({kp.dtype}); expected (cameras, frames, "
+def _npz_source(path: Path, keypoints: str | None) -> "Detections | DetectionFile":
+    arrays = read_npz(path, MAX_NPZ_BYTES, "detections file", skip=("keypoints",))
+    if "keypoint_names" not in arrays:
+        raise PriortrackError(f"{path}: the array 'keypoint_names' is missing")
+    on_disk = npz_member_on_disk(path, "keypoints")
+    if on_disk is None:                          # compressed: read whole
+        kp = read_npz(path, MAX_NPZ_BYTES, "detections file")["keypoints"]
+        shape, dtype = kp.shape, kp.dtype
+    else:
+        kp, shape, dtype = None, on_disk.shape, on_disk.dtype
+    if len(shape) != 4 or shape[-1] != 3 or dtype.kind not in "fiu":
+        raise PriortrackError(f"{path}: keypoints has shape {shape} ({dtype}); expected (cameras, frames, "
                               f"keypoints, 3) numbers")
-    C, T, K, _ = kp.shape
+    C, T, K, _ = shape
     if not 1 <= C <= MAX_CAMERAS or T < 1:
         raise PriortrackError(f"{path}: keypoints has {C} cameras and {T} frames")
     names = tuple(str(n) for n in arrays["keypoint_names"].reshape(-1))
@@ -316,16 +341,6 @@ def _read_npz(path: Path, keypoints: str | None) -> Detections:
     layout, order = layout_of_names(names, str(path))
     if keypoints is not None and layout_for(keypoints, K, str(path)) != layout:
         raise PriortrackError(f"{path}: keypoint_names are layout {layout}, not {keypoints}")
-    kp = kp[:, :, order].astype(np.float32)
-    conf = kp[..., 2]
-    bad = np.isfinite(conf) & (conf < 0)
-    if bad.any():
-        raise PriortrackError(f"{path}: keypoints has negative confidences (first at {np.argwhere(bad)[0].tolist()})")
-    if np.isinf(kp).any():
-        raise PriortrackError(f"{path}: keypoints has inf (first at {np.argwhere(np.isinf(kp))[0].tolist()}); "
-                              f"NaN marks a missing keypoint")
-    kp[np.isnan(conf) | (conf == 0) | np.isnan(kp[..., :2]).any(axis=-1) |
-       (kp[..., :2] == 0).all(axis=-1)] = np.nan                 # (0, 0, c): OpenPose's "not found"
     frames = arrays.get("frames", np.arange(T))
     if frames.shape != (T,) or frames.dtype.kind not in "iu" or np.any(np.diff(frames) <= 0):
         raise PriortrackError(f"{path}: frames must be {T} increasing integers")
@@ -336,19 +351,23 @@ def _read_npz(path: Path, keypoints: str | None) -> Detections:
     names_c = tuple(str(n) for n in arrays.get("camera_names", np.array([f"cam{c + 1}" for c in range(C)])))
     if len(names_c) != C:
         raise PriortrackError(f"{path}: {len(names_c)} camera_names for {C} cameras")
-    return Detections(kp, layout, names_c, frames.astype(int), fps, str(path), (0,) * C)
+    source = DetectionFile(on_disk, tuple(int(k) for k in order), layout, names_c, frames.astype(int), fps, str(path),
+                           (0,) * C)
+    return source if kp is None else source.in_memory(cleaned_keypoints(kp, source.order, source.source))
 
 
-def _read_npy(path: Path, keypoints: str | None) -> Detections:
+def _npy_source(path: Path, keypoints: str | None) -> "Detections | DetectionFile":
     """FreeMoCap-style 2D: an array (cameras, frames, points, 2 or 3) of x, y[, confidence], NaN (or
     (0, 0, 0)) where missing; MediaPipe's 33 body points first (FreeMoCap's 543 = body, hands, face)."""
-    from priortrack.data.npz import read_npy
+    from priortrack.data.npz import npy_on_disk, read_npy
 
-    kp = read_npy(path, MAX_NPZ_BYTES, "detections array")
-    if kp.ndim != 4 or kp.shape[-1] not in (2, 3) or kp.dtype.kind not in "fiu":
-        raise PriortrackError(f"{path}: an array of shape {kp.shape} ({kp.dtype}); expected (cameras, frames, points, "
+    on_disk = npy_on_disk(path, MAX_NPZ_BYTES, "detections array")
+    kp = read_npy(path, MAX_NPZ_BYTES, "detections array") if on_disk is None else None
+    shape, dtype = (kp.shape, kp.dtype) if on_disk is None else (on_disk.shape, on_disk.dtype)
+    if len(shape) != 4 or shape[-1] not in (2, 3) or dtype.kind not in "fiu":
+        raise PriortrackError(f"{path}: an array of shape {shape} ({dtype}); expected (cameras, frames, points, "
                               f"2 or 3) numbers")
-    C, T, P, D = kp.shape
+    C, T, P, D = shape
     if not 1 <= C <= MAX_CAMERAS or T < 1:
         raise PriortrackError(f"{path}: {C} cameras and {T} frames")
     if keypoints is not None:
@@ -362,14 +381,79 @@ def _read_npy(path: Path, keypoints: str | None) -> Detections:
     K = len(LAYOUTS[layout])
     if P < K:
         raise PriortrackError(f"{path}: {P} points per frame, fewer than layout {layout}'s {K}")
-    kp = kp[:, :, :K].astype(np.float32)
     if D == 2:
         log.warning("%s: no confidence in the array; every point is taken at confidence 1", path)
+    source = DetectionFile(on_disk, tuple(range(K)), layout, tuple(f"cam_{c}" for c in range(C)), np.arange(T), None,
+                           str(path), (0,) * C)
+    return source if kp is None else source.in_memory(cleaned_keypoints(kp, source.order, source.source))
+
+
+def cleaned_keypoints(stored: np.ndarray, order: tuple[int, ...], where: str, first: int = 0) -> np.ndarray:
+    """(C, T, K, 3) float32 keypoints of a layout from a file's (C, T, P, 2 or 3) x, y[, confidence]: its
+    points ``order`` (the layout's, in the layout's order), confidence 1 where the file has none, checked (no
+    inf, no negative confidence: refused, naming the [camera, frame, keypoint] counted from ``first``), and NaN
+    where missing (a NaN, confidence 0, or the point (0, 0) as OpenPose writes it)."""
+    with np.errstate(over="ignore"):                # beyond float32's range: inf, refused below
+        kp = stored[:, :, list(order)].astype(np.float32)
+    if kp.shape[-1] == 2:
         kp = np.concatenate([kp, np.ones(kp.shape[:-1] + (1,), dtype=np.float32)], axis=-1)
+
+    def at(bad: np.ndarray) -> list[int]:
+        return (np.argwhere(bad)[0] + [0, first, 0]).tolist()
+
     if np.isinf(kp).any():
-        raise PriortrackError(f"{path}: inf at {np.argwhere(np.isinf(kp))[0].tolist()}; NaN marks a missing point")
+        raise PriortrackError(f"{where}: keypoints has inf or a value beyond float32's range (first at "
+                              f"{at(np.isinf(kp).any(axis=-1))}); NaN marks a missing keypoint")
     if (kp[..., 2] < 0).any():
-        raise PriortrackError(f"{path}: negative confidences (first at {np.argwhere(kp[..., 2] < 0)[0].tolist()})")
-    missing = np.isnan(kp).any(axis=-1) | (kp[..., 2] == 0) | (kp[..., :2] == 0).all(axis=-1)
-    kp[missing] = np.nan
-    return Detections(kp, layout, tuple(f"cam_{c}" for c in range(C)), np.arange(T), None, str(path), (0,) * C)
+        raise PriortrackError(f"{where}: keypoints has negative confidences (first at {at(kp[..., 2] < 0)})")
+    kp[np.isnan(kp).any(axis=-1) | (kp[..., 2] == 0) | (kp[..., :2] == 0).all(axis=-1)] = np.nan
+    return kp
+
+
+@dataclass(frozen=True)
+class DetectionFile:
+    """Detections of an .npz or .npy whose keypoints stay in the file and are read a block of frames at a
+    time: :class:`Detections`' fields and its :meth:`eval15` of a block, without the (C, T, K, 3) array in
+    memory, so that tracking a long recording (:func:`~priortrack.experiments.real.track_detections`)
+    does not hold it. Each block is checked as it is read (:func:`cleaned_keypoints`). :func:`open_detections`
+    gives one; :meth:`load` reads it whole.
+
+    Attributes:
+        array: the stored keypoints (C, T_stored, P, 2 or 3) on disk (:class:`~priortrack.data.npz.ArrayOnDisk`).
+        order: (K,) the stored points of the layout, in its order.
+        layout, camera_names, frames, fps, source, switches: as :class:`Detections`' (``frames`` may be the
+            first T of the stored frames: :meth:`head`)."""
+
+    array: ArrayOnDisk | None
+    order: tuple[int, ...]
+    layout: str
+    camera_names: tuple[str, ...]
+    frames: np.ndarray
+    fps: float | None
+    source: str
+    switches: tuple[int, ...] = ()
+
+    @property
+    def keypoint_names(self) -> tuple[str, ...]:
+        return LAYOUTS[self.layout]
+
+    def keypoints_of(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """(C, stop − start, K, 3) float32 keypoints of the frames [start, stop) (:func:`cleaned_keypoints`)."""
+        stop = len(self.frames) if stop is None else min(stop, len(self.frames))
+        return cleaned_keypoints(self.array.columns(start, stop), self.order, self.source, start)
+
+    def eval15(self, min_confidence: float = 0.3, start: int = 0, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`Detections.eval15` of the frames [start, stop), read from the file."""
+        return _eval15(self.keypoints_of(start, stop), self.keypoint_names, min_confidence)
+
+    def head(self, n: int) -> "DetectionFile":
+        """The first ``n`` frames (all of them if there are fewer)."""
+        return replace(self, frames=self.frames[:_count(n)])
+
+    def in_memory(self, keypoints: np.ndarray) -> Detections:
+        """These detections with their (C, T, K, 3) ``keypoints`` (cleaned) in memory."""
+        return Detections(keypoints, self.layout, self.camera_names, self.frames, self.fps, self.source, self.switches)
+
+    def load(self) -> Detections:
+        """Every frame's keypoints, read into memory."""
+        return self.in_memory(self.keypoints_of())

@@ -153,7 +153,7 @@ def run(config: RunConfig, cache: str | None = None, rrd: bool = False) -> tuple
     from priortrack.body.fk import joint_positions
     from priortrack.experiments.metrics import mpjpe
     from priortrack.experiments.presets import load_preset
-    from priortrack.experiments.real import frame_log_likelihoods, mismatch_flags
+    from priortrack.experiments.real import detection_weight, frame_log_likelihoods, mismatch_flags
     from priortrack.experiments.tracking import track
     from priortrack.filters.snapshot import KNOWN_FRAMES
     from priortrack.threads import torch_threads
@@ -170,7 +170,7 @@ def run(config: RunConfig, cache: str | None = None, rrd: bool = False) -> tuple
     particles = preset.filter_kind in ("pf", "apf")          # the UKF's "ESS" counts sigma points: none
     loglik = frame_log_likelihoods(likelihood, result.track.estimates, uv)     # (mismatch_flags skips the known frames)
     confident = np.concatenate([uv, np.ones(uv.shape[:2] + (1,))], -1)[:, None]          # (T, 1, J, 3)
-    mismatch = mismatch_flags(loglik, confident, likelihood)
+    mismatch = mismatch_flags(loglik, detection_weight(confident), likelihood)
     row = {"filter": config.filter, "motion": config.motion, "scenario": config.scenario, "seed": config.seed,
            "mpjpe_mm": r["mpjpe_mm"], "rootrel_mm": r["mpjpe_root_rel_mm"], "px_err": r["err2d_px"],
            "failure_rate": float(np.mean(error[KNOWN_FRAMES:] > FAILURE_MM)),

@@ -279,7 +279,7 @@ def run_detections(config: DetectionRunConfig, cache: str | None = None,
     cameras = [PinholeCamera.from_calibration(c) for c in matched]
     uv, confidence = detections.eval15(0.3)
     # the world's up is the recording's: from the file, else from the person seen by every camera
-    up = calibration.up if calibration.up is not None else up_from_detections(cameras, uv, confidence,
+    up = calibration.up if calibration.up is not None else up_from_detections(cameras, detections, 0.3,
                                                                               calibration.source)
     seen = replace(detections, keypoints=detections.keypoints[kept], camera_names=tuple(names[c] for c in kept),
                    switches=tuple(detections.switches[c] for c in kept) if detections.switches else ())

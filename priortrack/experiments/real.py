@@ -83,6 +83,7 @@ from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.frames import in_working_frame, to_y_up, up_from_person, up_vector
 from priortrack.geometry.triangulation import triangulate
 from priortrack.models.tracking import TrackingModel
+from priortrack.observation.ticks import BLOCK_TICKS, TickObservations
 from priortrack.observation.multiview import DEFAULT_NU, DEFAULT_SIGMA_PX, MultiViewLikelihood
 from priortrack.output import output_path
 
@@ -168,9 +169,10 @@ class DetectionTrack:
     #: Y-up working frame, in the body's own definitions (for the BVH).
     skeleton: object = field(default=None, repr=False)
     body_joints: np.ndarray | None = field(default=None, repr=False)
-    #: The cameras in the calibration's world, and the observations per tick (T, C, 15, 3).
+    #: The cameras in the calibration's world, and the observations per tick (T, C, 15, 3): a
+    #: :class:`~priortrack.observation.ticks.TickObservations`, which reads them from the detections as asked.
     cameras: list[PinholeCamera] = field(default_factory=list, repr=False)
-    observations: np.ndarray | None = field(default=None, repr=False)
+    observations: TickObservations | None = field(default=None, repr=False)
     #: The filter's snapshots where kept (``keep_snapshots``: every ``snapshot_every``-th tick's), and the
     #: compact record of every tick's step (:class:`~priortrack.filters.snapshot.StepRecord`).
     snapshots: list | None = field(default=None, repr=False)
@@ -327,32 +329,73 @@ def schedule(frames: np.ndarray, data_fps: float, prior_fps: float) -> np.ndarra
     return index
 
 
-def _check_in_front(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[str, ...], source: str) -> None:
-    """Refuse a camera that the person it detects (z: (T, C, 15, 3)), triangulated by every camera,
-    lies behind: its pose is not the calibration's convention (camera → world read as world →
-    camera, or a flipped axis)."""
+def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple[str, ...], source: str,
+                 min_confidence: float) -> tuple[np.ndarray | None, np.ndarray, np.ndarray | None, np.ndarray]:
+    """One pass over the run's ticks z, a block at a time (module docstring, step 3): each tick's
+    triangulation X (T, 15, 3) in the working frame after the cross-view check (None with one camera),
+    the joints seen (T, 15) (triangulated; one camera: detected), each tick's worst camera's median
+    reprojection of X (T,) (None with one camera; −inf where none is measured) and the camera-ticks left
+    out as following someone else (T, C) (:func:`cross_view_check`, logged). Refused: a camera that sees
+    none of the detections, or that the person lies behind (:func:`_behind`)."""
+    T, C = len(z), len(cameras)
+    single = C == 1
+    X = None if single else np.full((T, 15, 3), np.nan)
+    residual = None if single else np.full(T, -np.inf)
+    seen, left_out = np.zeros((T, 15), dtype=bool), np.zeros((T, C), dtype=bool)
+    shown, behind = np.zeros(C, dtype=bool), np.zeros((C, 2), dtype=int)
+    for start, block in z.blocks(raw=True):
+        ticks = slice(start, start + len(block))
+        shown |= (np.nan_to_num(block[..., 2]) > 0).any(axis=(0, 2))
+        behind += _behind(cameras, block)
+        left_out[ticks] = cross_view_check(cameras, block)
+        if single:
+            seen[ticks] = (np.nan_to_num(block[:, 0, :, 2]) > 0) & np.isfinite(block[:, 0, :, 0])
+            continue
+        X[ticks] = triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3),
+                               np.nan_to_num(block[..., 2]).transpose(1, 0, 2))
+        seen[ticks] = np.isfinite(X[ticks]).all(axis=-1)
+        residual[ticks] = np.stack([np.nan_to_num(median_reprojection(camera, X[ticks], block[:, c]), nan=-np.inf)
+                                    for c, camera in enumerate(cameras)]).max(axis=0)
+    for c in np.flatnonzero(~shown):
+        raise PriortrackError(f"camera {names[c]} sees none of the detections (no joint above confidence "
+                              f"{min_confidence})")
+    for c, (joints, back) in enumerate(behind):
+        if joints >= 10 and back > 0.9 * joints:
+            raise PriortrackError(f"{source}: camera {names[c]!r}: {100 * back / joints:.0f}% of the person it detects "
+                                  f"lies behind it once triangulated; its rotation and translation are not world → "
+                                  f"camera as read (a camera → world file, or a wrong sign?)")
+    for c in np.flatnonzero(left_out.any(axis=0)):
+        log.warning("camera %s: at %d ticks its person is not the one the other cameras see; those detections "
+                    "are left out", names[c], int(left_out[:, c].sum()))
+    return X, seen, residual, left_out
+
+
+def _behind(cameras: list[PinholeCamera], z: np.ndarray) -> np.ndarray:
+    """(C, 2) per camera: the joints it detects (z: (T, C, 15, 3)) that every camera's triangulation
+    places, and how many of them lie behind it (a camera that sees nearly everything behind it has a
+    pose that is not the calibration's convention: camera → world read as world → camera, a flipped axis)."""
+    out = np.zeros((len(cameras), 2), dtype=int)
     if len(cameras) < 2:
-        return
+        return out
     X = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(z[..., 2]).transpose(1, 0, 2))
     for c, camera in enumerate(cameras):
         seen = np.isfinite(X).all(axis=-1) & np.isfinite(z[:, c, :, 0])
-        if seen.sum() < 10:
-            continue
-        behind = ~camera.project(np.where(seen[..., None], X, 0.0))[1][seen]
-        if behind.mean() > 0.9:
-            raise PriortrackError(f"{source}: camera {names[c]!r}: {100 * behind.mean():.0f}% of the person it detects "
-                                  f"lies behind it once triangulated; its rotation and translation are not world → "
-                                  f"camera as read (a camera → world file, or a wrong sign?)")
+        out[c] = seen.sum(), (~camera.project(np.where(seen[..., None], X, 0.0))[1][seen]).sum()
+    return out
 
 
-def up_from_detections(cameras: list[PinholeCamera], uv: np.ndarray, confidence: np.ndarray,
-                        source: str) -> np.ndarray:
+def up_from_detections(cameras: list[PinholeCamera], detections, min_confidence: float, source: str) -> np.ndarray:
     """The world's up found from the person (:func:`priortrack.geometry.frames.up_from_person`) over
-    the detections' frames triangulated in the calibration's world; logged."""
+    every frame of the detections (:class:`~priortrack.data.detections.Detections` or a
+    :class:`~priortrack.data.detections.DetectionFile`, read BLOCK_TICKS frames at a time) triangulated in
+    the calibration's world; logged."""
     if len(cameras) < 2:
         raise PriortrackError(f"{source} gives no vertical and one camera cannot triangulate the person to find "
                               f"it; give it (--up: an axis or a vector X,Y,Z)")
-    up, what, frames = up_from_person(triangulate(cameras, uv, confidence))
+    frames = len(detections.frames)
+    X = np.concatenate([triangulate(cameras, *detections.eval15(min_confidence, start, start + BLOCK_TICKS))
+                        for start in range(0, frames, BLOCK_TICKS)])
+    up, what, frames = up_from_person(X)
     log.info("%s gives no vertical: up %s found from the person (%s, robust mean over %d frames)", source,
              np.round(up, 3).tolist(), what, frames)
     return up
@@ -378,8 +421,12 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     ``memory``: bytes of the whole-run smoother's steps held in memory, the rest spilled to a temporary
     folder (:class:`~priortrack.filters.step_store.StepStore`).
 
-    Memory: each tick's spread and step record are taken as the filter goes; its point sets are let go
-    unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
+    Memory: the detections' observations are read a block of ticks at a time
+    (:class:`~priortrack.observation.ticks.TickObservations`; from a file too, given a
+    :class:`~priortrack.data.detections.DetectionFile`), in a pass over the whole trial for the start
+    (each tick's triangulation is kept, (T, 15, 3)), as the filter goes, and for the result's
+    reprojection errors; each tick's spread and step record are taken as the filter goes; its point sets
+    are let go unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
     start_time = time.perf_counter()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     data_fps = fps if fps is not None else detections.fps
@@ -389,36 +436,21 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         raise PriortrackError(f"fps must be a positive frame rate, got {data_fps}")
     calibrated = match_cameras(detections, calibration, camera_map)
     world_cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
-    uv, confidence = detections.eval15(min_confidence)                           # (C, T, 15, 2), (C, T, 15)
     up = up if up is not None else calibration.up
     if up is None:
-        up = up_from_detections(world_cameras, uv, confidence, calibration.source)
+        up = up_from_detections(world_cameras, detections, min_confidence, calibration.source)
     up = up if isinstance(up, str) and up in UP_AXES else up_vector(up)
     A = to_y_up(up)
     cameras = [in_working_frame(c, A) for c in world_cameras]
-    for c, name in enumerate(detections.camera_names):
-        if not (confidence[c] > 0).any():
-            raise PriortrackError(f"camera {name} sees none of the detections (no joint above confidence "
-                                  f"{min_confidence})")
     prior = preset.prior(cache)
     index = schedule(detections.frames, data_fps, prior.fps)
-    z = np.full((len(index), len(cameras), 15, 3), np.nan)
-    used = index >= 0
-    z[used, :, :, :2] = uv[:, index[used]].transpose(1, 0, 2, 3)
-    z[used, :, :, 2] = confidence[:, index[used]].transpose(1, 0, 2)
-    _check_in_front(cameras, z, detections.camera_names, calibration.source)
-    rejected = cross_view_check(cameras, z, detections.camera_names)
+    z = TickObservations(detections, index, min_confidence)        # (T, C, 15, 3), read a block at a time
     single = len(cameras) == 1
-    if single:                                     # joints detected per tick; else triangulated per tick
-        seen = (np.nan_to_num(z[:, 0, :, 2]) > 0) & np.isfinite(z[:, 0, :, 0])
-    else:
-        X = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3),
-                        np.nan_to_num(z[..., 2]).transpose(1, 0, 2))             # (T, 15, 3), working frame
-        seen = np.isfinite(X).all(axis=-1)
+    X, seen, residual, z.left_out = _whole_trial(cameras, z, detections.camera_names, calibration.source,
+                                                 min_confidence)
+    rejected = int(z.left_out.sum())
     counts = seen.sum(axis=-1)
     needed = start_joints(seen, single)
-    residual = None if single else np.stack(                                       # (T,): each tick's worst camera
-        [np.nan_to_num(median_reprojection(camera, X, z[:, c]), nan=-np.inf) for c, camera in enumerate(cameras)]).max(axis=0)
     good = start_ticks(counts, residual, needed)
     if not len(good):
         raise PriortrackError(f"no two consecutive frames have {needed} joints "
@@ -439,7 +471,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         unmeasured = () if single else tuple(unmeasured_measures(X))
     pose = pose_spread(preset, prior, skeleton)
     if single:
-        ticks = z[first:window, 0]
+        ticks = z[first:window][:, 0]
         fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
                                        pose=pose)
     else:
@@ -453,7 +485,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     filt = preset.filter_for(model, seed, device)
     torch.manual_seed(seed)
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
-    z, index = z[first:], index[first:]                # from here on, tick 0 is the filter's first
+    z, index = z.between(first), index[first:]         # from here on, tick 0 is the filter's first
     X = None if single else X[first:]
     spread = np.full((len(z), 15), np.nan)
     whole = smooth and lag is None                 # the whole run's smoother: what it needs of every step
@@ -482,7 +514,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         smoothed = online.result(run.estimates[:KNOWN_FRAMES]) if online is not None else None
     T = len(run.estimates) if smoothed is None else min(len(run.estimates), len(smoothed.estimates))
     if T < len(z):                                 # interrupted: what was tracked until then
-        z, index, spread, X = z[:T], index[:T], spread[:T], None if X is None else X[:T]
+        z, index, spread, X = z.between(0, T), index[:T], spread[:T], None if X is None else X[:T]
         run = replace(run, estimates=run.estimates[:T], ess=run.ess[:T], steps=run.steps[:T - KNOWN_FRAMES])
         smoothed = None if smoothed is None else replace(smoothed, estimates=smoothed.estimates[:T],
                                                          spread=smoothed.spread[:T])
@@ -490,15 +522,15 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
     estimates = run.estimates if smoothed is None else smoothed.estimates
     loglik = frame_log_likelihoods(model.likelihood, run.estimates, z)
-    mismatch = mismatch_flags(loglik, z, model.likelihood)
-    lost = None if single else lost_flags(np.einsum("ij,tjk->tik", M, run.estimates), X)
     joints = in_world(estimates, A)
+    errors, weight = _reprojection_errors(world_cameras, joints, z)
+    mismatch = mismatch_flags(loglik, weight, model.likelihood)
+    lost = None if single else lost_flags(np.einsum("ij,tjk->tik", M, run.estimates), X)
     # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
     ess = np.asarray(run.ess, dtype=float) if preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
-    consumed = np.where(index[:, None] >= 0, confidence[:, index], 0.0)      # (C, T, 15): none at a tick without a frame
-    errors = [pixel_errors(cam, joints, uv[c, index], consumed[c]) for c, cam in enumerate(world_cameras)]
     reprojection = np.array([_median_of_seen(e) for e in errors])                # over every tick and joint
     by_tick = np.stack([_tick_medians(e) for e in errors], axis=1)               # (T, C)
+    del errors, X                      # (T, ·) arrays the fit-check's peak need not hold (a long run's memory)
     gated = np.zeros(z.shape[:3], dtype=bool)                                      # (T, C, 15)
     for step in run.steps:
         if step.held_out is not None and step.frame < T:
@@ -555,8 +587,8 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[di
     if reason is not None:
         log.info("no fit-check of the tracked motion: %s", reason)
         return None, None
-    motion = inverse_kinematics(result.body_joints[ticks], result.fps, skeleton=result.skeleton, name="tracked",
-                                pose=result.pose_spread)
+    motion = inverse_kinematics(result.body_joints if ticks.all() else result.body_joints[ticks], result.fps,
+                                skeleton=result.skeleton, name="tracked", pose=result.pose_spread)
     ell, reference_values = frame_log_density(prior, motion), reference(preset)
     found = verdict(ell, reference_values)
     implausible = np.zeros(len(ticks), dtype=bool)
@@ -649,14 +681,15 @@ def start_ticks(counts: np.ndarray, residual: np.ndarray | None = None, needed: 
     return steady
 
 
-def cross_view_check(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[str, ...]) -> int:
+def cross_view_check(cameras: list[PinholeCamera], z: np.ndarray) -> np.ndarray:
     """Leave out (NaN, in place) at each tick the camera, if any, that follows someone else: the camera
     without which the others agree best (the smallest median reprojection error of their own
     triangulation), if its detections lie a median CROSS_VIEW_GATE of its image diagonal from that
-    triangulation (module docstring). Returns how many camera-ticks were left out. z: (T, C, 15, 3)."""
+    triangulation (module docstring). z: (T, C, 15, 3); returns the camera-ticks left out (T, C) bool."""
     C = len(cameras)
+    left_out = np.zeros(z.shape[:2], dtype=bool)
     if C < 3:
-        return 0
+        return left_out
     seen = np.isfinite(z[..., 0]) & (np.nan_to_num(z[..., 2]) > 0)                # (T, C, 15)
     agreement = np.full(z.shape[:2], np.inf)                                       # (T, C): the others', px
     distance = np.zeros(z.shape[:2])                                               # (T, C): c's, in gates
@@ -674,12 +707,9 @@ def cross_view_check(cameras: list[PinholeCamera], z: np.ndarray, names: tuple[s
         distance[:, c] = np.nan_to_num(median_reprojection(camera, X, z[:, c]) / gate, nan=0.0)
     suspect = np.argmin(agreement, axis=1)
     ticks = np.flatnonzero(np.take_along_axis(distance, suspect[:, None], 1)[:, 0] > 1)
-    for c in np.unique(suspect[ticks]):
-        at = ticks[suspect[ticks] == c]
-        log.warning("camera %s: at %d ticks its person is not the one the other cameras see; those detections "
-                    "are left out", names[c], len(at))
-        z[at, c] = np.nan
-    return len(ticks)
+    left_out[ticks, suspect[ticks]] = True
+    z[left_out] = np.nan
+    return left_out
 
 
 def steady_start(window: Motion) -> Motion:
@@ -752,11 +782,16 @@ def mismatch_message(mismatch: np.ndarray, unlikely: np.ndarray, lost: np.ndarra
             f"{prior_kind} prior did not learn")
 
 
-def mismatch_flags(loglik: np.ndarray, z: np.ndarray, likelihood: MultiViewLikelihood) -> np.ndarray:
+def detection_weight(z: np.ndarray) -> np.ndarray:
+    """(T,) each tick's summed confidence Σ w of the detections seen, z (T, C, J, 3) with confidences."""
+    return np.nansum(np.where(np.isfinite(z[..., 0]), z[..., 2], 0.0), axis=(1, 2))
+
+
+def mismatch_flags(loglik: np.ndarray, weight: np.ndarray, likelihood: MultiViewLikelihood) -> np.ndarray:
     """(T,) bool: the ticks in runs of MISMATCH_RUN whose mean log-likelihood per detection is
     MISMATCH_NATS below the noise model's expectation (module docstring). loglik (T,) of the estimates,
-    z (T, C, J, 3) the data with confidences, ``likelihood`` any model with sigma_px and robust_nu."""
-    weight = np.nansum(np.where(np.isfinite(z[..., 0]), z[..., 2], 0.0), axis=(1, 2))        # Σ w per tick
+    weight (T,) the detections' summed confidence (:func:`detection_weight`), ``likelihood`` any model
+    with sigma_px and robust_nu."""
     with np.errstate(invalid="ignore", divide="ignore"):
         per_detection = loglik / weight
     return _in_runs(per_detection < _expected_log_density(likelihood) - MISMATCH_NATS)
@@ -787,6 +822,22 @@ def _in_runs(bad: np.ndarray) -> np.ndarray:
         if run >= MISMATCH_RUN:
             flagged[t - run + 1:t + 1] = True
     return flagged
+
+
+def _reprojection_errors(cameras: list[PinholeCamera], joints: np.ndarray,
+                         z: TickObservations) -> tuple[np.ndarray, np.ndarray]:
+    """Each camera's :func:`pixel_errors` (C, T, 15) float32 of the ``joints`` (T, 15, 3) (the world's,
+    through the world's ``cameras``) against every tick's detections, left-out ones included, and the
+    :func:`detection_weight` (T,) of the detections the filter saw; z read a block at a time."""
+    errors = np.full((len(cameras), len(z), 15), np.nan, dtype=np.float32)
+    weight = np.zeros(len(z))
+    for start, raw in z.blocks(raw=True):
+        ticks = slice(start, start + len(raw))
+        for c, camera in enumerate(cameras):
+            errors[c, ticks] = pixel_errors(camera, joints[ticks], raw[:, c, :, :2], np.nan_to_num(raw[:, c, :, 2]))
+        raw[z.left_out[ticks]] = np.nan
+        weight[ticks] = detection_weight(raw)
+    return errors, weight
 
 
 def pixel_errors(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:

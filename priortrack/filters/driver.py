@@ -18,6 +18,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.filters.snapshot import KNOWN_FRAMES, Snapshot, StepRecord, Track
 from priortrack.body.fk import joint_positions
+from priortrack.observation.ticks import TickObservations
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +38,8 @@ class SequentialFilter:
         (an experiment must not count a cut run) the interrupt is raised.
 
         Args:
-            observations: (T, *model.observation_shape) at the prior's frame rate, NaN where missing.
+            observations: (T, *model.observation_shape) at the prior's frame rate, NaN where missing: an
+                array, or a :class:`~priortrack.observation.ticks.TickObservations` (read as the run goes).
             motion: the known motion whose first two frames start the filter.
             keep_snapshots: keep the steps' Snapshots in the Track …
             snapshot_every: … every k-th filtered frame's (1: every one).
@@ -47,7 +49,8 @@ class SequentialFilter:
             initial: further arguments of the filter's ``initialise`` (the particle filter's
                 ``translation_std``, for a start that is itself an estimate).
         """
-        observations = np.asarray(observations, dtype=float)
+        if not isinstance(observations, TickObservations):            # else read a block at a time
+            observations = np.asarray(observations, dtype=float)
         T = len(observations)
         shape = tuple(self.model.observation_shape)
         if observations.shape[1:] != shape or T < KNOWN_FRAMES + 1:

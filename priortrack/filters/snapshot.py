@@ -94,10 +94,10 @@ class Snapshot:
         return mean.numpy(), covariance.numpy()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class StepRecord:
     """What a run keeps of every step, whether or not it keeps the step's :class:`Snapshot` (a few
-    numbers a frame, so that a long run's memory does not grow with its point sets).
+    numbers a frame, so that a long run's memory does not grow with its point sets: about 120 bytes).
 
     Attributes:
         frame: index of the observation the step consumed.
@@ -106,7 +106,7 @@ class StepRecord:
         resampled: whether the particle set was resampled after the step.
         flags: the step's flags (:class:`Snapshot`).
         held_out: (points,) bool, the observed points (cameras × joints, in the observation's order) the
-            unscented filter's validation gate held out; None for other filters, or a step with nothing to gate.
+            unscented filter's validation gate held out; None for other filters, or a step that held none out.
     """
 
     frame: int
@@ -118,8 +118,10 @@ class StepRecord:
 
     @classmethod
     def of(cls, snapshot: Snapshot) -> "StepRecord":
+        held_out = None if snapshot.held_out is None or not snapshot.held_out.any() else \
+            np.array(snapshot.held_out, dtype=bool)
         return cls(snapshot.frame, float(snapshot.ess), len(snapshot.weights), snapshot.ancestors is not None,
-                   tuple(snapshot.flags), None if snapshot.held_out is None else np.array(snapshot.held_out, dtype=bool))
+                   tuple(snapshot.flags), held_out)
 
 
 @dataclass

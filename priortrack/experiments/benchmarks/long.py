@@ -56,12 +56,12 @@ def write_long_input(frames: int, path: Path, seed: int = 0) -> Path:
 def run_once(detections: str, preset: str, smooth: bool, out: str) -> dict:
     """One tracked run in this process: seconds, ticks, time per tick over the first and last tenth, and
     this process's peak resident memory (MB)."""
-    from priortrack.data.detections import read_detections
+    from priortrack.data.detections import open_detections
     from priortrack.experiments.real import track_detections
 
     stamps = []
     start = time.perf_counter()
-    read = read_detections(detections)                # held through the run, as the command holds it
+    read = open_detections(detections)                # as the command opens it: read a block of frames at a time
     result = track_detections(read, read_calibration(DEFAULT_CALIBRATION), preset,
                               smooth=smooth, progress=lambda t, T: stamps.append(time.perf_counter()))
     result.save(out)
