@@ -78,7 +78,7 @@ def read_caliscope(path: Path, keypoints: str | None = None):
     names = tuple(f"cam_{i}" for i in camera_ids)
     times = _times(path, rows, camera_ids, sync)
     if times is None:
-        return Detections(keypoints_, layout, names, sync.astype(int), None, str(path), (0,) * C)
+        return Detections(layout, names, sync.astype(int), None, str(path), (0,) * C, keypoints=keypoints_)
     try:
         aligned, dt = align_by_time(keypoints_, times)
     except PriortrackError as exc:
@@ -86,7 +86,7 @@ def read_caliscope(path: Path, keypoints: str | None = None):
     spread = np.nanmax(times, axis=1) - np.nanmin(times, axis=1)
     log.info("%s: %d cameras aligned by their frame times: %.2f fps; within a sync index they were up to %.1f ms "
              "apart", path, C, 1 / dt, 1000 * float(np.nanmax(spread)) if np.isfinite(spread).any() else 0.0)
-    return Detections(aligned, layout, names, np.arange(aligned.shape[1]), 1 / dt, str(path), (0,) * C)
+    return Detections(layout, names, np.arange(aligned.shape[1]), 1 / dt, str(path), (0,) * C, keypoints=aligned)
 
 
 def _rows(path: Path) -> dict[str, np.ndarray]:

@@ -37,7 +37,7 @@ from __future__ import annotations
 import json
 import logging
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -63,14 +63,11 @@ FREEMOCAP_POINTS = 543
 
 
 @dataclass(frozen=True)
-class Detections:
-    """Keypoints of one followed person.
+class DetectionsHeader:
+    """What detections of one followed person say besides their keypoints (:class:`Detections`,
+    :class:`DetectionFile`).
 
     Attributes:
-        keypoints: (C, T, K, 3) float32 x, y (pixels, origin top-left), confidence; NaN where missing
-            (float32 holds a pixel to 10⁻⁴ px at 4,000 px, finer than any detector, in half the memory
-            of float64: an hour at 60 fps of 4 cameras' BODY_25 is 260 MB; any other dtype given is
-            converted).
         layout: the keypoint layout's name (:data:`priortrack.data.keypoints.LAYOUTS`).
         camera_names: (C,) names (folder names, or ``camera_names`` of an npz).
         frames: (T,) int input frame numbers.
@@ -79,7 +76,6 @@ class Detections:
         switches: (C,) frames per camera left missing as a possible identity switch.
     """
 
-    keypoints: np.ndarray
     layout: str
     camera_names: tuple[str, ...]
     frames: np.ndarray
@@ -87,12 +83,26 @@ class Detections:
     source: str
     switches: tuple[int, ...] = ()
 
-    def __post_init__(self):
-        object.__setattr__(self, "keypoints", np.asarray(self.keypoints).astype(np.float32, copy=False))
-
     @property
     def keypoint_names(self) -> tuple[str, ...]:
         return LAYOUTS[self.layout]
+
+
+@dataclass(frozen=True)
+class Detections(DetectionsHeader):
+    """Keypoints of one followed person (and :class:`DetectionsHeader`'s fields, given first).
+
+    Attributes:
+        keypoints: (C, T, K, 3) float32 x, y (pixels, origin top-left), confidence; NaN where missing
+            (float32 holds a pixel to 10⁻⁴ px at 4,000 px, finer than any detector, in half the memory
+            of float64: an hour at 60 fps of 4 cameras' BODY_25 is 260 MB; any other dtype given is
+            converted); keyword only.
+    """
+
+    keypoints: np.ndarray = field(kw_only=True)
+
+    def __post_init__(self):
+        object.__setattr__(self, "keypoints", np.asarray(self.keypoints).astype(np.float32, copy=False))
 
     def head(self, n: int) -> "Detections":
         """The first ``n`` frames (all of them if there are fewer)."""
@@ -233,7 +243,7 @@ def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Det
         people = [by_frame.get(int(n), []) for n in frames]
         out[c], count = _follow(people, person, f"{folders[c].name}")
         switches.append(count)
-    return Detections(out, layout, tuple(f.name for f in folders), frames, None, str(path), tuple(switches))
+    return Detections(layout, tuple(f.name for f in folders), frames, None, str(path), tuple(switches), keypoints=out)
 
 
 def check_frames(frames: np.ndarray, where: str) -> None:
@@ -316,7 +326,7 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
     frames = np.array(sorted(by_frame))
     check_frames(frames, str(path))
     followed, switches = _follow([by_frame[int(n)] for n in frames], person, path.stem)
-    return Detections(followed[None], layout, (path.stem,), frames, None, str(path), (switches,))
+    return Detections(layout, (path.stem,), frames, None, str(path), (switches,), keypoints=followed[None])
 
 
 def _npz_source(path: Path, keypoints: str | None) -> "Detections | DetectionFile":
@@ -351,8 +361,8 @@ def _npz_source(path: Path, keypoints: str | None) -> "Detections | DetectionFil
     names_c = tuple(str(n) for n in arrays.get("camera_names", np.array([f"cam{c + 1}" for c in range(C)])))
     if len(names_c) != C:
         raise PriortrackError(f"{path}: {len(names_c)} camera_names for {C} cameras")
-    source = DetectionFile(on_disk, tuple(int(k) for k in order), layout, names_c, frames.astype(int), fps, str(path),
-                           (0,) * C)
+    source = DetectionFile(layout, names_c, frames.astype(int), fps, str(path), (0,) * C, array=on_disk,
+                           order=tuple(int(k) for k in order))
     return source if kp is None else source.in_memory(cleaned_keypoints(kp, source.order, source.source))
 
 
@@ -383,8 +393,8 @@ def _npy_source(path: Path, keypoints: str | None) -> "Detections | DetectionFil
         raise PriortrackError(f"{path}: {P} points per frame, fewer than layout {layout}'s {K}")
     if D == 2:
         log.warning("%s: no confidence in the array; every point is taken at confidence 1", path)
-    source = DetectionFile(on_disk, tuple(range(K)), layout, tuple(f"cam_{c}" for c in range(C)), np.arange(T), None,
-                           str(path), (0,) * C)
+    source = DetectionFile(layout, tuple(f"cam_{c}" for c in range(C)), np.arange(T), None, str(path), (0,) * C,
+                           array=on_disk, order=tuple(range(K)))
     return source if kp is None else source.in_memory(cleaned_keypoints(kp, source.order, source.source))
 
 
@@ -411,31 +421,21 @@ def cleaned_keypoints(stored: np.ndarray, order: tuple[int, ...], where: str, fi
 
 
 @dataclass(frozen=True)
-class DetectionFile:
+class DetectionFile(DetectionsHeader):
     """Detections of an .npz or .npy whose keypoints stay in the file and are read a block of frames at a
     time: :class:`Detections`' fields and its :meth:`eval15` of a block, without the (C, T, K, 3) array in
     memory, so that tracking a long recording (:func:`~priortrack.experiments.real.track_detections`)
     does not hold it. Each block is checked as it is read (:func:`cleaned_keypoints`). :func:`open_detections`
     gives one; :meth:`load` reads it whole.
 
-    Attributes:
-        array: the stored keypoints (C, T_stored, P, 2 or 3) on disk (:class:`~priortrack.data.npz.ArrayOnDisk`).
-        order: (K,) the stored points of the layout, in its order.
-        layout, camera_names, frames, fps, source, switches: as :class:`Detections`' (``frames`` may be the
-            first T of the stored frames: :meth:`head`)."""
+    Attributes (keyword only, after :class:`DetectionsHeader`'s; its ``frames`` may be the first T of the
+    stored frames: :meth:`head`):
+        array: the stored keypoints (C, T_stored, P, 2 or 3) on disk (:class:`~priortrack.data.npz.ArrayOnDisk`;
+            None where they were read whole).
+        order: (K,) the stored points of the layout, in its order."""
 
-    array: ArrayOnDisk | None
-    order: tuple[int, ...]
-    layout: str
-    camera_names: tuple[str, ...]
-    frames: np.ndarray
-    fps: float | None
-    source: str
-    switches: tuple[int, ...] = ()
-
-    @property
-    def keypoint_names(self) -> tuple[str, ...]:
-        return LAYOUTS[self.layout]
+    array: ArrayOnDisk | None = field(kw_only=True)
+    order: tuple[int, ...] = field(kw_only=True)
 
     def keypoints_of(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """(C, stop − start, K, 3) float32 keypoints of the frames [start, stop) (:func:`cleaned_keypoints`)."""
@@ -452,7 +452,8 @@ class DetectionFile:
 
     def in_memory(self, keypoints: np.ndarray) -> Detections:
         """These detections with their (C, T, K, 3) ``keypoints`` (cleaned) in memory."""
-        return Detections(keypoints, self.layout, self.camera_names, self.frames, self.fps, self.source, self.switches)
+        return Detections(self.layout, self.camera_names, self.frames, self.fps, self.source, self.switches,
+                          keypoints=keypoints)
 
     def load(self) -> Detections:
         """Every frame's keypoints, read into memory."""
