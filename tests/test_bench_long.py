@@ -27,3 +27,15 @@ def test_bench_long_runs_each_preset_in_its_own_process(capsys):
     assert run["peak_rss_mb"] > 100 and run["peak_over_reference"] > 0 and np.isfinite(run["last_over_first"])
     with pytest.raises(PriortrackError, match="frames must be ≥ 300"):
         bench_long(frames=200)
+
+
+def test_a_run_s_peak_is_its_own_not_its_parent_s():
+    """Linux carries ru_maxrss across fork and exec: a run started by a parent holding 400 MB read 400 MB.
+    The bench reads the run's own high-water mark (VmHWM)."""
+    import subprocess
+    import sys
+
+    held = np.ones(50_000_000)                              # 400 MB in this process
+    code = "from priortrack.experiments.benchmarks.long import peak_rss_mb; print(peak_rss_mb())"
+    child = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout)
+    assert 10 < child < 500 and held.sum() == 50_000_000          # inherited, it would read this process's 650+

@@ -136,3 +136,22 @@ def test_the_printed_verdict_gives_its_rule_beside_its_share(capsys):
     share = float(re.search(r"(\d+)% of its frames score below", line).group(1)) / 100
     word = "in support" if share < IN_SUPPORT else "outside" if share > OUTSIDE else "partly"
     assert f": {word}." in line and f"'outside' over {100 * OUTSIDE:.0f}%" in line
+
+
+def test_frame_log_density_scored_in_pieces_is_the_same(monkeypatch):
+    """ℓ_t is scored FRAMES_AT_ONCE transitions at a time (a long run's memory): 7 at a time gives every
+    frame's value of one piece, for the Lie mixture and the local diffusion."""
+    from priortrack.data.bundled import load_walkjog
+    from priortrack.priors import support
+    from priortrack.priors.diffusion import Diffusion
+    from priortrack.priors.lie import LiePrior
+
+    walks = list(load_walkjog().walks("train"))
+    held_out = next(iter(load_walkjog().walks("test")))
+    for prior in (LiePrior.fit(walks[:3], seed=0), Diffusion.fit(walks[:3], local=True, space="angles")):
+        whole = support.frame_log_density(prior, held_out)
+        monkeypatch.setattr(support, "FRAMES_AT_ONCE", 7)
+        pieces = support.frame_log_density(prior, held_out)
+        monkeypatch.setattr(support, "FRAMES_AT_ONCE", 1000)
+        assert len(whole) > 50 and np.isfinite(whole).all()
+        np.testing.assert_allclose(pieces, whole, rtol=1e-12, atol=1e-9)

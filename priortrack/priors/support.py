@@ -46,6 +46,8 @@ from priortrack.priors.registry import PRIOR_KINDS, fit_prior
 IN_SUPPORT, OUTSIDE = 0.5, 0.85
 #: The most a cached reference may hold (10⁶ frames).
 REFERENCE_BYTES = 8 * 10**6
+#: Transitions :func:`frame_log_density` scores at a time.
+FRAMES_AT_ONCE = 1000
 #: Training motions from which the reference's folds are whole motions (fewer: halves of each).
 MIN_MOTION_FOLDS = 4
 #: The reference's own version, part of its cache name: a change in how it is made is not read from an old file.
@@ -55,15 +57,20 @@ PERCENTILES = (1, 5, 25, 50, 75, 95, 99)
 
 
 def frame_log_density(prior, motion: Motion) -> np.ndarray:
-    """(T − 1,) ℓ_t of ``motion``'s frames 1 … T − 1 at the prior's rate (module docstring), float64."""
+    """(T − 1,) ℓ_t of ``motion``'s frames 1 … T − 1 at the prior's rate (module docstring), float64, the
+    transitions scored FRAMES_AT_ONCE at a time (a mixture's per-component terms of a ten-minute run's 18,000
+    at once held hundreds of MB)."""
     motion = prepare_motions([motion], prior.fps)[0]
     x = prior.encode(motion).detach().to(torch.float64)        # (a GPDM's encoding optimises: not under no_grad)
+    latent = "latent" in PRIOR_KINDS[prior.kind].capabilities
+    y = prior.space.angles.encode(motion).to(torch.float64) if latent else None
+    pieces = []
     with torch.no_grad():
-        ell = prior.log_prob(x[1:], x[:-1]).to(torch.float64)
-        if "latent" in PRIOR_KINDS[prior.kind].capabilities:
-            y = prior.space.angles.encode(motion).to(torch.float64)
-            ell = ell - prior.reconstruction_energy(x[1:], y[1:])
-    return ell.cpu().numpy()
+        for start in range(1, len(x), FRAMES_AT_ONCE):
+            t = slice(start, min(start + FRAMES_AT_ONCE, len(x)))
+            ell = prior.log_prob(x[t], x[t.start - 1:t.stop - 1]).to(torch.float64)
+            pieces.append((ell - prior.reconstruction_energy(x[t], y[t]) if latent else ell).cpu().numpy())
+    return np.concatenate(pieces) if pieces else np.zeros(0)
 
 
 def reference(preset, cache: Path | None = None) -> np.ndarray:

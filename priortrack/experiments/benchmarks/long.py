@@ -5,8 +5,10 @@ The input: CMU 49_18 (a person balancing in place, in view of all 4 of the Pose2
 at 60 fps, played forward and back (a ping-pong loop: no jump where it turns) to the asked length,
 projected through the 4 cameras with the detector errors of :mod:`priortrack.experiments.real_format`
 and written as an ``.npz`` of BODY_25B keypoints (``keypoints`` (C, T, 25, 3), ``keypoint_names``,
-``fps``). Each run is its own process, so that its peak resident memory (``ru_maxrss``) is the run's
-own: the file read, the prior fitted or loaded, the filter run (the ticks timed by the progress
+``fps``). Each run is its own process, so that its peak resident memory is the run's own (Linux: the
+process's ``VmHWM``, its memory's high-water mark; not ``ru_maxrss``, which Linux carries across the
+fork and exec that start it from the parent's resident size, here the bench's, which wrote a 36,000-frame
+input: every run read the parent's 586 MB): the file read, the prior fitted or loaded, the filter run (the ticks timed by the progress
 callback), the result written as ``.npz``. Time per frame is the mean over the first and over the last
 tenth of the ticks; their ratio says whether a step's cost grows with the run.
 """
@@ -72,7 +74,18 @@ def run_once(detections: str, preset: str, smooth: bool, out: str) -> dict:
     return {"preset": preset, "smooth": smooth, "frames": int(len(read.frames)),
             "ticks": len(result.joints), "seconds": seconds, "first_tenth_ms_per_tick": 1000 * first,
             "last_tenth_ms_per_tick": 1000 * last, "last_over_first": last / first,
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+            "peak_rss_mb": peak_rss_mb()}
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory, MB: ``VmHWM`` of /proc/self/status where there is one (Linux), else
+    ``ru_maxrss`` (kB on Linux, bytes on macOS)."""
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 1024
+    except (OSError, StopIteration):
+        maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return maxrss / 1024 ** 2 if sys.platform == "darwin" else maxrss / 1024
 
 
 def bench_long(frames: int = 36_000, presets=("ukf-real", "pf-lie"), smooth: bool = False,
