@@ -330,15 +330,12 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
 
 
 def _npz_source(path: Path, keypoints: str | None) -> "Detections | DetectionFile":
-    arrays = read_npz(path, MAX_NPZ_BYTES, "detections file", skip=("keypoints",))
+    on_disk = npz_member_on_disk(path, "keypoints")            # None: compressed, read whole with the rest
+    arrays = read_npz(path, MAX_NPZ_BYTES, "detections file", skip=() if on_disk is None else ("keypoints",))
     if "keypoint_names" not in arrays:
         raise PriortrackError(f"{path}: the array 'keypoint_names' is missing")
-    on_disk = npz_member_on_disk(path, "keypoints")
-    if on_disk is None:                          # compressed: read whole
-        kp = read_npz(path, MAX_NPZ_BYTES, "detections file")["keypoints"]
-        shape, dtype = kp.shape, kp.dtype
-    else:
-        kp, shape, dtype = None, on_disk.shape, on_disk.dtype
+    kp = arrays.get("keypoints")
+    shape, dtype = (kp.shape, kp.dtype) if on_disk is None else (on_disk.shape, on_disk.dtype)
     if len(shape) != 4 or shape[-1] != 3 or dtype.kind not in "fiu":
         raise PriortrackError(f"{path}: keypoints has shape {shape} ({dtype}); expected (cameras, frames, "
                               f"keypoints, 3) numbers")

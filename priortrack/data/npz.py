@@ -83,9 +83,9 @@ def npy_on_disk(path: str | Path, max_bytes: int, what: str = "npy file") -> Arr
 
 
 def npz_member_on_disk(path: str | Path, name: str) -> ArrayOnDisk | None:
-    """The array ``name`` of an npz file (whose headers :func:`read_npz` has checked) as an
-    :class:`ArrayOnDisk`, or None where its member is compressed (``np.savez_compressed``), in Fortran
-    order, or has fewer than two axes (read it whole)."""
+    """The array ``name`` of an npz file as an :class:`ArrayOnDisk` (its header checked as :func:`read_npz`
+    checks it), or None where its member is compressed (``np.savez_compressed``), in Fortran order, or has
+    fewer than two axes (read it whole)."""
     path = Path(path)
     try:
         with zipfile.ZipFile(path) as archive:

@@ -343,16 +343,21 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
     residual = None if single else np.full(T, -np.inf)
     seen, left_out = np.zeros((T, 15), dtype=bool), np.zeros((T, C), dtype=bool)
     shown, behind = np.zeros(C, dtype=bool), np.zeros((C, 2), dtype=int)
+    def triangulated(block: np.ndarray) -> np.ndarray:
+        return triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(block[..., 2]).transpose(1, 0, 2))
+
     for start, block in z.blocks(raw=True):
         ticks = slice(start, start + len(block))
         shown |= (np.nan_to_num(block[..., 2]) > 0).any(axis=(0, 2))
-        behind += _behind(cameras, block)
+        every = None if single else triangulated(block)                         # by every camera
+        behind += _behind(cameras, block, every)
         left_out[ticks] = cross_view_check(cameras, block)
         if single:
             seen[ticks] = (np.nan_to_num(block[:, 0, :, 2]) > 0) & np.isfinite(block[:, 0, :, 0])
             continue
-        X[ticks] = triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3),
-                               np.nan_to_num(block[..., 2]).transpose(1, 0, 2))
+        again = left_out[ticks].any(axis=1)                  # the ticks a camera was left out of, by the others
+        every[again] = triangulated(block[again])
+        X[ticks] = every
         seen[ticks] = np.isfinite(X[ticks]).all(axis=-1)
         residual[ticks] = np.stack([np.nan_to_num(median_reprojection(camera, X[ticks], block[:, c]), nan=-np.inf)
                                     for c, camera in enumerate(cameras)]).max(axis=0)
@@ -370,14 +375,14 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
     return X, seen, residual, left_out
 
 
-def _behind(cameras: list[PinholeCamera], z: np.ndarray) -> np.ndarray:
-    """(C, 2) per camera: the joints it detects (z: (T, C, 15, 3)) that every camera's triangulation
-    places, and how many of them lie behind it (a camera that sees nearly everything behind it has a
-    pose that is not the calibration's convention: camera → world read as world → camera, a flipped axis)."""
+def _behind(cameras: list[PinholeCamera], z: np.ndarray, X: np.ndarray | None) -> np.ndarray:
+    """(C, 2) per camera: the joints it detects (z: (T, C, 15, 3)) that X (T, 15, 3), every camera's
+    triangulation (None with one camera), places, and how many of them lie behind it (a camera that sees
+    nearly everything behind it has a pose that is not the calibration's convention: camera → world read as
+    world → camera, a flipped axis)."""
     out = np.zeros((len(cameras), 2), dtype=int)
-    if len(cameras) < 2:
+    if X is None:
         return out
-    X = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(z[..., 2]).transpose(1, 0, 2))
     for c, camera in enumerate(cameras):
         seen = np.isfinite(X).all(axis=-1) & np.isfinite(z[:, c, :, 0])
         out[c] = seen.sum(), (~camera.project(np.where(seen[..., None], X, 0.0))[1][seen]).sum()
