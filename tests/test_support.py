@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from priortrack import PriortrackError
 from priortrack.cli.main import main
@@ -155,3 +156,19 @@ def test_frame_log_density_scored_in_pieces_is_the_same(monkeypatch):
         monkeypatch.setattr(support, "FRAMES_AT_ONCE", 1000)
         assert len(whole) > 50 and np.isfinite(whole).all()
         np.testing.assert_allclose(pieces, whole, rtol=1e-12, atol=1e-9)
+
+
+def test_bone_directions_encoded_in_blocks_are_each_frames_own(monkeypatch):
+    """DirectionSpace.encode works FK_FRAMES frames at a time (a ten-minute run's fit-check): 7 at a time
+    gives the directions of the whole clip's joints normalised at once, to the bit."""
+    from priortrack.body.fk import joint_positions
+    from priortrack.body.normalise import normalise
+    from priortrack.data.bundled import load_walkjog
+    from priortrack.priors import spaces
+
+    walk = next(iter(load_walkjog().walks("test")))
+    whole = normalise(joint_positions(walk, "eval15")).directions.reshape(len(walk), -1)
+    monkeypatch.setattr(spaces, "FK_FRAMES", 7)
+    x = spaces.DirectionSpace(np.ones(14)).encode(walk)
+    assert len(walk) % 7 and x.dtype == torch.float64
+    assert torch.equal(x, whole)

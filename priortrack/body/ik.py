@@ -191,7 +191,8 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
                               f"fewer than 6 known joints")
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
     skeleton = skeleton or fitted_skeleton(template, X, M)
-    pelvis = np.where(seen[:, :1, None], X[:, :1], np.nanmean(X, axis=1, keepdims=True))[:, 0]
+    pelvis = X[:, 0].copy()                      # where it is unseen, the mean of the joints seen (those rows only)
+    pelvis[~seen[:, 0]] = np.nanmean(X[~seen[:, 0]], axis=1)
 
     def residual(part: slice):
         """The residual closure of the frames ``part`` (their targets built here: a chunk's, not the run's)."""

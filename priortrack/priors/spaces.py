@@ -33,7 +33,7 @@ from priortrack.geometry.manifold_mean import signed_mean
 from priortrack.geometry.sphere import exp_map, karcher_mean, log_map, project_to_tangent, transport
 from priortrack.geometry.tangent_basis import from_coordinates, tangent_basis, to_coordinates
 from priortrack.randomness import standard_normal
-from priortrack.body.fk import joint_positions
+from priortrack.body.fk import FK_FRAMES, joint_positions
 
 #: How far a bone direction's norm may be from 1 in a state of :class:`DirectionSpace` (float32
 #: rounding after many exp-map steps stays far below it).
@@ -280,7 +280,13 @@ class DirectionSpace(StateSpace):
         return cls(lengths.mean(dim=0).numpy())
 
     def encode(self, motion: Motion) -> torch.Tensor:
-        return normalise(joint_positions(motion, "eval15")).directions.reshape(len(motion), -1)
+        """(T, 42) each frame's bone directions in its body frame, FK_FRAMES frames at a time (a frame's
+        directions are its own: the same values; a ten-minute run's joints and body frames are not held at once)."""
+        x = torch.empty((len(motion), 3 * len(BONE_CHILDREN)), dtype=torch.float64)
+        for start in range(0, len(motion), FK_FRAMES):
+            block = motion[start:start + FK_FRAMES]
+            x[start:start + len(block)] = normalise(joint_positions(block, "eval15")).directions.reshape(len(block), -1)
+        return x
 
     def for_body(self, motion: Motion) -> DirectionSpace:
         """Bone lengths of ``motion``'s subject (the mean over its frames)."""
