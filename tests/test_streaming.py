@@ -126,3 +126,59 @@ def test_a_run_from_a_file_in_small_blocks_is_the_run_in_memory(tmp_path, monkey
         np.testing.assert_array_equal(getattr(opened, name), getattr(whole, name), err_msg=name)
     assert opened.observations.block_ticks == 7 and len(opened.observations) == len(whole.joints) > 190
     np.testing.assert_array_equal(opened.observations[5:19], whole.observations[5:19])
+
+
+def test_an_openpose_folder_is_parsed_a_file_at_a_time(tmp_path, monkeypatch):
+    """Each camera's JSON files are parsed in frame order as the person is followed, and a file's people are
+    let go once the followed one is kept: while reading 2 cameras × 40 frames of 3 people, no more than two
+    frames' people (and the last one followed) are alive at once, where reading every file first held all 240.
+    The person followed and the switches are those of the files' own people (a third, far person ignored)."""
+    import json
+    import weakref
+
+    from priortrack.data import detections
+
+    rng = np.random.default_rng(0)
+    base = rng.uniform(300, 400, size=(25, 2))
+    for c in range(2):
+        (tmp_path / f"cam{c}").mkdir()
+        for t in range(40):
+            people = [base + t + c, base + 300, rng.uniform(600, 700, size=(25, 2))]
+            if t == 20:
+                people = people[1:]                                  # the person followed is not seen
+            entries = [{"pose_keypoints_2d": np.c_[xy, np.full(25, 0.9)].ravel().tolist()} for xy in people]
+            (tmp_path / f"cam{c}" / f"cam{c}_{t:012d}_keypoints.json").write_text(json.dumps({"people": entries}))
+    alive, most = [0], [0]
+    parse = detections._people
+
+    def counted(path):
+        people = parse(path)
+        for p in people:
+            alive[0] += 1
+            weakref.finalize(p, lambda: alive.__setitem__(0, alive[0] - 1))
+        most[0] = max(most[0], alive[0])
+        return people
+
+    monkeypatch.setattr(detections, "_people", counted)
+    read = detections.read_detections(tmp_path, "body25")
+    assert most[0] <= 2 * 3 + 1, most
+    assert read.switches == (1, 1) and read.keypoints.shape == (2, 40, 25, 3)
+    np.testing.assert_allclose(read.keypoints[1, 5, :, :2], base + 6, rtol=1e-6)
+    assert np.isnan(read.keypoints[:, 20]).all()
+
+
+def test_an_openpose_folder_with_a_late_odd_person_or_nobody_is_refused(tmp_path):
+    """Keypoint counts are checked as the files are parsed: a 17-point person late in a BODY_25 folder is refused
+    with both counts; a folder where nobody is detected is refused as such."""
+    import json
+
+    xy = np.c_[np.random.default_rng(0).uniform(300, 400, size=(25, 2)), np.full(25, 0.9)]
+    for t in range(5):
+        person = xy[:17] if t == 4 else xy
+        (tmp_path / f"f_{t:04d}.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": person.ravel().tolist()}]}))
+    with pytest.raises(PriortrackError, match=r"different keypoint counts \(\[17, 25\]\)"):
+        read_detections(tmp_path, "body25")
+    for t in range(5):
+        (tmp_path / f"f_{t:04d}.json").write_text(json.dumps({"people": []}))
+    with pytest.raises(PriortrackError, match="nobody is detected in any frame"):
+        read_detections(tmp_path, "body25")

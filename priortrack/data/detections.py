@@ -6,7 +6,8 @@
   confidence per keypoint), or a folder of such folders, one per camera (sorted by name, as
   Pose2Sim does); frame numbers come from the file names' last run of digits
   (``cam01.000012.json``, ``..._000000000012_keypoints.json``). The same JSON layout with 17 or 33
-  keypoints carries COCO-17 (MMPose, RTMPose, ViTPose, YOLO-pose) or MediaPipe output;
+  keypoints carries COCO-17 (MMPose, RTMPose, ViTPose, YOLO-pose) or MediaPipe output. The files are
+  parsed one at a time as each camera's person is followed (a long recording's people are not all held);
 - a COCO results file (``.json``: a list of ``{"image_id", "keypoints", "score"}``), one camera,
   ``image_id`` the frame number;
 - an ``.npz`` with ``keypoints`` (cameras, frames, keypoints, 3) = x, y, confidence (missing: NaN,
@@ -37,6 +38,7 @@ from __future__ import annotations
 import json
 import logging
 import re
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -218,32 +220,50 @@ def _camera_folders(path: Path) -> list[Path]:
 
 
 def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Detections:
+    """Each camera's files parsed one at a time, in frame order, as its person is followed: a file's people
+    are let go once the followed one is kept (an hour of several people's detections is not held at once)."""
     folders = _camera_folders(path)
-    per_camera: list[dict[int, list[np.ndarray]]] = []
-    for folder in folders:
-        files: dict[int, Path] = {}
-        for f in sorted(folder.glob("*.json")):
-            number = _frame_number(f)
-            if number in files:
-                raise PriortrackError(f"{folder}: frame {number} appears twice ({files[number].name}, {f.name})")
-            files[number] = f
-        per_camera.append({n: _people(f) for n, f in files.items()})
-    counts = {len(p) for frames in per_camera for people in frames.values() for p in people}
-    if not counts:
-        raise PriortrackError(f"{path}: nobody is detected in any frame")
-    if len(counts) > 1:
-        raise PriortrackError(f"{path}: people have different keypoint counts ({sorted(counts)})")
-    layout = layout_for(keypoints, counts.pop(), str(path))
-    frames = np.array(sorted(set().union(*(frames.keys() for frames in per_camera))))
+    files = [_frame_files(folder) for folder in folders]
+    frames = np.array(sorted(set().union(*files)))
     check_frames(frames, str(path))
-    K = len(LAYOUTS[layout])
+    numbers = frames.tolist()
+    K = _keypoint_count(files, numbers, path)
+    layout = layout_for(keypoints, K, str(path))
     out = np.full((len(folders), len(frames), K, 3), np.nan, dtype=np.float32)
     switches = []
-    for c, by_frame in enumerate(per_camera):
-        people = [by_frame.get(int(n), []) for n in frames]
-        out[c], count = _follow(people, person, f"{folders[c].name}")
-        switches.append(count)
+    for c, by_frame in enumerate(files):
+        people = (_people(by_frame[n]) if n in by_frame else [] for n in numbers)
+        switches.append(_follow(_with_count(people, K, path), out[c], person, folders[c].name))
     return Detections(layout, tuple(f.name for f in folders), frames, None, str(path), tuple(switches), keypoints=out)
+
+
+def _frame_files(folder: Path) -> dict[int, Path]:
+    """A camera folder's OpenPose files by frame number (a number twice is refused)."""
+    files: dict[int, Path] = {}
+    for f in sorted(folder.glob("*.json")):
+        number = _frame_number(f)
+        if number in files:
+            raise PriortrackError(f"{folder}: frame {number} appears twice ({files[number].name}, {f.name})")
+        files[number] = f
+    return files
+
+
+def _keypoint_count(files: list[dict[int, Path]], numbers: list[int], path: Path) -> int:
+    """K, the keypoints of the first person seen (the cameras' files parsed in frame order until one is)."""
+    for by_frame in files:
+        for n in numbers:
+            if n in by_frame and (people := _people(by_frame[n])):
+                return len(people[0])
+    raise PriortrackError(f"{path}: nobody is detected in any frame")
+
+
+def _with_count(frames: Iterable[list[np.ndarray]], K: int, where: Path) -> Iterator[list[np.ndarray]]:
+    """The frames' people, each checked to have K keypoints as it is read."""
+    for people in frames:
+        for p in people:
+            if len(p) != K:
+                raise PriortrackError(f"{where}: people have different keypoint counts ({sorted({K, len(p)})})")
+        yield people
 
 
 def check_frames(frames: np.ndarray, where: str) -> None:
@@ -258,16 +278,15 @@ def _size(p: np.ndarray) -> float:
     return float(np.linalg.norm(xy.max(axis=0) - xy.min(axis=0))) if len(xy) > 1 else 0.0
 
 
-def _follow(people: list[list[np.ndarray]], person: int | None, camera: str) -> tuple[np.ndarray, int]:
-    """(T, K, 3) keypoints of the person followed through one camera's frames (module docstring),
-    and the number of frames left missing as possible switches."""
-    K = next(len(p) for frame in people for p in frame) if any(people) else 0
-    out = np.full((len(people), K, 3), np.nan)
+def _follow(people: Iterable[list[np.ndarray]], out: np.ndarray, person: int | None, camera: str) -> int:
+    """Write into ``out`` (T, K, 3) (NaN where nobody is followed) the keypoints of the person followed through
+    one camera's T frames of people, read in order (module docstring); returns the number of frames left
+    missing as possible switches."""
     if person is not None:
         for t, frame in enumerate(people):
             if person < len(frame):
                 out[t] = frame[person]
-        return out, 0
+        return 0
     last, switches, rejected = None, 0, 0
     for t, frame in enumerate(people):
         frame = [p for p in frame if np.isfinite(p[:, :2]).all(axis=1).any()]
@@ -288,7 +307,7 @@ def _follow(people: list[list[np.ndarray]], person: int | None, camera: str) -> 
             chosen, rejected = frame[best], 0
         out[t] = chosen
         last = chosen
-    return out, switches
+    return switches
 
 
 def _distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -322,11 +341,13 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
     counts = {len(p) for people in by_frame.values() for p in people}
     if len(counts) > 1:
         raise PriortrackError(f"{path}: entries have different keypoint counts ({sorted(counts)})")
-    layout = layout_for(keypoints, counts.pop(), str(path))
+    K = counts.pop()
+    layout = layout_for(keypoints, K, str(path))
     frames = np.array(sorted(by_frame))
     check_frames(frames, str(path))
-    followed, switches = _follow([by_frame[int(n)] for n in frames], person, path.stem)
-    return Detections(layout, (path.stem,), frames, None, str(path), (switches,), keypoints=followed[None])
+    followed = np.full((1, len(frames), K, 3), np.nan, dtype=np.float32)
+    switches = _follow([by_frame[int(n)] for n in frames], followed[0], person, path.stem)
+    return Detections(layout, (path.stem,), frames, None, str(path), (switches,), keypoints=followed)
 
 
 def _npz_source(path: Path, keypoints: str | None) -> "Detections | DetectionFile":
