@@ -69,7 +69,7 @@ def test_posterior_linearisation_is_the_kalman_rts_smoother_on_a_linear_model(it
     snapshots = [ukf.step(z) for z in zs]
     filtered = [s.mean.numpy() for s in snapshots], [s.covariance.numpy() for s in snapshots]
     means, covariances = posterior_linearisation(ukf.unscented, ManifoldSigmaPoints(ukf.unscented, 0.1, 2.0, 0.0),
-                                                 *filtered, zs, iterations, 0.0)
+                                                 *filtered, zs, iterations)
     reference_means, reference_covariances = kalman_rts(model, M0, P0, zs)
     assert np.abs(np.array(means) - reference_means).max() < 1e-8
     assert np.abs(np.array(covariances) - reference_covariances).max() < 1e-8
@@ -77,6 +77,30 @@ def test_posterior_linearisation_is_the_kalman_rts_smoother_on_a_linear_model(it
         posterior_linearisation(ukf.unscented, ukf.kf.points_fn, *filtered, zs, -1)
     with pytest.raises(PriortrackError, match="19 frames of data for 20 filtered frames"):
         posterior_linearisation(ukf.unscented, ukf.kf.points_fn, *filtered, zs[1:])
+
+
+def test_posterior_linearisation_smooths_the_data_the_filter_updated_with():
+    """A 30σ outlier the filter's validation gate holds out: given the filter's decisions (its steps'
+    ``held_out``) the smoother's means are those of the same data with that point missing, which is the
+    Kalman RTS smoother's of it; given every pixel instead, the outlier pulls the smoothed means off."""
+    model = LinearGaussian(A, Q, H, R)
+    _, zs = _simulate(3)
+    zs[14, 0] += 15.0
+    ukf = UnscentedFilter(model)
+    ukf.initialise_states(M0, P0)
+    snapshots = [ukf.step(z) for z in zs]
+    assert [t for t, s in enumerate(snapshots) if s.held_out is not None and s.held_out.any()] == [14]
+    assert snapshots[14].held_out.tolist() == [True, False]
+    filtered = [s.mean.numpy() for s in snapshots], [s.covariance.numpy() for s in snapshots]
+    points = ManifoldSigmaPoints(ukf.unscented, 0.1, 2.0, 0.0)
+    means, _ = posterior_linearisation(ukf.unscented, points, *filtered, zs,
+                                       held_out=[s.held_out for s in snapshots], swapped=[None] * STEPS)
+    missing = zs.copy()
+    missing[14, 0] = np.nan
+    reference, _ = kalman_rts(model, M0, P0, missing)
+    assert np.abs(np.array(means) - reference).max() < 1e-8
+    pulled, _ = posterior_linearisation(ukf.unscented, points, *filtered, zs)
+    assert np.abs(np.array(pulled) - reference).max() > 0.5
 
 
 def test_smoothed_estimates_are_consistent():

@@ -56,6 +56,7 @@ def test_steps_past_the_budget_are_spilled_and_read_back_equal():
             assert (a is None and b is None) or (torch.equal(a, b) and a.dtype == b.dtype)
             c = store.array(t, name)
             assert (a is None and c is None) or torch.equal(a, c)
+        assert store.array(t, "flags") == step.flags                  # a field kept in memory, spilled step or not
     log_weights = Column(store, "weights", torch.log)
     assert len(log_weights) == 6 and torch.equal(log_weights[-1], torch.log(steps[5].weights))
     assert [s.frame for s in store[1:4]] == [1, 2, 3]

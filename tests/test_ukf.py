@@ -313,7 +313,7 @@ def test_swap_correction_exchanges_a_pair_only_where_the_exchange_lies_nearer_th
     noise); the knees as labelled are kept; an elbow pair with one side missing is left alone; the same
     in the second camera's order."""
     from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS
-    from priortrack.filters.ukf import predicted_points, swap_corrected
+    from priortrack.filters.ukf import exchange, predicted_points, swap_corrected
 
     rng = np.random.default_rng(0)
     J, b, C = 15, 2, 2
@@ -331,15 +331,20 @@ def test_swap_correction_exchanges_a_pair_only_where_the_exchange_lies_nearer_th
     variances_swapped = variances.reshape(C, J, b).copy()
     variances_swapped[1, [5, 8]] = variances_swapped[1, [8, 5]]
     gate = 13.8                                                              # χ²₂ at p = 0.001
-    corrected, R, count = swap_corrected(z.ravel(), np.diag(variances), *points(predicted), EVAL15_MIRROR_PAIRS, J, b, gate)
+    corrected, R, exchanged = swap_corrected(z.ravel(), np.diag(variances), *points(predicted), EVAL15_MIRROR_PAIRS, J, b,
+                                             gate)
     expected = z.copy()
     expected[1, [5, 8]] = expected[1, [8, 5]]
-    assert count == 1
+    assert exchanged.tolist() == [J + 5, J + 8]                             # camera 2's left wrist, its right
     np.testing.assert_array_equal(corrected, expected.ravel())
     np.testing.assert_array_equal(np.diag(R), variances_swapped.ravel())
     assert np.count_nonzero(R - np.diag(np.diag(R))) == 0
+    # the smoother repeats the filter's exchanges from the points alone
+    again, R_again = exchange(z.ravel(), np.diag(variances), exchanged, b)
+    np.testing.assert_array_equal(again, corrected)
+    np.testing.assert_array_equal(R_again, R)
     unchanged, _, none = swap_corrected(expected.ravel(), np.diag(variances), *points(predicted), EVAL15_MIRROR_PAIRS, J, b, gate)
-    assert none == 0
+    assert len(none) == 0
     np.testing.assert_array_equal(unchanged, expected.ravel())
     # a lost limb: the right wrist predicted 80 px off, the detections as labelled; the exchange would be
     # nearer in sum (the left wrist detected beside the wrong prediction) but fails the gate at the left wrist
@@ -347,8 +352,8 @@ def test_swap_correction_exchanges_a_pair_only_where_the_exchange_lies_nearer_th
     lost[0, 8] = z_hat[0, 5] + [3.0, 0.0]                                   # right wrist predicted on the left one
     predicted_lost = np.repeat(lost.reshape(1, -1), 3, axis=0)
     held, _, none = swap_corrected(expected.ravel(), np.diag(variances), *points(predicted_lost), EVAL15_MIRROR_PAIRS, J, b, gate)
-    assert none == 0
+    assert len(none) == 0
     np.testing.assert_array_equal(held, expected.ravel())
     # no gate, no exchange
     _, _, none = swap_corrected(z.ravel(), np.diag(variances), *points(predicted), EVAL15_MIRROR_PAIRS, J, b, np.inf)
-    assert none == 0
+    assert len(none) == 0

@@ -13,10 +13,8 @@ points χ_i = μ_k ⊞ ξ_i of N(μ_k, Σ_k) (the filter's weights Wm, Wc; Σ_i 
 - statistical linear regression of f (eq. 9–11 of the paper): y_i = f(χ_i) ⊟ μ_{k+1},
   ȳ = Σ Wm_i y_i, Ψ = Σ Wc_i ξ_i (y_i − ȳ)ᵀ, Φ = Σ Wc_i (y_i − ȳ)(y_i − ȳ)ᵀ, A_k = Ψᵀ Σ_k⁻¹,
   b_k = ȳ, Ω_k = Φ − A_k Σ_k A_kᵀ, so δ_{k+1} = A_k δ_k + b_k + q, q ~ N(0, Q(μ_k) + Ω_k);
-- the same of h on the observed pixels (a detector's left/right swaps undone against the sigma points'
-  predicted pixels, as the filter undoes them): z_k = H_k δ_k + ẑ_k + r, r ~ N(0, R_k + Λ_k); a point whose
-  d² = νᵀ S⁻¹ ν under the linearised prediction exceeds the filter's validation gate is left out
-  (all of a frame's points are kept if every one fails, as the filter reopens its gate);
+- the same of h on the pixels the filter updated with (below): z_k = H_k δ_k + ẑ_k + r,
+  r ~ N(0, R_k + Λ_k);
 - the Kalman filter and RTS smoother of that linear-Gaussian model, started from the filter's own
   first posterior (which holds the first frame's data); then μ_k ← μ_k ⊞ δ^s_k and Σ_k ← Γ P^s_k Γᵀ
   (Γ the change of tangent coordinates from the old μ_k to the new).
@@ -33,6 +31,16 @@ regressions are local (α = 0.001 gives the same figures to 1 mm). α and ``ITER
 on walks outside every accuracy table (walkjog 35_02, 35_05, CMU 07_02, 07_09): α = 0.3 already
 wraps on 07_09; a second and third iteration changed the GPDM's errors by under 5 mm and made the
 local diffusion UKF's worse.
+
+**The data it smooths are the filter's.** The relinearised filter updates with the pixels the unscented
+filter updated with: the filter's exchanges of a detector's left/right swaps made again, the points its
+validation gate held out left out (its steps' ``swapped`` and ``held_out``), so the smoother conditions on
+the same data as the filter it smooths. Gating again, against the smoothed Gaussian's own predicted pixels,
+held out far more: on caliscope's webcams (MediaPipe's errors beyond the presets' 5 px) 10–12 points a frame
+against the filter's 1–3, the right arm's in two of the three cameras, and the smoothed right wrist went
+150–160 mm from the cameras' triangulation for 8 ticks while the filtered stayed within 40 mm
+(``compare --detections`` without cam_0). Gating against the relinearised filter's prediction (H P⁻ Hᵀ + Λ + R)
+let in a shoulder the filter had rightly held out (left-out camera 45–64 px against the filtered 29–37).
 """
 
 from __future__ import annotations
@@ -44,8 +52,7 @@ import torch
 
 from priortrack.errors import PriortrackError
 from priortrack.filters.step_store import RecordArray
-from priortrack.filters.ukf import (GATE_PROBABILITY, ManifoldSigmaPoints, block_distances, diagonal_blocks,
-                                   gate_threshold, predicted_points, repaired_covariance, swap_corrected)
+from priortrack.filters.ukf import ManifoldSigmaPoints, exchange, repaired_covariance
 from priortrack.filters.unscented_rts import unscented_rts
 
 #: Relinearisations after the unscented RTS smoother's pass, by default.
@@ -67,30 +74,25 @@ def _regression(xi: np.ndarray, y: np.ndarray, Sigma: np.ndarray, Wm: np.ndarray
     return A, y_bar, Phi - A @ Sigma @ A.T, Phi
 
 
-def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.ndarray, Wm, Wc, threshold: float,
-              swaps: bool):
-    """The linearised measurement of one frame: (H (k, n), ẑ (k,), R + Λ (k, k), z (k,)) on the
-    observed, predictable and validated pixels (a detector's left/right swaps undone first, as the
-    filter undoes them, if ``swaps``), or None where there are none."""
+def _observed(model, z: np.ndarray, h: np.ndarray, xi: np.ndarray, Sigma: np.ndarray, Wm, Wc,
+              held_out: np.ndarray | None, swapped: np.ndarray | None):
+    """The linearised measurement of one frame: (H (k, n), ẑ (k,), R + Λ (k, k), z (k,)) on the pixels
+    the filter updated with, or None where there are none: the observed and predictable points, with the
+    filter's exchanges of a detector's left/right swaps (``swapped`` (2p,) points, :func:`exchange`) made
+    and the points its validation gate held out (``held_out`` (K,) bool) left out; None: none."""
     gated, _ = model.gate(z)
     values, R = model.measurement(torch.as_tensor(gated, dtype=torch.float64))
     values, R = values.numpy(), R.numpy()
-    pairs = getattr(model, "mirror_pairs", None)
-    if swaps and pairs is not None:
-        b = model.measurement_block
-        z_hat, P = predicted_points(h.reshape(len(h), -1, b), Wm, Wc)
-        values, R, _ = swap_corrected(values, R, z_hat, P, pairs, model.observation_shape[-2], b, threshold)
+    b = model.measurement_block
+    if swapped is not None:
+        values, R = exchange(values, R, swapped, b)
     usable = np.isfinite(values) & np.isfinite(h).all(axis=0)
+    if held_out is not None:
+        usable &= ~np.repeat(held_out, b)
     if not usable.any():
         return None
-    H, z_hat, Lam, Phi = _regression(xi, h[:, usable], Sigma, Wm, Wc)
-    R_u = R[np.ix_(usable, usable)]
-    b = model.measurement_block
-    d2 = block_distances((values[usable] - z_hat).reshape(-1, b), diagonal_blocks(Phi + R_u, b))
-    kept = np.repeat(d2 <= threshold, b)
-    if not kept.any():
-        kept[:] = True
-    return H[kept], z_hat[kept], (R_u + Lam)[np.ix_(kept, kept)], values[usable][kept]
+    H, z_hat, Lam, _ = _regression(xi, h[:, usable], Sigma, Wm, Wc)
+    return H, z_hat, R[np.ix_(usable, usable)] + Lam, values[usable]
 
 
 def _sigma_frames(model, points: ManifoldSigmaPoints, mu: list[np.ndarray], Sigma: RecordArray):
@@ -109,14 +111,16 @@ def _sigma_frames(model, points: ManifoldSigmaPoints, mu: list[np.ndarray], Sigm
 
 def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray],
                             covariances: Sequence[np.ndarray], data: np.ndarray, iterations: int = ITERATIONS,
-                            gate_probability: float = GATE_PROBABILITY, swaps: bool = True,
+                            held_out: Sequence[np.ndarray | None] | None = None,
+                            swapped: Sequence[np.ndarray | None] | None = None,
                             memory: int | None = None) -> tuple[list[np.ndarray], RecordArray]:
     """Smoothed (μ_k (A,), Σ_k (n, n)) of the filtered ``means`` and ``covariances`` (module
     docstring) given each frame's ``data`` (T, *observation_shape), for a model in the unscented
     filter's form and its sigma points (the filtered inputs read a frame at a time, as
     :func:`~priortrack.filters.unscented_rts.unscented_rts` reads them). ``iterations`` = 0 is the
-    unscented RTS smoother; ``swaps`` undoes a detector's left/right swaps as the filter does
-    (:func:`~priortrack.filters.ukf.swap_corrected`). The per-frame matrices (the smoothed Σ_k, and an
+    unscented RTS smoother. ``held_out`` (per frame (K,) bool or None) and ``swapped`` (per frame (2p,)
+    points or None) are the filter's own validation-gate and swap decisions (its steps' fields): the
+    smoother conditions on the pixels the filter updated with (None: every observed pixel). The per-frame matrices (the smoothed Σ_k, and an
     iteration's M_k and G_k) are :class:`~priortrack.filters.step_store.RecordArray` s of a third of
     ``memory`` bytes each (None: in memory), so a run's length alone does not exhaust the memory."""
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
@@ -126,7 +130,6 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[
     share = None if memory is None else memory // 3
     mu, Sigma = unscented_rts(model, points, means, covariances, share)
     Wm, Wc = points.Wm, points.Wc
-    threshold = gate_threshold(gate_probability, model.measurement_block)
     T, n = len(mu), len(Sigma[0])
     for _ in range(iterations):
         frames = _sigma_frames(model, points, mu, Sigma)
@@ -151,7 +154,8 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[
             gain = np.linalg.solve(P_pred, A @ P).T
             c[k - 1], M[k - 1], G[k - 1] = d - gain @ d_pred, P - gain @ P_pred @ gain.T, gain
             d, P = d_pred, P_pred
-            obs = _observed(model, data[k], h, xi, Sigma[k], Wm, Wc, threshold, swaps)
+            obs = _observed(model, data[k], h, xi, Sigma[k], Wm, Wc, None if held_out is None else held_out[k],
+                            None if swapped is None else swapped[k])
             if obs is not None:
                 H, z_hat, R, z = obs
                 S = H @ P @ H.T + R

@@ -65,6 +65,9 @@ class Snapshot:
     #: (points,) bool: the observed points (a joint in one camera, in the observation's order:
     #: cameras, joints) the unscented filter's validation gate held out; None for other filters.
     held_out: np.ndarray | None = None
+    #: (k,) int: the points (indices in the observation's order) the unscented filter exchanged with
+    #: their mirror partner before its update (a detector's left/right swap undone); None where none.
+    swapped: np.ndarray | None = None
 
     def for_smoothing(self) -> "Snapshot":
         """This step with only what a smoother reads of it (:mod:`priortrack.filters.smoothing`): a

@@ -104,9 +104,10 @@ class StepStore(Sequence):
         self.spilled += 1
 
     def array(self, index: int, name: str) -> torch.Tensor | None:
-        """One array (``ARRAYS``) of step ``index``: a spilled step's read from its own file alone."""
+        """One array (``ARRAYS``) of step ``index``: a spilled step's read from its own file alone; any
+        other field of the step (kept in memory) as it is."""
         step, device = self._steps[index], self._devices[index]
-        if device is None:
+        if device is None or name not in ARRAYS:
             return getattr(step, name)
         path = self._path(range(len(self))[index], name)
         return torch.from_numpy(np.load(path, allow_pickle=False)).to(device) if path.exists() else None

@@ -319,7 +319,8 @@ def swap_corrected(z: np.ndarray, R: np.ndarray, z_hat: np.ndarray, P: np.ndarra
     (d² > ``threshold``) at one of the two joints and the exchanged association passes it at both: a
     prediction that lost a limb is not a reason to relabel what the detector saw. z (m,) points of ``b``
     coordinates in cameras × joints order (NaN: not seen), R (m, m) diagonal. Returns z and R with the
-    pairs exchanged, and their count."""
+    pairs exchanged, and the exchanged points (k,) (both of each pair, indices in cameras × joints order;
+    empty where none)."""
     cameras = len(z) // (b * joints)
     left = (np.arange(cameras)[:, None] * joints + pairs[:, 0]).ravel()
     right = (np.arange(cameras)[:, None] * joints + pairs[:, 1]).ravel()
@@ -327,7 +328,7 @@ def swap_corrected(z: np.ndarray, R: np.ndarray, z_hat: np.ndarray, P: np.ndarra
     seen = points[left] & points[right]
     left, right = left[seen], right[seen]
     if not len(left):
-        return z, R, 0
+        return z, R, np.zeros(0, dtype=int)
     both = np.concatenate([left, right])
     columns = (both[:, None] * b + np.arange(b)).ravel()
     z_hat, P = z_hat[both], P[both]
@@ -342,13 +343,21 @@ def swap_corrected(z: np.ndarray, R: np.ndarray, z_hat: np.ndarray, P: np.ndarra
     swap = ((exchanged.sum(axis=0) < labelled.sum(axis=0)) & (labelled > threshold).any(axis=0)
             & (exchanged <= threshold).all(axis=0))
     if not swap.any():
-        return z, R, 0
-    a = (left[swap][:, None] * b + np.arange(b)).ravel()
-    c = (right[swap][:, None] * b + np.arange(b)).ravel()
+        return z, R, np.zeros(0, dtype=int)
+    exchanged = np.concatenate([left[swap], right[swap]])
+    return *exchange(z, R, exchanged, b), exchanged
+
+
+def exchange(z: np.ndarray, R: np.ndarray, points: np.ndarray, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """z (m,) and R (m, m) (diagonal) with the points ``points`` (2k,) exchanged pairwise, the i-th with the
+    (k + i)-th (points of ``b`` coordinates, as :func:`swap_corrected` gives them); copies."""
+    k = len(points) // 2
+    a = (points[:k, None] * b + np.arange(b)).ravel()
+    c = (points[k:, None] * b + np.arange(b)).ravel()
     z, R = z.copy(), R.copy()
     z[a], z[c] = z[c], z[a]
     R[a, a], R[c, c] = R[c, c], R[a, a]
-    return z, R, int(swap.sum())
+    return z, R
 
 
 class ManifoldSigmaPoints:
@@ -500,6 +509,9 @@ class UnscentedFilter(SequentialFilter):
         #: (points,) the observed points (a joint in one camera, the observation's order) the last
         #: step's validation gate held out; None where the step had nothing to gate.
         self.held_out: np.ndarray | None = None
+        #: (k,) the points the last step exchanged with their mirror partner (a detector's swap undone);
+        #: None where it exchanged none.
+        self.swapped: np.ndarray | None = None
 
     @property
     def mean(self) -> torch.Tensor:
@@ -558,7 +570,7 @@ class UnscentedFilter(SequentialFilter):
         if count:
             flags.append("outlier-gated")
             z = gated.numpy()
-        kf.repairs, self.held_out = 0, None
+        kf.repairs, self.held_out, self.swapped = 0, None, None
         t0 = time.perf_counter()
         kf.P, repaired = repaired_covariance(kf.P)
         kf.repairs += repaired
@@ -578,7 +590,8 @@ class UnscentedFilter(SequentialFilter):
         return Snapshot(self.frame, sigmas, torch.from_numpy(kf.Wm.copy()), float(len(sigmas)), None,
                         estimate.cpu().numpy(), estimate.cpu().numpy(), joints, flags,
                         {"predict": t1 - t0, "weight": t2 - t1, "estimate": t3 - t2},
-                        mean=self.mean, covariance=self.covariance, held_out=self.held_out)
+                        mean=self.mean, covariance=self.covariance, held_out=self.held_out,
+                        swapped=self.swapped)
 
     def _update(self, z: np.ndarray, R: np.ndarray, flags: list[str]) -> None:
         """The measurement update with z (m,) and R (m, m) on the observed coordinates that every sigma
@@ -604,8 +617,9 @@ class UnscentedFilter(SequentialFilter):
             pairs = getattr(self.unscented, "mirror_pairs", None)
             if self.swaps and pairs is not None:
                 z, R, swapped = swap_corrected(z, R, z_hat, P, pairs, len(self.lost_frames), b, self.threshold)
-                if swapped:
+                if len(swapped):
                     flags.append("swap-corrected")
+                    self.swapped = swapped
             kept = self._validated(z, R, z_hat, P, usable, flags)
         self.held_out = (usable & ~kept).reshape(-1, self.unscented.measurement_block).any(axis=1)
         usable = kept
@@ -684,7 +698,8 @@ class UnscentedFilter(SequentialFilter):
         local = ManifoldSigmaPoints(self.unscented, SMOOTHER_ALPHA, points.offsets.beta, points.offsets.kappa)
         means, covariances = posterior_linearisation(self.unscented, local, Column(snapshots, "mean", torch.Tensor.numpy),
                                                      Column(snapshots, "covariance", torch.Tensor.numpy), observations,
-                                                     gate_probability=self.gate_probability, swaps=self.swaps,
+                                                     held_out=Column(snapshots, "held_out"),
+                                                     swapped=Column(snapshots, "swapped"),
                                                      memory=snapshots.memory if isinstance(snapshots, StepStore) else None)
         Wc = torch.from_numpy(points.Wc)
 
