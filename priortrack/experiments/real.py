@@ -343,6 +343,7 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
     residual = None if single else np.full(T, -np.inf)
     seen, left_out = np.zeros((T, 15), dtype=bool), np.zeros((T, C), dtype=bool)
     shown, behind = np.zeros(C, dtype=bool), np.zeros((C, 2), dtype=int)
+
     def triangulated(block: np.ndarray) -> np.ndarray:
         return triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(block[..., 2]).transpose(1, 0, 2))
 

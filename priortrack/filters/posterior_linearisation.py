@@ -120,9 +120,10 @@ def posterior_linearisation(model, points: ManifoldSigmaPoints, means: Sequence[
     :func:`~priortrack.filters.unscented_rts.unscented_rts` reads them). ``iterations`` = 0 is the
     unscented RTS smoother. ``held_out`` (per frame (K,) bool or None) and ``swapped`` (per frame (2p,)
     points or None) are the filter's own validation-gate and swap decisions (its steps' fields): the
-    smoother conditions on the pixels the filter updated with (None: every observed pixel). The per-frame matrices (the smoothed Σ_k, and an
-    iteration's M_k and G_k) are :class:`~priortrack.filters.step_store.RecordArray` s of a third of
-    ``memory`` bytes each (None: in memory), so a run's length alone does not exhaust the memory."""
+    smoother conditions on the pixels the filter updated with (None: every observed pixel). The
+    per-frame matrices (the smoothed Σ_k, and an iteration's M_k and G_k) are
+    :class:`~priortrack.filters.step_store.RecordArray` s of a third of ``memory`` bytes each (None: in
+    memory), so a run's length alone does not exhaust the memory."""
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
         raise PriortrackError(f"iterations must be a whole number ≥ 0, got {iterations!r}")
     if len(data) != len(means):

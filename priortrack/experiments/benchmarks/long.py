@@ -8,9 +8,9 @@ and written as an ``.npz`` of BODY_25B keypoints (``keypoints`` (C, T, 25, 3), `
 ``fps``). Each run is its own process, so that its peak resident memory is the run's own (Linux: the
 process's ``VmHWM``, its memory's high-water mark; not ``ru_maxrss``, which Linux carries across the
 fork and exec that start it from the parent's resident size, here the bench's, which wrote a 36,000-frame
-input: every run read the parent's 586 MB): the file read, the prior fitted or loaded, the filter run (the ticks timed by the progress
-callback), the result written as ``.npz``. Time per frame is the mean over the first and over the last
-tenth of the ticks; their ratio says whether a step's cost grows with the run.
+input: every run read the parent's 586 MB): the file read, the prior fitted or loaded, the filter run (the
+ticks timed by the progress callback), the result written as ``.npz``. Time per frame is the mean over the
+first and over the last tenth of the ticks; their ratio says whether a step's cost grows with the run.
 """
 
 from __future__ import annotations
