@@ -324,3 +324,62 @@ def test_bad_calibrations_name_the_file_camera_and_field(tmp_path, text, suffix,
         read_calibration(path)
     with pytest.raises(PriortrackError, match="does not exist"):
         read_calibration(tmp_path / "none.toml")
+
+
+MULTIPERSON = Path(__file__).parent / "data" / "pose2sim_multiperson"
+
+
+def test_qualisys_qca_is_read_as_pose2sim_converts_it():
+    """The Qualisys export Pose2Sim's multi-person demo ships, against Pose2Sim's own conversion of it
+    (``Calib_qualisys.toml``, written by Pose2Sim from this file): the same K, distortion, R and t."""
+    qca = read_calibration(MULTIPERSON / "calibration" / "Calib.qca.txt")
+    pose2sim = read_calibration(MULTIPERSON / "pose2sim_output" / "Calib_qualisys.toml")
+    assert qca.format == "Qualisys .qca.txt" and qca.up == "z" and qca.units == "mm"
+    assert qca.names == pose2sim.names == ("cam_01", "cam_02", "cam_03", "cam_04")
+    for a, b in zip(qca.cameras, pose2sim.cameras):
+        assert a.size == b.size == (1088, 1920)
+        np.testing.assert_allclose(a.K, b.K, rtol=1e-12)
+        np.testing.assert_allclose(a.dist, b.dist, atol=1e-15)
+        np.testing.assert_allclose(a.R, b.R, atol=1e-12)
+        np.testing.assert_allclose(a.t, b.t, atol=1e-12)
+
+
+def test_4d_association_calibration_projects_like_cv2(tmp_path):
+    """4D Association's calibration layout (per camera ``K`` 9 and ``RT`` 12 numbers, flat row-major,
+    world → camera, and ``imgSize``; its ``Camera::Parse``), written from the Pose2Sim cameras with cv2's
+    Rodrigues: points project as cv2.projectPoints projects them with the Pose2Sim file's own values."""
+    table = tomllib.loads((POSE2SIM / "Calib.toml").read_text())
+    cameras = [v for v in table.values() if isinstance(v, dict) and "matrix" in v]
+    path = tmp_path / "calibration.json"
+    path.write_text(json.dumps({str(i): {
+        "K": np.ravel(c["matrix"]).tolist(),
+        "RT": np.hstack([cv2.Rodrigues(np.asarray(c["rotation"], float))[0],
+                         np.reshape(c["translation"], (3, 1))]).ravel().tolist(),
+        "imgSize": [int(s) for s in c["size"]]} for i, c in enumerate(cameras)}, indent=1))
+    calib = read_calibration(path)
+    assert calib.format == "4D Association calibration.json" and calib.names == ("0", "1", "2", "3")
+    X = np.random.default_rng(0).uniform([-1, -1, 0], [1, 1, 2], (50, 3))
+    for camera, c in zip(calib.cameras, cameras):
+        expected = cv2.projectPoints(X, np.asarray(c["rotation"], float), np.asarray(c["translation"], float),
+                                     np.asarray(c["matrix"], float), None)[0][:, 0]
+        uv, _ = PinholeCamera.from_calibration(camera).project(X)
+        np.testing.assert_allclose(uv, expected, atol=1e-6)
+    bad = json.loads(path.read_text())
+    bad["0"]["RT"] = bad["0"]["RT"][:11]
+    path.write_text(json.dumps(bad))
+    with pytest.raises(PriortrackError, match=r"camera '0': RT must be 12 numbers"):
+        read_calibration(path)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t.replace('focalLengthU="107599.671875"', 'focalLengthU="wide"'),
+     r"camera 'cam_01': <intrinsic> focalLengthU='wide' is not a number"),
+    (lambda t: t.replace("<fov_video ", "<fov_other ", 1), r"camera 'cam_01': no <fov_video> element"),
+    (lambda t: t[:len(t) // 2], r"not valid XML"),
+    (lambda t: "cam_01 1681 0 533\n", r"unknown calibration format '.txt'"),
+])
+def test_bad_qualisys_files_name_the_camera_and_field(tmp_path, edit, message):
+    path = tmp_path / "Calib.qca.txt"
+    path.write_text(edit((MULTIPERSON / "calibration" / "Calib.qca.txt").read_text()))
+    with pytest.raises(PriortrackError, match=message):
+        read_calibration(path)

@@ -126,6 +126,7 @@ def test_coco_results_mediapipe_and_npz(tmp_path):
     ({"a_0.json": {"people": [{"pose_keypoints_2d": [1.0, 2.0, -0.5] * 17}]}}, "confidence -0.5"),
     ({"a_0.json": {"people": [{"pose_keypoints_2d": [1.0, 2.0, float("nan")] * 17}]}}, "confidence nan"),
     ({"a_0.json": {"people": []}}, "nobody is detected"),
+    ({"a_0.json": {"people": [{"pose_keypoints_2d": []}]}}, "nobody is detected"),
     ({"a_0.json": {"people": [{"pose_keypoints_2d": [1, 2]}]}}, "not a list of x, y, confidence triples"),
     ({"a_1.json": {"people": []}, "b_01.json": {"people": []}}, "frame 1 appears twice"),
     ({"nodigits.json": {"people": []}}, "no frame number"),
@@ -169,3 +170,13 @@ def test_triangulation_in_chunks_is_the_same(monkeypatch):
     whole = triangulate(cameras, uv, conf)
     monkeypatch.setattr(triangulation, "CHUNK", 7)
     np.testing.assert_array_equal(triangulate(cameras, uv, conf), whole)
+
+
+def test_an_empty_keypoint_list_is_a_person_not_there():
+    """Pose2Sim's multi-person demo: cam01's frame 1 holds an entry whose ``pose_keypoints_2d`` is []
+    (the participant left out) beside two people; it is nobody, not an error, and the other entries
+    of that file are read."""
+    folder = Path(__file__).parent / "data" / "pose2sim_multiperson" / "pose"
+    d = read_detections(folder, keypoints="body25b")
+    assert d.camera_names == ("cam01_json", "cam02_json", "cam03_json", "cam04_json")
+    assert d.keypoints.shape == (4, 100, 25, 3) and np.isfinite(d.keypoints[0, 1, :, :2]).any()

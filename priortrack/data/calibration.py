@@ -11,8 +11,8 @@ it is measured, as mmhuman3d's floor), else None (found from the person, or give
 name, and the unit the translations were read in.
 
 Formats (:mod:`priortrack.data.calibration_formats` has the table): Pose2Sim, anipose/FreeMoCap,
-caliscope (``camera_array.toml`` and ``config.toml``), mmhuman3d, CMU Panoptic, VoxelPose, and
-OpenCV-style JSON / YAML: one camera as a mapping with ``K`` (or ``camera_matrix``), ``dist`` (or
+caliscope (``camera_array.toml`` and ``config.toml``), mmhuman3d, CMU Panoptic, VoxelPose, 4D Association
+(``K``, ``RT``, ``imgSize``), Qualisys ``.qca.txt`` (as Pose2Sim reads it), and OpenCV-style JSON / YAML: one camera as a mapping with ``K`` (or ``camera_matrix``), ``dist`` (or
 ``distortion_coefficients``, ``D``), ``R`` (3 × 3) or ``rvec`` (Rodrigues), ``t`` (or ``T``,
 ``tvec``), ``size`` (w, h) or ``image_width``/``image_height``, optional ``name``; several cameras
 as ``{"cameras": [...]}`` or a mapping of names to cameras; ``"up"`` and ``"units"`` optional. YAML
@@ -46,7 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from priortrack.data.calibration_formats import Layout, RawCamera, json_layout, toml_layout
+from priortrack.data.calibration_formats import (Layout, RawCamera, is_qualisys, json_layout, qualisys_layout,
+                                                 toml_layout)
 from priortrack.errors import PriortrackError
 
 log = logging.getLogger(__name__)
@@ -150,9 +151,11 @@ def _layout(path: Path, text: str) -> Layout:
         return json_layout(path, data) or _opencv_layout(path, data)
     if suffix in (".yml", ".yaml"):
         return _opencv_layout(path, _read_opencv_yaml(path, text))
+    if suffix in (".txt", ".qca", ".xml") and is_qualisys(text):
+        return qualisys_layout(path, text)
     raise PriortrackError(f"{path}: unknown calibration format {suffix!r}; give a .toml (Pose2Sim, anipose, "
-                          f"FreeMoCap, caliscope), a .json (OpenCV-style, mmhuman3d, Panoptic, VoxelPose) or a "
-                          f".yml/.yaml (OpenCV)")
+                          f"FreeMoCap, caliscope), a .json (OpenCV-style, mmhuman3d, Panoptic, VoxelPose, 4D "
+                          f"Association), a .yml/.yaml (OpenCV) or a Qualisys .qca.txt")
 
 
 def _up(path: Path, up: Any) -> str | np.ndarray | None:

@@ -17,6 +17,9 @@ caliscope ``config.toml``      TOML ``[cam_N]`` tables, 3 × 3 rotations        
 mmhuman3d chessboard JSON      JSON cameras with ``distCoeff`` and ``imgSize``  3 × 3 flat camera→world  (m)      floor
 Panoptic ``calibration.json``  JSON ``cameras`` with ``panel``/``resolution``  3 × 3      world→cam     cm       person
 VoxelPose ``calibration.json``  JSON cameras with ``fx``, ``fy``, ``cx``, ``cy``  3 × 3    T = centre    infer    person
+4D Association ``calibration``  JSON cameras with ``K``, ``RT`` (3 × 4 flat)   3 × 4 flat world→cam     infer    person
+``.json``                      and ``imgSize``
+Qualisys ``.qca.txt``          QTM's XML ``<calibration>``/``<camera>``         3 × 3      centre        mm       z
 OpenCV JSON / YAML             ``K``/``camera_matrix`` (module                 either     world→cam     infer    ``up``
                                :mod:`priortrack.data.calibration`)
 =============================  ==============================================  =========  ============  =======  ======
@@ -27,7 +30,15 @@ file whose first camera sits at the world's origin is one converted from such a 
 open too. mmhuman3d's depth cameras measure the floor: its normal, averaged over them and turned
 into the world (X_world = R x_cam + T), is up.
 
-Sources: Pose2Sim ``common.py``/``calibration.py`` (``toml_write``, ``retrieve_calib_params``),
+Qualisys QTM exports each camera's position (``transform`` x, y, z, millimetres), a rotation M (rows
+r11…r33, world → a camera frame whose y and z point opposite to OpenCV's) and its intrinsics in
+sub-pixels (1/64 px); read as Pose2Sim's ``read_qca``/``calib_qca_fun`` read them: R = diag(1, −1, −1) M
+(the π rotation about the camera's x), K = focal length / 64 and principal point / 64 less the video
+window's origin, the image size the video window's, and the distortion coefficients [k1, k2, p1, p2]
+divided by 64 as Pose2Sim divides them (its default ``undistort_points = false`` ignores them).
+
+Sources: Pose2Sim ``common.py``/``calibration.py`` (``toml_write``, ``retrieve_calib_params``,
+``read_qca``, ``calib_qca_fun``), 4D Association's ``camera.cpp`` (``Camera::Parse``: K and RT flat row-major),
 aniposelib ``cameras.py`` (``Camera.get_dict``, ``FisheyeCamera``), caliscope
 ``cameras/camera_array.py`` and its ``persistence`` TOML, mmhuman3d ``CameraParameter.
 load_from_chessboard`` (``inverse=True``), the CMU Panoptic toolbox's ``calibration_<seq>.json``
@@ -138,6 +149,8 @@ def json_layout(path: Path, data: Any) -> Layout | None:
     if not isinstance(data, dict):
         return None
     cameras = {k: v for k, v in data.items() if isinstance(v, dict)}
+    if cameras and all({"K", "RT", "imgSize"} <= set(c) for c in cameras.values()):
+        return Layout("4D Association calibration.json", [_four_d_camera(path, str(k), c) for k, c in cameras.items()])
     if cameras and all("distCoeff" in c and "imgSize" in c for c in cameras.values()):
         raw = [RawCamera(str(k), c.get("K"), c.get("imgSize"), c.get("distCoeff"), c.get("R"), c.get("T"),
                          direction="camera_to_world") for k, c in cameras.items()]
@@ -189,3 +202,57 @@ def _floor_up(path: Path, cameras: dict) -> np.ndarray | None:
     up = np.mean(normals, axis=0)
     log.info("%s: up from the floor seen by %d depth cameras: %s", path, len(normals), np.round(up / np.linalg.norm(up), 3))
     return up / np.linalg.norm(up)
+
+
+def _four_d_camera(path: Path, name: str, c: dict) -> RawCamera:
+    """A camera of 4D Association's calibration: ``RT`` the 3 × 4 world → camera [R | t], flat row-major."""
+    try:
+        RT = np.asarray(c["RT"], dtype=float).reshape(3, 4)
+    except (TypeError, ValueError):
+        raise PriortrackError(f"{path}: camera {name!r}: RT must be 12 numbers (a 3 × 4 [R | t], row-major), "
+                              f"got {c['RT']!r}") from None
+    return RawCamera(name, c["K"], c["imgSize"], c.get("distCoeff"), RT[:, :3], RT[:, 3])
+
+
+def is_qualisys(text: str) -> bool:
+    """A Qualisys QTM calibration export: an XML ``<calibration>`` holding ``<cameras>``."""
+    head = text.lstrip()[:2000]
+    return head.startswith("<") and "<calibration" in head and "<cameras" in text
+
+
+def qualisys_layout(path: Path, text: str) -> Layout:
+    """A Qualisys ``.qca.txt`` (module docstring), read as Pose2Sim reads it."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise PriortrackError(f"{path}: not valid XML ({exc})") from None
+    cameras = []
+    for i, camera in enumerate(root.findall("cameras/camera")):
+        name = camera.get("serial") or f"camera {i}"
+        fov, intrinsic, transform = (camera.find(tag) for tag in ("fov_video", "intrinsic", "transform"))
+        for tag, element in (("fov_video", fov), ("intrinsic", intrinsic), ("transform", transform)):
+            if element is None:
+                raise PriortrackError(f"{path}: camera {name!r}: no <{tag}> element")
+
+        def number(element, key: str) -> float:
+            try:
+                return float(element.get(key))
+            except (TypeError, ValueError):
+                raise PriortrackError(f"{path}: camera {name!r}: <{element.tag}> {key}={element.get(key)!r} is "
+                                      f"not a number") from None
+
+        left, top = number(fov, "left"), number(fov, "top")
+        size = [number(fov, "right") - left + 1, number(fov, "bottom") - top + 1]
+        sub = {k: number(intrinsic, k) / 64 for k in ("focalLengthU", "focalLengthV", "centerPointU", "centerPointV",
+                                                     "radialDistortion1", "radialDistortion2",
+                                                     "tangentalDistortion1", "tangentalDistortion2")}
+        K = [[sub["focalLengthU"], 0.0, sub["centerPointU"] - left], [0.0, sub["focalLengthV"], sub["centerPointV"] - top],
+             [0.0, 0.0, 1.0]]
+        dist = [sub["radialDistortion1"], sub["radialDistortion2"], sub["tangentalDistortion1"],
+                sub["tangentalDistortion2"]]
+        M = np.array([[number(transform, f"r{i}{j}") for j in (1, 2, 3)] for i in (1, 2, 3)])
+        centre = [number(transform, axis) for axis in "xyz"]
+        cameras.append(RawCamera(name, K, size, dist, np.diag([1.0, -1.0, -1.0]) @ M, centre, direction="centre"))
+    return Layout("Qualisys .qca.txt", cameras, up="z", units="mm", units_documented=True)

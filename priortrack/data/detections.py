@@ -3,7 +3,7 @@
 :func:`read_detections` takes
 
 - a folder of OpenPose JSON files (one per frame: ``people[i].pose_keypoints_2d`` = x, y,
-  confidence per keypoint), or a folder of such folders, one per camera (sorted by name, as
+  confidence per keypoint; an empty list is a person not there), or a folder of such folders, one per camera (sorted by name, as
   Pose2Sim does); frame numbers come from the file names' last run of digits
   (``cam01.000012.json``, ``..._000000000012_keypoints.json``). The same JSON layout with 17 or 33
   keypoints carries COCO-17 (MMPose, RTMPose, ViTPose, YOLO-pose) or MediaPipe output. The files are
@@ -183,7 +183,9 @@ def _people(path: Path) -> list[np.ndarray]:
     people = []
     for i, p in enumerate(data["people"]):
         values = p.get("pose_keypoints_2d") if isinstance(p, dict) else None
-        if not isinstance(values, list) or len(values) % 3 or not values:
+        if values == []:                         # an entry with no keypoints (Pose2Sim's files have them): nobody
+            continue
+        if not isinstance(values, list) or len(values) % 3:
             raise PriortrackError(f"{path}: people[{i}].pose_keypoints_2d is not a list of x, y, confidence triples")
         people.append(_triples(values, f"{path}: people[{i}].pose_keypoints_2d"))
     return people

@@ -180,9 +180,11 @@ class DetectionTrack:
     #: Camera-ticks whose person disagreed with the other cameras' (left out).
     cross_view_rejections: int = 0
     #: Smoothed runs (``smooth=True``): ``joints``, ``spread`` and the BVH's body joints are the
-    #: smoother's, the filter's own joints (T, 15, 3) are kept here; ``lag`` the fixed lag (None: whole run).
+    #: smoother's, the filter's own joints (T, 15, 3) and spread (T, 15) are kept here; ``lag`` the fixed lag
+    #: (None: whole run).
     filtered_joints: np.ndarray | None = field(default=None, repr=False)
     lag: int | None = None
+    filtered_spread: np.ndarray | None = field(default=None, repr=False)
     #: The run was interrupted (Ctrl-C): it holds the ticks tracked until then.
     interrupted: bool = False
     #: The tracked motion's fit-check under the prior (:mod:`priortrack.priors.support`): "verdict",
@@ -227,9 +229,11 @@ class DetectionTrack:
         ``frames`` (T,), ``spread`` (T, 15), ``ess`` (T,), ``loglik`` (T,), ``mismatch`` (T,) bool,
         ``camera_names`` (C,), ``reprojection_px`` (T, C) each tick's median pixel error per camera and
         ``gated`` (T, C, 15) bool the detections the validation gate held out; a smoothed run adds
-        ``filtered_joints`` (T, 15, 3), the filter's own (``joints`` and ``spread`` are the smoother's)."""
+        ``filtered_joints`` (T, 15, 3) and ``filtered_spread`` (T, 15), the filter's own (``joints`` and
+        ``spread`` are the smoother's)."""
         path = output_path(path, "result file")
-        smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints.astype(np.float64)}
+        smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints.astype(np.float64),
+                                                            "filtered_spread": self.filtered_spread}
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints.astype(np.float64), joint_names=np.array(EVAL15_NAMES),
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,
@@ -524,6 +528,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         run = replace(run, estimates=run.estimates[:T], ess=run.ess[:T], steps=run.steps[:T - KNOWN_FRAMES])
         smoothed = None if smoothed is None else replace(smoothed, estimates=smoothed.estimates[:T],
                                                          spread=smoothed.spread[:T])
+    filtered_spread = None if smoothed is None else spread.copy()
     if smoothed is not None:
         spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
     estimates = run.estimates if smoothed is None else smoothed.estimates
@@ -547,8 +552,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                             up, A, skeleton, estimates, world_cameras, z,
                             run.snapshots, run.steps, rejected,
                             None if smoothed is None else in_world(run.estimates, A), lag if smooth else None,
-                            interrupted=run.interrupted, reprojection_by_tick=by_tick, gated=gated, pose_spread=pose,
-                            bones_unmeasured=unmeasured)
+                            filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
+                            gated=gated, pose_spread=pose, bones_unmeasured=unmeasured)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible

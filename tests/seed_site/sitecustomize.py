@@ -1,0 +1,5 @@
+"""Applies the test suite's seed offset in the processes the suite starts (see ``seed_offset.py``)."""
+
+import seed_offset
+
+seed_offset.apply(seed_offset.offset_from_env())
