@@ -1,0 +1,214 @@
+"""Cross-view association: which 2D people of one frame, in different cameras, are one person.
+
+No identity is assumed: a detector's people come in no stable order and its per-camera ids agree with
+no other camera's. Each person a of camera i and b of camera j are compared by their joints' rays:
+
+    d_k(a, b) = |(C_j − C_i) · (r_ak × r_bk)| / ‖r_ak × r_bk‖,
+
+the distance, in metres, between the ray from camera i's centre C_i through joint k of a (r_ak, the
+undistorted pixel's direction in the world) and the ray through the same joint of b; where the
+nearest points of the two rays lie behind a camera, or the rays are parallel, the joint does not
+count. The pair's distance d(a, b) is the confidence-weighted median of d_k over the joints both
+show (weights c_ak c_bk), where they share at least :data:`MIN_SHARED` joints; metres, so one gate
+holds for any camera's resolution and distance (a pixel gate would not).
+
+**Cycle-consistent grouping** (as 4D Association's Kruskal-style associater): the pairs under
+:data:`PAIR_GATE_M`, nearest first, join groups (union–find) when the union holds at most one person
+per camera and every pair of its members that shares enough joints is itself under the gate (complete
+linkage). Each group is an equivalence class, so the matching is cycle-consistent by construction
+(a ~ b and b ~ c in a group means a ~ c was checked too), without the spectral relaxation mvpose and
+EasyMocap solve (their matchSVT) and its rounding.
+
+**Proposals.** A group seen by two or more cameras is triangulated (confidence-weighted DLT,
+:func:`~priortrack.geometry.triangulation.triangulate`) into a 3D proposal; two proposals whose
+joints are within :data:`DUPLICATE_M` (median) are one person (a detector's split or doubled
+detection): merged where their cameras differ, else the one with more views kept. A person seen by
+one camera only stays a candidate, never a proposal: one view has no depth.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from priortrack.errors import PriortrackError
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.geometry.triangulation import triangulate, undistort_normalised
+
+#: Joints two detections must both show for their rays to be compared.
+MIN_SHARED = 4
+#: Largest pair distance (median joint ray-to-ray distance, metres) of one person in two views.
+PAIR_GATE_M = 0.15
+#: Two proposals whose triangulated joints lie within this median distance (metres) are one person.
+DUPLICATE_M = 0.2
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """One person seen by several cameras at one frame.
+
+    Attributes:
+        views: {camera index: person index in that camera's list}, two or more cameras.
+        joints: (J, 3) triangulated joints, metres, NaN where fewer than two views show the joint.
+        reprojection_px: (len(views),) median pixel distance of each view's joints from the
+            triangulated joints' projection, in ``views``' order.
+    """
+
+    views: dict[int, int]
+    joints: np.ndarray = field(repr=False)
+    reprojection_px: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
+class Association:
+    """One frame's association: ``proposals`` (several views each) and ``candidates``, the (camera,
+    person) pairs seen by one camera only (or too few joints to compare)."""
+
+    proposals: list[Proposal]
+    candidates: list[tuple[int, int]]
+
+
+def rays(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Each camera's people's joint rays: for camera c, (N_c, J, 3) unit directions in the world
+    (Rᵀ (x, y, 1), (x, y) the undistorted normalised pixel), NaN where the joint is missing."""
+    out = []
+    for camera, points in zip(cameras, uv):
+        xy = undistort_normalised(camera, np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ camera.R.double().numpy()
+        out.append((d / np.linalg.norm(d, axis=1, keepdims=True)).reshape(np.shape(points)[:-1] + (3,)))
+    return out
+
+
+def pair_distances(centre_i: np.ndarray, rays_i: np.ndarray, conf_i: np.ndarray, centre_j: np.ndarray,
+                   rays_j: np.ndarray, conf_j: np.ndarray) -> np.ndarray:
+    """d(a, b) (N_i, N_j), metres (module docstring), inf where fewer than :data:`MIN_SHARED` joints
+    compare. rays_* (N, J, 3) unit directions (NaN missing), conf_* (N, J) confidences."""
+    a, b = rays_i[:, None], rays_j[None]                                  # (N_i, 1, J, 3), (1, N_j, J, 3)
+    base = centre_j - centre_i
+    n = np.cross(a, b)                                                    # (N_i, N_j, J, 3)
+    sin = np.linalg.norm(n, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.abs(n @ base) / sin
+        # the nearest points' ray parameters: s along a from C_i, u along b from C_j (both must be > 0)
+        ab = (a * b).sum(-1)
+        s = ((base * a).sum(-1) - ab * (base * b).sum(-1)) / (1 - ab ** 2)
+        u = (ab * (base * a).sum(-1) - (base * b).sum(-1)) / (1 - ab ** 2)
+    usable = np.isfinite(d) & (sin > 1e-6) & (s > 0) & (u > 0)
+    w = np.where(usable, conf_i[:, None] * conf_j[None], 0.0)
+    return _weighted_median(np.where(usable, d, np.inf), w, MIN_SHARED)
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray, least: int) -> np.ndarray:
+    """The weighted median over the last axis of ``values`` (weights ≥ 0; entries of weight 0 ignored),
+    inf where fewer than ``least`` entries have weight."""
+    order = np.argsort(values, axis=-1)
+    v = np.take_along_axis(values, order, -1)
+    w = np.take_along_axis(weights, order, -1)
+    cumulative = np.cumsum(w, axis=-1)
+    total = cumulative[..., -1:]
+    k = np.minimum((cumulative < 0.5 * total).sum(-1, keepdims=True), values.shape[-1] - 1)
+    median = np.take_along_axis(v, k, -1)[..., 0]
+    return np.where((weights > 0).sum(-1) >= least, median, np.inf)
+
+
+class _Groups:
+    """Union–find over (camera, person) nodes that keeps, per group, its members."""
+
+    def __init__(self, nodes: list[tuple[int, int]]):
+        self.parent = {n: n for n in nodes}
+        self.members = {n: [n] for n in nodes}
+
+    def root(self, n):
+        while self.parent[n] != n:
+            self.parent[n] = self.parent[self.parent[n]]
+            n = self.parent[n]
+        return n
+
+    def join(self, a, b) -> None:
+        a, b = self.root(a), self.root(b)
+        self.parent[b] = a
+        self.members[a] += self.members.pop(b)
+
+
+def associate(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray], confidence: Sequence[np.ndarray],
+              pair_gate: float = PAIR_GATE_M) -> Association:
+    """Group one frame's 2D people across cameras (module docstring).
+
+    Args:
+        cameras: C calibrated cameras.
+        uv: per camera, (N_c, J, 2) pixels of its N_c people (NaN where missing).
+        confidence: per camera, (N_c, J) confidences (0 where missing).
+        pair_gate: the pair distance gate, metres.
+
+    Returns:
+        the proposals (two or more views, triangulated) and the candidates (one view).
+    """
+    if len(uv) != len(cameras) or len(confidence) != len(cameras):
+        raise PriortrackError(f"{len(uv)} cameras' people and {len(confidence)} confidences for {len(cameras)} cameras")
+    conf = [np.where(np.isfinite(np.asarray(u)).all(-1), np.asarray(c, dtype=np.float64), 0.0)
+            for u, c in zip(uv, confidence)]
+    directions = rays(cameras, uv)
+    centres = [c.center.double().numpy() for c in cameras]
+    distance: dict[tuple, float] = {}
+    for i in range(len(cameras)):
+        for j in range(i + 1, len(cameras)):
+            if not len(uv[i]) or not len(uv[j]):
+                continue
+            d = pair_distances(centres[i], directions[i], conf[i], centres[j], directions[j], conf[j])
+            for a, b in zip(*np.nonzero(np.isfinite(d))):
+                distance[(i, int(a)), (j, int(b))] = distance[(j, int(b)), (i, int(a))] = float(d[a, b])
+    nodes = [(c, n) for c in range(len(cameras)) for n in range(len(uv[c]))]
+    groups = _Groups(nodes)
+    for (a, b), d in sorted(((pair, d) for pair, d in distance.items() if pair[0] < pair[1] and d < pair_gate),
+                            key=lambda item: item[1]):
+        ra, rb = groups.root(a), groups.root(b)
+        if ra == rb:
+            continue
+        A, B = groups.members[ra], groups.members[rb]
+        if {c for c, _ in A} & {c for c, _ in B}:
+            continue                                        # one person per camera
+        if all(distance.get((x, y), 0.0) < pair_gate for x in A for y in B):
+            groups.join(ra, rb)
+    proposals, candidates = [], []
+    for members in groups.members.values():
+        if len(members) == 1:
+            candidates.append(members[0])
+        else:
+            proposals.append(_proposal(cameras, uv, conf, dict(sorted(members))))
+    proposals, extra = _merged_duplicates(cameras, uv, conf, proposals)
+    return Association(sorted(proposals, key=lambda p: -len(p.views)), sorted(candidates + extra))
+
+
+def _proposal(cameras: Sequence[PinholeCamera], uv, conf, views: dict[int, int]) -> Proposal:
+    chosen = [cameras[c] for c in views]
+    points = np.stack([np.asarray(uv[c][n], dtype=np.float64) for c, n in views.items()])      # (V, J, 2)
+    weights = np.stack([conf[c][n] for c, n in views.items()])                                 # (V, J)
+    joints = triangulate(chosen, np.where(weights[..., None] > 0, points, np.nan), weights)
+    errors = []
+    for camera, p in zip(chosen, points):
+        projected = camera.project(joints)[0]
+        e = np.linalg.norm(projected - p, axis=-1)
+        errors.append(float(np.median(e[np.isfinite(e)])) if np.isfinite(e).any() else np.nan)
+    return Proposal(views, joints, np.array(errors))
+
+
+def _merged_duplicates(cameras, uv, conf, proposals: list[Proposal]) -> tuple[list[Proposal], list[tuple[int, int]]]:
+    """Proposals within :data:`DUPLICATE_M` of each other merged (disjoint cameras) or the smaller's views
+    returned as candidates."""
+    proposals = sorted(proposals, key=lambda p: -len(p.views))
+    kept: list[Proposal] = []
+    left: list[tuple[int, int]] = []
+    for p in proposals:
+        for i, q in enumerate(kept):
+            gap = np.linalg.norm(p.joints - q.joints, axis=-1)
+            if np.isfinite(gap).any() and np.median(gap[np.isfinite(gap)]) < DUPLICATE_M:
+                if set(p.views) & set(q.views):
+                    left += list(p.views.items())
+                else:
+                    kept[i] = _proposal(cameras, uv, conf, dict(sorted({**q.views, **p.views}.items())))
+                break
+        else:
+            kept.append(p)
+    return kept, left
