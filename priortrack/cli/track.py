@@ -17,7 +17,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.experiments.tracking import track
     from priortrack.viz.replay import replay
 
-    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "skeleton", "memory"):   # (--height has a default)
+    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory"):   # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -101,6 +101,9 @@ def _track_detections(args: argparse.Namespace) -> None:
             raise PriortrackError(f"--camera-map must be FOLDER=CAMERA,…, got {args.camera_map!r}")
         camera_map = dict(pairs)
     skeleton = _skeleton(args.skeleton) if args.skeleton else None
+    if args.people is not None:
+        _track_scene(args, camera_map, memory)
+        return
     detections = open_detections(args.detections, keypoints=args.keypoints, person=args.person)   # npz, npy: in blocks
     if args.frames is not None:
         detections = detections.head(args.frames)
@@ -132,6 +135,39 @@ def _track_detections(args: argparse.Namespace) -> None:
           + (f"; wrote {', '.join(written)}" if written else ""))
 
 
+def _track_scene(args: argparse.Namespace, camera_map: dict | None, memory: int) -> None:
+    """``track --detections … --people …``: every person of the scene (:mod:`priortrack.tracking.people`)."""
+    from priortrack.data.calibration import read_calibration
+    from priortrack.data.scene_detections import read_scene_detections
+    from priortrack.tracking.people import parse_people, track_scene
+    from priortrack.tracking.scene import SceneConfig
+
+    for name in ("person", "skeleton"):
+        if getattr(args, name) is not None:
+            raise PriortrackError(f"--{name} follows one person; --people tracks the scene's (give one of them)")
+    people = parse_people(args.people)
+    scene = read_scene_detections(args.detections, keypoints=args.keypoints)
+    if args.frames is not None:
+        scene = scene.head(args.frames)
+    calibration = read_calibration(args.cameras, units=args.units)
+    result = track_scene(scene, calibration, args.filter, fps=args.fps, up=args.up, camera_map=camera_map,
+                         config=SceneConfig(min_confidence=args.min_confidence), people=people, seed=args.seed,
+                         height=args.height, device=args.device, memory=memory, **_smoothing(args))
+    written = [str(p) for path in args.out or [] for p in result.save(path)]
+    if args.rrd:
+        from priortrack.viz.scene import record_scene
+
+        written.append(str(record_scene(result, args.rrd, args.min_confidence)))
+    summary = {**result.summary(), "filter": args.filter, "written": written}
+    if args.json:
+        print_json(summary)
+        return
+    people_text = ", ".join(f"person {pid} ({v['ticks_present']} ticks)" for pid, v in summary["per_person"].items())
+    skipped = "".join(f"; person {k} not tracked: {v}" for k, v in summary["skipped"].items())
+    print(f"{args.filter}: {len(result.person_ids)} people, {summary['frames']} ticks at {result.fps:g} fps in "
+          f"{summary['seconds']:.1f} s: {people_text}{skipped}" + (f"; wrote {', '.join(written)}" if written else ""))
+
+
 def add_parsers(verbs) -> None:
     """Register this family's verbs on the ``priortrack`` sub-parsers."""
     track = verbs.add_parser("track", help="track detections from calibrated cameras, or a motion's synthetic "
@@ -153,6 +189,11 @@ def add_parsers(verbs) -> None:
     track.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
     track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
     track.add_argument("--person", type=int, help="follow this index of each frame's people list")
+    track.add_argument("--people", nargs="+", metavar="WHO",
+                       help="track every person of the scene, each with an identity: all; N (the N seen longest); "
+                            "id:A,B; at:CAMERA:X,Y or box:CAMERA:X0,Y0,X1,Y1 (the person there in that camera's "
+                            "first frame). Outputs hold every person: .npz joints (T, P, 15, 3), .csv with a person "
+                            "column, a .trc/.bvh per person; the recording colours and labels each")
     track.add_argument("--skeleton", help="the person's own body (.asf, or a .bvh's hierarchy) instead of the "
                                          "template scaled to the detections")
     track.add_argument("--height", type=float, default=1.7,

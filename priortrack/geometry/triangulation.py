@@ -53,7 +53,12 @@ CHUNK = 30_000
 
 def _dlt(cameras: Sequence[PinholeCamera], uv: np.ndarray, w: np.ndarray) -> np.ndarray:
     """(N, 3) points from uv (C, N, 2) and weights w (C, N) (:func:`triangulate`)."""
-    xy = np.stack([undistort_normalised(c, uv[i]) for i, c in enumerate(cameras)])
+    return dlt_normalised(cameras, np.stack([undistort_normalised(c, uv[i]) for i, c in enumerate(cameras)]), w)
+
+
+def dlt_normalised(cameras: Sequence[PinholeCamera], xy: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(N, 3) points from undistorted normalised coordinates xy (C, N, 2) (:func:`undistort_normalised`)
+    and weights w (C, N): the DLT of the module docstring, NaN where fewer than two cameras see a point."""
     seen = np.isfinite(xy).all(axis=-1) & (w > 0)                                   # (C, N)
     w = np.where(seen, w, 0.0)
     xy = np.where(seen[..., None], xy, 0.0)

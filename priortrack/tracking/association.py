@@ -19,8 +19,8 @@ linkage). Each group is an equivalence class, so the matching is cycle-consisten
 (a ~ b and b ~ c in a group means a ~ c was checked too), without the spectral relaxation mvpose and
 EasyMocap solve (their matchSVT) and its rounding.
 
-**Proposals.** A group seen by two or more cameras is triangulated (confidence-weighted DLT,
-:func:`~priortrack.geometry.triangulation.triangulate`) into a 3D proposal; two proposals whose
+**Proposals.** A group seen by two or more cameras is triangulated (confidence-weighted DLT of the
+undistorted points, :func:`~priortrack.geometry.triangulation.dlt_normalised`) into a 3D proposal; two proposals whose
 joints are within :data:`DUPLICATE_M` (median) are one person (a detector's split or doubled
 detection): merged where their cameras differ, else the one with more views kept. A person seen by
 one camera only stays a candidate, never a proposal: one view has no depth.
@@ -35,7 +35,7 @@ import numpy as np
 
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.geometry.triangulation import triangulate, undistort_normalised
+from priortrack.geometry.triangulation import dlt_normalised, undistort_normalised
 
 #: Joints two detections must both show for their rays to be compared.
 MIN_SHARED = 4
@@ -52,8 +52,8 @@ class Proposal:
     Attributes:
         views: {camera index: person index in that camera's list}, two or more cameras.
         joints: (J, 3) triangulated joints, metres, NaN where fewer than two views show the joint.
-        reprojection_px: (len(views),) median pixel distance of each view's joints from the
-            triangulated joints' projection, in ``views``' order.
+        reprojection_px: (len(views),) median distance of each view's joints from the triangulated
+            joints' projection, in ``views``' order: pixels of the undistorted image.
     """
 
     views: dict[int, int]
@@ -70,14 +70,18 @@ class Association:
     candidates: list[tuple[int, int]]
 
 
-def rays(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """Each camera's people's joint rays: for camera c, (N_c, J, 3) unit directions in the world
-    (Rᵀ (x, y, 1), (x, y) the undistorted normalised pixel), NaN where the joint is missing."""
+def normalised(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Each camera's pixels (..., 2) as undistorted normalised coordinates (x, y) (NaN stays NaN)."""
+    return [undistort_normalised(camera, np.asarray(points, dtype=np.float64)) for camera, points in zip(cameras, uv)]
+
+
+def rays(cameras: Sequence[PinholeCamera], xy: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Each camera's joint rays from normalised coordinates xy (N_c, J, 2): unit directions Rᵀ (x, y, 1)
+    in the world (N_c, J, 3), NaN where the joint is missing."""
     out = []
-    for camera, points in zip(cameras, uv):
-        xy = undistort_normalised(camera, np.asarray(points, dtype=np.float64).reshape(-1, 2))
-        d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ camera.R.double().numpy()
-        out.append((d / np.linalg.norm(d, axis=1, keepdims=True)).reshape(np.shape(points)[:-1] + (3,)))
+    for camera, points in zip(cameras, xy):
+        d = np.concatenate([points, np.ones(points.shape[:-1] + (1,))], axis=-1) @ camera.R.double().numpy()
+        out.append(d / np.linalg.norm(d, axis=-1, keepdims=True))
     return out
 
 
@@ -133,7 +137,7 @@ class _Groups:
 
 
 def associate(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray], confidence: Sequence[np.ndarray],
-              pair_gate: float = PAIR_GATE_M) -> Association:
+              pair_gate: float = PAIR_GATE_M, xy: Sequence[np.ndarray] | None = None) -> Association:
     """Group one frame's 2D people across cameras (module docstring).
 
     Args:
@@ -141,25 +145,26 @@ def associate(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray], confid
         uv: per camera, (N_c, J, 2) pixels of its N_c people (NaN where missing).
         confidence: per camera, (N_c, J) confidences (0 where missing).
         pair_gate: the pair distance gate, metres.
+        xy: the same points already undistorted and normalised (:func:`normalised`), or None.
 
     Returns:
         the proposals (two or more views, triangulated) and the candidates (one view).
     """
     if len(uv) != len(cameras) or len(confidence) != len(cameras):
         raise PriortrackError(f"{len(uv)} cameras' people and {len(confidence)} confidences for {len(cameras)} cameras")
-    conf = [np.where(np.isfinite(np.asarray(u)).all(-1), np.asarray(c, dtype=np.float64), 0.0)
-            for u, c in zip(uv, confidence)]
-    directions = rays(cameras, uv)
+    xy = normalised(cameras, uv) if xy is None else [np.asarray(p, dtype=np.float64) for p in xy]
+    conf = [np.where(np.isfinite(p).all(-1), np.asarray(c, dtype=np.float64), 0.0) for p, c in zip(xy, confidence)]
+    directions = rays(cameras, xy)
     centres = [c.center.double().numpy() for c in cameras]
     distance: dict[tuple, float] = {}
     for i in range(len(cameras)):
         for j in range(i + 1, len(cameras)):
-            if not len(uv[i]) or not len(uv[j]):
+            if not len(xy[i]) or not len(xy[j]):
                 continue
             d = pair_distances(centres[i], directions[i], conf[i], centres[j], directions[j], conf[j])
             for a, b in zip(*np.nonzero(np.isfinite(d))):
                 distance[(i, int(a)), (j, int(b))] = distance[(j, int(b)), (i, int(a))] = float(d[a, b])
-    nodes = [(c, n) for c in range(len(cameras)) for n in range(len(uv[c]))]
+    nodes = [(c, n) for c in range(len(cameras)) for n in range(len(xy[c]))]
     groups = _Groups(nodes)
     for (a, b), d in sorted(((pair, d) for pair, d in distance.items() if pair[0] < pair[1] and d < pair_gate),
                             key=lambda item: item[1]):
@@ -176,25 +181,27 @@ def associate(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray], confid
         if len(members) == 1:
             candidates.append(members[0])
         else:
-            proposals.append(_proposal(cameras, uv, conf, dict(sorted(members))))
-    proposals, extra = _merged_duplicates(cameras, uv, conf, proposals)
+            proposals.append(_proposal(cameras, xy, conf, dict(sorted(members))))
+    proposals, extra = _merged_duplicates(cameras, xy, conf, proposals)
     return Association(sorted(proposals, key=lambda p: -len(p.views)), sorted(candidates + extra))
 
 
-def _proposal(cameras: Sequence[PinholeCamera], uv, conf, views: dict[int, int]) -> Proposal:
+def _proposal(cameras: Sequence[PinholeCamera], xy, conf, views: dict[int, int]) -> Proposal:
+    """The views' joints triangulated (DLT on normalised points) and each view's median reprojection error,
+    in pixels of its focal length (the normalised error times √(fx fy))."""
     chosen = [cameras[c] for c in views]
-    points = np.stack([np.asarray(uv[c][n], dtype=np.float64) for c, n in views.items()])      # (V, J, 2)
-    weights = np.stack([conf[c][n] for c, n in views.items()])                                 # (V, J)
-    joints = triangulate(chosen, np.where(weights[..., None] > 0, points, np.nan), weights)
+    points = np.stack([xy[c][n] for c, n in views.items()])                                 # (V, J, 2)
+    weights = np.stack([conf[c][n] for c, n in views.items()])                              # (V, J)
+    joints = dlt_normalised(chosen, np.where(weights[..., None] > 0, points, np.nan), weights)
     errors = []
     for camera, p in zip(chosen, points):
-        projected = camera.project(joints)[0]
-        e = np.linalg.norm(projected - p, axis=-1)
+        Xc = joints @ camera.R.double().numpy().T + camera.t.double().numpy()
+        e = np.linalg.norm(Xc[:, :2] / Xc[:, 2:] - p, axis=-1) * np.sqrt(camera.fx * camera.fy)
         errors.append(float(np.median(e[np.isfinite(e)])) if np.isfinite(e).any() else np.nan)
     return Proposal(views, joints, np.array(errors))
 
 
-def _merged_duplicates(cameras, uv, conf, proposals: list[Proposal]) -> tuple[list[Proposal], list[tuple[int, int]]]:
+def _merged_duplicates(cameras, xy, conf, proposals: list[Proposal]) -> tuple[list[Proposal], list[tuple[int, int]]]:
     """Proposals within :data:`DUPLICATE_M` of each other merged (disjoint cameras) or the smaller's views
     returned as candidates."""
     proposals = sorted(proposals, key=lambda p: -len(p.views))
@@ -207,7 +214,7 @@ def _merged_duplicates(cameras, uv, conf, proposals: list[Proposal]) -> tuple[li
                 if set(p.views) & set(q.views):
                     left += list(p.views.items())
                 else:
-                    kept[i] = _proposal(cameras, uv, conf, dict(sorted({**q.views, **p.views}.items())))
+                    kept[i] = _proposal(cameras, xy, conf, dict(sorted({**q.views, **p.views}.items())))
                 break
         else:
             kept.append(p)

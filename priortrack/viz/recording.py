@@ -119,15 +119,19 @@ class Recording:
         """Set the ``frame`` timeline for what is logged next."""
         self.stream.set_time(TIMELINE, sequence=int(index))
 
-    def skeleton(self, name: str, positions, color=(60, 160, 255), colors=None) -> None:
+    def skeleton(self, name: str, positions, color=(60, 160, 255), colors=None, label: str | None = None) -> None:
         """Log an eval15 skeleton, positions (15, 3) metres, at ``world/<name>``, in one colour or one
-        per joint (``colors`` (15, 3))."""
+        per joint (``colors`` (15, 3)); a ``label`` is shown at its head (``world/<name>/label``)."""
         positions = np.asarray(positions)
         if len(self.people) < 64 and np.isfinite(positions).all():
             self.people.append(positions.mean(axis=0))
         self.stream.log(f"world/{name}", rr.Points3D(
             positions, class_ids=self._class(color), keypoint_ids=np.arange(len(EVAL15_NAMES)),
             colors=[color] if colors is None else np.asarray(colors, dtype=np.uint8), radii=0.02, show_labels=False))
+        if label is not None:
+            self.stream.log(f"world/{name}/label", rr.Points3D(
+                positions[EVAL15_NAMES.index("head")][None], labels=[label], colors=[color], radii=0.001,
+                show_labels=True))
 
     def cloud(self, name: str, joints, weights) -> None:
         """Log particles' joints (P, 15, 3) metres at ``world/<name>/cloud``, coloured by weight:

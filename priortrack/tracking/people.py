@@ -1,0 +1,286 @@
+"""Every person of a scene tracked by a filter preset: the scene tracker decides who is who
+(:mod:`priortrack.tracking.scene`), then each kept person's own detections are tracked by the preset
+with their own body (:func:`~priortrack.experiments.real.track_detections`: their bones measured over
+their whole trial, their start, their filter), and the people are gathered on one tick grid.
+
+:func:`track_scene` gives a :class:`SceneTrack`: ``joints`` (T, P, 15, 3) in the calibration's world,
+NaN where a person is not in the scene (before they appear, after their track ended and until they
+return); each person's spread, log-likelihood and mismatch flags on the same grid; and each person's
+whole single-person result (:class:`~priortrack.experiments.real.DetectionTrack`) for their recording,
+BVH and TRC.
+
+Which people: ``people="all"``; an int N (the N seen in the most frames); a list of ids, or of
+``("at", camera, (x, y))`` / ``("box", camera, (x0, y0, x1, y1))``: the person there in that camera's
+first frame with people (:func:`parse_people` reads the command line's forms).
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from priortrack.data.calibration import Calibration
+from priortrack.data.detections import Detections
+from priortrack.data.eval15 import EVAL15_NAMES
+from priortrack.data.scene_detections import SceneDetections
+from priortrack.errors import PriortrackError
+from priortrack.experiments.real import (DetectionTrack, match_cameras, output_path, schedule, track_detections,
+                                         up_from_detections)
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
+
+log = logging.getLogger(__name__)
+
+
+def person_detections(scene: SceneDetections, association: SceneAssociation, p: int) -> Detections:
+    """Person p's (index into ``association.person_ids``) detections: (C, T, K, 3), NaN where no
+    detection was theirs."""
+    slots = association.slots[:, :, p].T                                        # (C, T)
+    C, T = slots.shape
+    keypoints = np.full(scene.keypoints.shape[:2] + scene.keypoints.shape[3:], np.nan, dtype=np.float32)
+    c, t = np.nonzero(slots >= 0)
+    keypoints[c, t] = scene.keypoints[c, t, slots[c, t]]
+    return Detections(scene.layout, scene.camera_names, scene.frames, scene.fps,
+                      f"{scene.source} (person {association.person_ids[p]})", keypoints=keypoints)
+
+
+def parse_people(words: list[str] | str | None):
+    """The people asked for on the command line: ``all``; N (the N seen in the most frames); ``id:A,B``;
+    ``at:CAMERA:X,Y`` (the person at that pixel of the camera's first frame with people); ``box:CAMERA:X0,Y0,X1,Y1``
+    (the person whose keypoints' box overlaps it most there). Returns what :func:`chosen_people` takes."""
+    words = [words] if isinstance(words, str) else list(words or ["all"])
+    if words == ["all"]:
+        return "all"
+    if len(words) == 1 and words[0].isdigit():
+        return int(words[0])
+    chosen = []
+    for word in words:
+        kind, _, rest = word.partition(":")
+        try:
+            if kind == "id":
+                chosen += [int(v) for v in rest.split(",")]
+                continue
+            camera, _, numbers = rest.rpartition(":")
+            values = tuple(float(v) for v in numbers.split(","))
+            if kind in ("at", "box") and camera and len(values) == (2 if kind == "at" else 4):
+                chosen.append((kind, camera, values))
+                continue
+        except ValueError:
+            pass
+        raise PriortrackError(f"--people {word}: give all, a number N, id:A,B, at:CAMERA:X,Y or "
+                              f"box:CAMERA:X0,Y0,X1,Y1")
+    return chosen
+
+
+def chosen_people(association: SceneAssociation, people, scene: SceneDetections | None = None) -> list[int]:
+    """Indices into ``association.person_ids`` of the people asked for (:func:`parse_people`'s forms, or
+    a list of ids)."""
+    frames_seen = (association.slots >= 0).any(axis=1).sum(axis=0)                   # (P,)
+    if people is None or people == "all":
+        return list(range(len(association.person_ids)))
+    if isinstance(people, int) and not isinstance(people, bool):
+        if people < 1:
+            raise PriortrackError(f"people: give 'all', a number ≥ 1 or person ids, got {people}")
+        return sorted(np.argsort(-frames_seen, kind="stable")[:people].tolist())
+    ids = association.person_ids.tolist()
+    chosen = []
+    for item in people:
+        if isinstance(item, tuple):
+            chosen.append(_person_at(association, scene, *item))
+        elif item in ids:
+            chosen.append(ids.index(item))
+        else:
+            raise PriortrackError(f"people: no person {item} in the scene (people: "
+                                  f"{', '.join(map(str, ids)) or 'none'})")
+    return sorted(set(chosen))
+
+
+def _person_at(association: SceneAssociation, scene: SceneDetections, kind: str, camera: str, values) -> int:
+    """The person at a point (``at``) or overlapping a box (``box``) most in ``camera``'s first frame that
+    holds anyone's detection."""
+    if scene is None or camera not in scene.camera_names:
+        raise PriortrackError(f"--people {kind}:{camera}: no camera {camera!r} (cameras: "
+                              f"{', '.join(scene.camera_names) if scene is not None else 'none'})")
+    c = scene.camera_names.index(camera)
+    slots = association.slots[:, c]                                                 # (T, P)
+    frames = np.flatnonzero((slots >= 0).any(axis=1))
+    if not len(frames):
+        raise PriortrackError(f"--people {kind}:{camera}: nobody tracked is seen by {camera}")
+    t = int(frames[0])
+    best, score = None, -np.inf
+    for p in np.flatnonzero(slots[t] >= 0):
+        xy = scene.keypoints[c, t, slots[t, p], :, :2]
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        if not len(xy):
+            continue
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+        if kind == "at":
+            s = -float(np.linalg.norm(np.clip(values, lo, hi) - np.asarray(values)))      # 0 inside the box
+        else:
+            x0, y0, x1, y1 = values
+            overlap = np.clip(np.minimum(hi, [x1, y1]) - np.maximum(lo, [x0, y0]), 0, None).prod()
+            s = float(overlap / ((hi - lo).prod() + (x1 - x0) * (y1 - y0) - overlap + 1e-9))
+        if s > score:
+            best, score = int(p), s
+    log.info("--people %s:%s picked person %d (frame %d)", kind, camera, association.person_ids[best],
+             scene.frames[t])
+    return best
+
+
+@dataclass
+class SceneTrack:
+    """Every kept person of a scene (module docstring).
+
+    Attributes:
+        person_ids: (P,) ids (the scene tracker's, in order of first appearance).
+        frames: (T,) the detection frame each tick consumed (−1 where none), fps the tick rate.
+        joints: (T, P, 15, 3) metres in the calibration's world, NaN where the person is absent.
+        spread, loglik, mismatch: (T, P, 15), (T, P), (T, P) bool per person, NaN / False where absent.
+        people: each person's single-person result, in ``person_ids``' order.
+        association: the scene tracker's decisions (slots per frame, camera and person).
+        skipped: {id: why} the people asked for that could not be tracked.
+        seconds: the whole run's wall time.
+        detections, index: every detected person (for a recording's unassigned detections) and, per tick,
+            the index of the detection frame it consumed (−1 where none).
+    """
+
+    person_ids: np.ndarray
+    frames: np.ndarray
+    fps: float
+    joints: np.ndarray
+    spread: np.ndarray
+    loglik: np.ndarray
+    mismatch: np.ndarray
+    people: list[DetectionTrack] = field(repr=False)
+    association: SceneAssociation = field(repr=False)
+    skipped: dict[int, str] = field(default_factory=dict)
+    seconds: float = 0.0
+    detections: SceneDetections | None = field(default=None, repr=False)
+    index: np.ndarray | None = field(default=None, repr=False)
+
+    def summary(self) -> dict:
+        """The JSON summary: people, ticks, seconds, and per person their frames present, median
+        reprojection error per camera, mismatch fraction and body measures."""
+        present = np.isfinite(self.joints[..., 0, 0])
+        return {"people": [int(i) for i in self.person_ids], "frames": int(len(self.frames)), "fps": self.fps,
+                "seconds": self.seconds, "skipped": {str(k): v for k, v in self.skipped.items()},
+                "per_person": {str(int(pid)): {"ticks_present": int(present[:, p].sum()),
+                                               "reprojection_px": result.summary()["reprojection_px"],
+                                               "mismatch_fraction": result.mismatch_fraction,
+                                               "bones_m": result.summary()["bones_m"]}
+                               for p, (pid, result) in enumerate(zip(self.person_ids, self.people))}}
+
+    def save(self, path: str | Path) -> list[Path]:
+        """Write by suffix: ``.npz`` and ``.csv`` hold every person; ``.trc`` and ``.bvh`` are written one
+        per person, ``<stem>_person<id><suffix>``. Returns the files written."""
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix == ".npz":
+            return [self.save_npz(path)]
+        if suffix == ".csv":
+            return [self.save_csv(path)]
+        if suffix in (".trc", ".bvh"):
+            return [result.save(path.with_name(f"{path.stem}_person{pid}{path.suffix}"))
+                    for pid, result in zip(self.person_ids, self.people)]
+        raise PriortrackError(f"{path}: a scene is written as .npz, .csv, .trc or .bvh")
+
+    def save_npz(self, path: str | Path) -> Path:
+        """``joints`` (T, P, 15, 3), ``person_ids`` (P,), ``frames`` (T,), ``fps``, ``joint_names``,
+        ``spread`` (T, P, 15), ``loglik`` (T, P), ``mismatch`` (T, P), and the association's ``slots``
+        (T_frames, C, P) with ``detection_frames`` (T_frames,)."""
+        path = output_path(path, "result file")
+        with open(path, "wb") as f:
+            np.savez(f, joints=self.joints, person_ids=self.person_ids, frames=self.frames, fps=np.array(self.fps),
+                     joint_names=np.array(EVAL15_NAMES), spread=self.spread, loglik=self.loglik,
+                     mismatch=self.mismatch, slots=self.association.slots,
+                     detection_frames=self.association.frames)
+        return path
+
+    def save_csv(self, path: str | Path) -> Path:
+        """One row per tick and present person: frame, time (s), person, each joint's x, y, z, spread,
+        loglik, mismatch."""
+        path = output_path(path, "result file")
+        with open(path, "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(["frame", "time_s", "person"] + [f"{n}_{a}" for n in EVAL15_NAMES for a in "xyz"] +
+                            [f"{n}_spread" for n in EVAL15_NAMES] + ["loglik", "mismatch"])
+            for t, frame in enumerate(self.frames):
+                for p, pid in enumerate(self.person_ids):
+                    if np.isfinite(self.joints[t, p]).any():
+                        writer.writerow([int(frame), f"{t / self.fps:.9g}", int(pid)] +
+                                        [f"{v:.9g}" for v in self.joints[t, p].ravel()] +
+                                        [f"{v:.9g}" for v in self.spread[t, p]] +
+                                        [f"{self.loglik[t, p]:.9g}", int(self.mismatch[t, p])])
+        return path
+
+
+def track_scene(scene: SceneDetections, calibration: Calibration, preset, fps: float | None = None,
+                up=None, camera_map: dict[str, str] | None = None, config: SceneConfig | None = None,
+                people="all", seed: int = 0, **options) -> SceneTrack:
+    """Track every person of ``scene`` (module docstring) with ``preset``; ``options`` go to each
+    person's :func:`~priortrack.experiments.real.track_detections` (``keep_snapshots``, ``smooth``, …)."""
+    start = time.perf_counter()
+    config = config or SceneConfig()
+    data_fps = fps if fps is not None else scene.fps
+    if data_fps is None:
+        raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
+    calibrated = match_cameras(scene, calibration, camera_map)
+    cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
+    uv, confidence = scene.eval15(config.min_confidence)
+    association = SceneTracker(cameras, data_fps, config).run(uv, confidence, scene.frames)
+    chosen = chosen_people(association, people, scene)
+    if not chosen:
+        raise PriortrackError(f"{scene.source}: nobody was seen by {config.birth_views} cameras for "
+                              f"{config.birth_s} s: no person to track")
+    log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
+             ", ".join(map(str, association.person_ids.tolist())),
+             ", ".join(str(association.person_ids[p]) for p in chosen))
+    detections = {p: person_detections(scene, association, p) for p in chosen}
+    if up is None and calibration.up is None:                # one up for every person: the longest-seen's
+        longest = max(chosen, key=lambda p: int((association.slots[:, :, p] >= 0).sum()))
+        up = up_from_detections(cameras, detections[longest], config.min_confidence, calibration.source)
+    results, kept, skipped = [], [], {}
+    for p in chosen:
+        pid = int(association.person_ids[p])
+        try:
+            results.append(track_detections(detections[p], calibration, preset, fps=data_fps, up=up,
+                                            camera_map=camera_map, min_confidence=config.min_confidence,
+                                            seed=seed, **options))
+            kept.append(p)
+        except PriortrackError as exc:
+            skipped[pid] = str(exc)
+            log.warning("person %d cannot be tracked: %s", pid, exc)
+    if not results:
+        raise PriortrackError(f"{scene.source}: no person could be tracked ({'; '.join(skipped.values())})")
+    gathered = _gathered(association, kept, results, schedule(scene.frames, data_fps, results[0].fps), scene.frames,
+                         skipped)
+    gathered.detections, gathered.seconds = scene, time.perf_counter() - start
+    return gathered
+
+
+def _gathered(association: SceneAssociation, kept: list[int], results: list[DetectionTrack], index: np.ndarray,
+              frames: np.ndarray, skipped: dict[int, str]) -> SceneTrack:
+    """The people's results on one tick grid (``index`` into the detection frames per tick), NaN where a
+    person is absent (not live in the scene tracker at that tick's frame)."""
+    tick_frames = np.where(index >= 0, frames[np.maximum(index, 0)], -1)
+    T, P = len(index), len(kept)
+    joints, spread = np.full((T, P, 15, 3), np.nan), np.full((T, P, 15), np.nan)
+    loglik, mismatch = np.full((T, P), np.nan), np.zeros((T, P), dtype=bool)
+    position = {int(f): t for t, f in enumerate(tick_frames) if f >= 0}
+    # each tick's detection frame, a tick without one taking the last tick's (25 fps data at 30 fps ticks)
+    nearest = np.maximum.accumulate(np.where(index >= 0, np.arange(T), 0))
+    live = np.isfinite(association.joints[..., 0, 0])[np.maximum(index[nearest], 0)]   # (T, P_all)
+    for q, (p, result) in enumerate(zip(kept, results)):
+        k0 = int(np.flatnonzero(result.frames >= 0)[0])
+        ticks = position[int(result.frames[k0])] - k0 + np.arange(len(result.frames))   # the run's ticks on the grid
+        keep = (ticks < T) & live[np.minimum(ticks, T - 1), p]
+        t, k = ticks[keep], np.flatnonzero(keep)
+        joints[t, q], spread[t, q] = result.joints[k], result.spread[k]
+        loglik[t, q], mismatch[t, q] = result.loglik[k], result.mismatch[k]
+    return SceneTrack(association.person_ids[kept], tick_frames, results[0].fps, joints, spread, loglik, mismatch,
+                      results, association, skipped, index=index)

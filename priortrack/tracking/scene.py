@@ -1,0 +1,348 @@
+"""The scene tracker: every person of a multi-camera recording, each with an identity that holds.
+
+Per frame, as Stone Soup's ``MultiTargetTracker`` steps (associate; update or predict; delete; initiate):
+
+1. **predict** every live track's joints (:class:`~priortrack.tracking.motion.JointKalman`);
+2. **associate** (:class:`PredictionAssociator`): in each camera, every track's predicted joints are
+   projected with their spread S (2 × 2 a joint, in undistorted normalised image coordinates); a
+   detection's cost for a track is the median over the joints both have of the Mahalanobis distance
+   eᵀ S⁻¹ e (e the residual, S with the detection's confidence in R); an optimal assignment (Hungarian, :func:`scipy.optimize.linear_sum_assignment`)
+   with a "not this track" option at the gate's cost, so no detection is forced onto a track;
+3. **update** each track with its detections, camera by camera (a track with none is predicted only);
+4. **delete** (:class:`MissedFramesDeleter`): a track no camera has seen for ``death_s`` seconds ends
+   (kept, for re-identification);
+5. **initiate** (:class:`ProposalInitiator`): the detections left over are matched across cameras
+   (:func:`~priortrack.tracking.association.associate`) into 3D proposals; a proposal seen by
+   ``birth_views`` cameras starts a tentative person, confirmed once proposals follow it for
+   ``birth_s`` seconds (each within :data:`FOLLOW_M` of the last); a confirmed person whose bone lengths
+   (:func:`bone_lengths`, a signature) and position fit a person who ended takes that person's id back,
+   else a new one.
+
+Two views alone triangulate anything that one epipolar geometry allows (a static false positive seen by
+two cameras is a consistent "person"); a third view checks it, hence ``birth_views`` = 3 where the rig
+has three cameras or more. A track, once born, continues on any number of views.
+
+:meth:`SceneTracker.run` tracks a whole :class:`~priortrack.data.scene_detections.SceneDetections` and
+gives a :class:`SceneAssociation`: which detection slot is whose, per frame and camera, and each person's
+joints as the motion model has them. Each person's body is then tracked by a filter preset from their own
+detections (:mod:`priortrack.tracking.people`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from priortrack.data.eval15 import EVAL15_PARENTS
+from priortrack.errors import PriortrackError
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.tracking.association import MIN_SHARED, PAIR_GATE_M, associate, normalised
+from priortrack.tracking.motion import JointKalman, View
+
+log = logging.getLogger(__name__)
+
+#: The χ² quantile (2 degrees of freedom, 99.9 %) a detection's median joint distance must be under.
+GATE = 13.8
+#: A tentative person's next proposal lies within this median joint distance (metres) of the last.
+FOLLOW_M = 0.3
+#: A returning person's bone lengths within this relative RMS difference of an ended person's are theirs.
+REID_BONES = 0.1
+#: … and their pelvis within this distance (metres) plus 1.5 m/s times the time away.
+REID_M = 1.0
+
+
+def bone_lengths(joints: np.ndarray) -> np.ndarray:
+    """(..., 14) lengths, metres, of the eval15 bones (each joint to its parent) of joints (..., 15, 3)."""
+    child = np.flatnonzero(EVAL15_PARENTS >= 0)
+    return np.linalg.norm(joints[..., child, :] - joints[..., EVAL15_PARENTS[child], :], axis=-1)
+
+
+@dataclass
+class SceneConfig:
+    """How the scene tracker decides (module docstring).
+
+    Attributes:
+        min_confidence: detections' keypoints below it are missing.
+        pair_gate_m: the cross-view pair gate, metres (:mod:`~priortrack.tracking.association`).
+        gate: a detection's cost gate for a track (median squared Mahalanobis distance of its joints).
+        birth_s: seconds of proposals that confirm a new person.
+        birth_views: cameras a proposal needs to start a person (capped at the rig's camera count).
+        death_s: seconds unseen after which a person's track ends.
+    """
+
+    min_confidence: float = 0.3
+    pair_gate_m: float = PAIR_GATE_M
+    gate: float = GATE
+    birth_s: float = 0.1
+    birth_views: int = 3
+    death_s: float = 0.5
+
+    def __post_init__(self):
+        for name in ("min_confidence", "pair_gate_m", "gate", "birth_s", "death_s"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value) or value < 0:
+                raise PriortrackError(f"scene setting {name} must be a number ≥ 0, got {value!r}")
+        if isinstance(self.birth_views, bool) or not isinstance(self.birth_views, int) or self.birth_views < 2:
+            raise PriortrackError(f"scene setting birth_views must be a whole number ≥ 2, got {self.birth_views!r}")
+
+
+@dataclass
+class Track:
+    """One person: ``id``, the motion model, the frame first and last seen, the bone lengths of the
+    frames where every bone was triangulated (their median is the person's signature), and, for a person
+    just born, the proposals that confirmed them ({frame: ({camera: detection index}, joints (15, 3))})."""
+
+    id: int
+    motion: JointKalman
+    first: int
+    last_seen: int
+    bones: list[np.ndarray] = field(default_factory=list, repr=False)
+    birth: dict[int, tuple[dict[int, int], np.ndarray]] = field(default_factory=dict, repr=False)
+
+    @property
+    def signature(self) -> np.ndarray | None:
+        return np.median(self.bones, axis=0) if self.bones else None
+
+
+class PredictionAssociator:
+    """Step 2 of the module docstring: each camera's detections to the live tracks."""
+
+    def __init__(self, gate: float = GATE):
+        self.gate = gate
+
+    @staticmethod
+    def costs(tracks: list[Track], view: View, xy: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+        """(tracks, N) median over the joints a detection shares with a track's prediction of eᵀ S⁻¹ e
+        (e the residual, S = H P Hᵀ + R in normalised units), inf where fewer than MIN_SHARED joints.
+        xy (N, J, 2) normalised points, confidence (N, J)."""
+        out = np.full((len(tracks), len(xy)), np.inf)
+        for k, track in enumerate(tracks):
+            h, _, HPH = track.motion.predicted(view)
+            seen = np.isfinite(xy).all(-1) & (confidence > 0) & np.isfinite(h).all(-1)             # (N, J)
+            r2 = (track.motion.sigma_px / (view.f * np.where(seen, confidence, 1.0))) ** 2
+            S = HPH[None] + r2[..., None, None] * np.eye(2)                                       # (N, J, 2, 2)
+            e = np.where(seen[..., None], xy - h, 0.0)
+            m = np.einsum("nji,nji->nj", e, np.linalg.solve(np.where(seen[..., None, None], S, np.eye(2)),
+                                                            e[..., None])[..., 0])
+            out[k] = np.where(seen.sum(1) >= MIN_SHARED, _median_of_seen(m, seen), np.inf)
+        return out
+
+    def __call__(self, tracks: list[Track], views: list[View], xy: list[np.ndarray],
+                 confidence: list[np.ndarray]) -> dict[int, dict[int, int]]:
+        """{track id: {camera: detection index}} for this frame."""
+        assigned: dict[int, dict[int, int]] = {t.id: {} for t in tracks}
+        if not tracks:
+            return assigned
+        for c, view in enumerate(views):
+            if not len(xy[c]):
+                continue
+            cost = self.costs(tracks, view, xy[c], confidence[c])
+            padded = np.concatenate([np.where(cost < self.gate, cost, np.inf),
+                                     np.full((len(tracks), len(tracks)), np.inf)], axis=1)
+            padded[:, len(xy[c]):][np.diag_indices(len(tracks))] = self.gate           # "not this track"
+            rows, cols = linear_sum_assignment(np.where(np.isfinite(padded), padded, 1e12))
+            for k, n in zip(rows, cols):
+                if n < len(xy[c]) and np.isfinite(padded[k, n]):
+                    assigned[tracks[k].id][c] = int(n)
+        return assigned
+
+
+class MissedFramesDeleter:
+    """Step 4: the live tracks unseen for more than ``frames`` frames."""
+
+    def __init__(self, frames: int):
+        self.frames = frames
+
+    def __call__(self, tracks: list[Track], frame: int) -> list[Track]:
+        return [t for t in tracks if frame - t.last_seen > self.frames]
+
+
+class ProposalInitiator:
+    """Step 5: tentative people from the leftover detections' cross-view proposals, confirmed after
+    ``frames`` frames; a confirmed person re-identified among the ended ones or given a new id."""
+
+    def __init__(self, frames: int, views: int, pair_gate: float, fps: float):
+        self.frames, self.views, self.pair_gate, self.fps = frames, views, pair_gate, fps
+        self.tentative: list[dict] = []
+
+    def __call__(self, scene: "SceneTracker", xy: list[np.ndarray], confidence: list[np.ndarray],
+                 used: list[set[int]]) -> list[Track]:
+        cameras = scene.cameras
+        left = [np.array([n for n in range(len(xy[c])) if n not in used[c]], dtype=int) for c in range(len(cameras))]
+        if sum(len(a) for a in left) < 2:
+            self.tentative = []
+            return []
+        points = [xy[c][a] for c, a in enumerate(left)]
+        association = associate(cameras, points, [confidence[c][a] for c, a in enumerate(left)], self.pair_gate,
+                                xy=points)
+        proposals = [p for p in association.proposals if len(p.views) >= self.views]
+        followed, born = [], []
+        for p in proposals:
+            views = {c: int(left[c][n]) for c, n in p.views.items()}
+            if any(_median_distance(p.joints, t.motion.joints) < FOLLOW_M for t in scene.live):
+                continue                                  # a live person's detections the gate let go
+            previous = min(self.tentative, key=lambda s: _median_distance(p.joints, s["joints"]), default=None)
+            if previous is not None and _median_distance(p.joints, previous["joints"]) < FOLLOW_M:
+                self.tentative.remove(previous)
+                history, seen = previous["history"] + [p.joints], {**previous["views"], scene.frame: (views, p.joints)}
+            else:
+                history, seen = [p.joints], {scene.frame: (views, p.joints)}
+            if len(history) >= self.frames:
+                born.append(self._born(scene, history, seen))
+            else:
+                followed.append({"joints": p.joints, "history": history, "views": seen})
+        self.tentative = followed
+        return born
+
+    def _born(self, scene: "SceneTracker", history: list[np.ndarray], views: dict[int, tuple]) -> Track:
+        joints = history[-1]
+        velocity = (history[-1] - history[-2]) * self.fps if len(history) > 1 else None
+        track = Track(-1, JointKalman(joints, velocity), min(views), scene.frame, birth=views)
+        track.bones = [b for b in bone_lengths(np.stack(history)) if np.isfinite(b).all()]
+        track.id = self._identity(scene, track)
+        return track
+
+    def _identity(self, scene: "SceneTracker", track: Track) -> int:
+        """An ended person whose signature and position fit the new one (the nearest signature), else a new id."""
+        signature = track.signature
+        best, best_gap = None, REID_BONES
+        for old in scene.ended:
+            if old.signature is None or signature is None:
+                continue
+            away = (scene.frame - old.last_seen) / self.fps
+            if np.linalg.norm(old.motion.joints[0] - track.motion.joints[0]) > REID_M + 1.5 * away:
+                continue
+            gap = float(np.sqrt(np.mean(((signature - old.signature) / old.signature) ** 2)))
+            if gap < best_gap:
+                best, best_gap = old, gap
+        if best is None:
+            scene.next_id += 1
+            return scene.next_id - 1
+        scene.ended.remove(best)
+        track.first, track.bones = best.first, best.bones + track.bones
+        log.info("frame %d: person %d is back (bone lengths %.0f%% from theirs)", scene.frame, best.id, 100 * best_gap)
+        return best.id
+
+
+def _median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """(N,) the median of each row of values (N, J) over its seen entries (inf where none)."""
+    ordered = np.sort(np.where(seen, values, np.inf), axis=1)
+    k = seen.sum(axis=1)
+    rows = np.arange(len(values))
+    low, high = ordered[rows, np.maximum(k - 1, 0) // 2], ordered[rows, np.minimum(k // 2, values.shape[1] - 1)]
+    return np.where(k > 0, (low + high) / 2, np.inf)
+
+
+def _median_distance(a: np.ndarray, b: np.ndarray) -> float:
+    gap = np.linalg.norm(a - b, axis=-1)
+    gap = gap[np.isfinite(gap)]
+    return float(np.median(gap)) if len(gap) else np.inf
+
+
+@dataclass
+class SceneAssociation:
+    """What the scene tracker decided over a recording.
+
+    Attributes:
+        person_ids: (P,) each person's id, in order of first appearance.
+        slots: (T, C, P) the detection slot of person p in camera c at frame t, −1 where none.
+        joints: (T, P, 15, 3) each person's joints as the motion model has them, metres, NaN where the
+            person is not tracked.
+        frames: (T,) the detections' frame numbers.
+    """
+
+    person_ids: np.ndarray
+    slots: np.ndarray
+    joints: np.ndarray
+    frames: np.ndarray
+
+
+class SceneTracker:
+    """The scene tracker of the module docstring, composed of an ``associator``, a ``deleter`` and an
+    ``initiator`` (the defaults built from ``config``; any object with the same call can replace them).
+
+    Args:
+        cameras: the C calibrated cameras (in the calibration's world).
+        fps: the detections' frame rate.
+        config: the settings (:class:`SceneConfig`).
+    """
+
+    def __init__(self, cameras: list[PinholeCamera], fps: float, config: SceneConfig | None = None,
+                 associator=None, deleter=None, initiator=None):
+        if not 0 < fps < 1e4:
+            raise PriortrackError(f"fps must be a positive frame rate, got {fps}")
+        self.cameras, self.fps, self.config = list(cameras), float(fps), config or SceneConfig()
+        self.views = [View.of(c) for c in self.cameras]
+        frames = lambda seconds: max(1, int(round(seconds * self.fps)))          # noqa: E731
+        self.associator = associator or PredictionAssociator(self.config.gate)
+        self.deleter = deleter or MissedFramesDeleter(frames(self.config.death_s))
+        self.initiator = initiator or ProposalInitiator(frames(self.config.birth_s),
+                                                        min(self.config.birth_views, len(self.cameras)),
+                                                        self.config.pair_gate_m, self.fps)
+        self.live: list[Track] = []
+        self.ended: list[Track] = []
+        self.born: list[Track] = []
+        self.frame, self.next_id = 0, 0
+
+    def step(self, xy: list[np.ndarray], confidence: list[np.ndarray]) -> dict[int, dict[int, int]]:
+        """One frame (module docstring): per camera, its N_c detections' undistorted normalised points xy
+        (N_c, 15, 2) (:func:`~priortrack.tracking.association.normalised`) and confidences (N_c, 15);
+        returns {person id: {camera: detection index}} for the people tracked at this frame."""
+        for track in self.live:
+            track.motion.predict(1 / self.fps)
+        assigned = self.associator(self.live, self.views, xy, confidence)
+        used: list[set[int]] = [set() for _ in self.cameras]
+        for track in self.live:
+            views = assigned[track.id]
+            track.motion.update([self.views[c] for c in views], [xy[c][n] for c, n in views.items()],
+                                [confidence[c][n] for c, n in views.items()])
+            for c, n in views.items():
+                used[c].add(n)
+            if views:
+                track.last_seen = self.frame
+                if len(views) >= 2:
+                    bones = bone_lengths(track.motion.joints)
+                    if np.isfinite(bones).all():
+                        track.bones.append(bones)
+        for track in self.deleter(self.live, self.frame):
+            self.live.remove(track)
+            self.ended.append(track)
+            log.info("frame %d: person %d unseen for %d frames: ended", self.frame, track.id,
+                     self.frame - track.last_seen)
+        self.born = self.initiator(self, xy, confidence, used)
+        for track in self.born:
+            self.live.append(track)
+            assigned[track.id] = track.birth[self.frame][0]
+        self.frame += 1
+        return {t.id: assigned.get(t.id, {}) for t in self.live}
+
+    def run(self, uv: np.ndarray, confidence: np.ndarray, frames: np.ndarray) -> SceneAssociation:
+        """Track a recording: uv (C, T, N, 15, 2) pixels (NaN-padded slots), confidence (C, T, N, 15)."""
+        C, T = uv.shape[:2]
+        if C != len(self.cameras):
+            raise PriortrackError(f"detections of {C} cameras for {len(self.cameras)} calibrated cameras")
+        xy = normalised(self.cameras, uv)
+        per_frame, joints, slots = [], [], []
+        for t in range(T):
+            slots.append([np.flatnonzero(np.isfinite(uv[c, t]).any(axis=(-1, -2))) for c in range(C)])
+            picked = self.step([xy[c][t][s] for c, s in enumerate(slots[t])],
+                               [confidence[c, t][s] for c, s in enumerate(slots[t])])
+            per_frame.append({pid: {c: int(slots[t][c][n]) for c, n in views.items()} for pid, views in picked.items()})
+            joints.append({track.id: track.motion.joints.copy() for track in self.live})
+            for track in self.born:                  # the frames that confirmed a new person are theirs too
+                for f, (views, at) in track.birth.items():
+                    per_frame[f].setdefault(track.id, {c: int(slots[f][c][n]) for c, n in views.items()})
+                    joints[f].setdefault(track.id, at)
+        ids = sorted({pid for frame in per_frame for pid in frame})
+        out_slots = np.full((T, C, len(ids)), -1, dtype=int)
+        out_joints = np.full((T, len(ids), 15, 3), np.nan)
+        for t, (frame, at) in enumerate(zip(per_frame, joints)):
+            for p, pid in enumerate(ids):
+                for c, n in frame.get(pid, {}).items():
+                    out_slots[t, c, p] = n
+                if pid in at:
+                    out_joints[t, p] = at[pid]
+        return SceneAssociation(np.array(ids, dtype=int), out_slots, out_joints, np.asarray(frames))

@@ -1,0 +1,70 @@
+"""Rerun recordings of a scene tracked by :func:`priortrack.tracking.people.track_scene`.
+
+In the calibration's world: every camera as a pinhole with its image size; each person's skeleton in
+their own colour with a label (``person <id>``) at ``world/person<id>``; in each camera's image, the
+detections the scene tracker gave each person, in that person's colour, the detections it gave nobody
+in grey (``unassigned``: false positives, people seen by one camera), and each person's estimate
+reprojected; per-frame scalars per person: each camera's median reprojection error, the log-likelihood
+and the mismatch flag. A mismatch tick draws the person's skeleton in the mismatch colour.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from priortrack.data.keypoints import to_eval15
+from priortrack.geometry.frames import nearest_axis, up_vector
+from priortrack.viz.real import MISMATCH_COLOR
+from priortrack.viz.recording import Recording
+
+#: One colour per person, in order of their ids (repeating past ten).
+PERSON_COLORS = ((230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180),
+                 (70, 240, 240), (240, 50, 230), (210, 245, 60), (0, 128, 128), (170, 110, 40))
+UNASSIGNED_COLOR = (150, 150, 150)
+
+
+def person_color(person_id: int) -> tuple[int, int, int]:
+    return PERSON_COLORS[int(person_id) % len(PERSON_COLORS)]
+
+
+def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
+    """Write ``scene`` (a SceneTrack) to the ``.rrd`` file ``path``."""
+    first = scene.people[0]
+    names, cameras = first.camera_names, first.cameras
+    slots = scene.association.slots                                          # (T_frames, C, P_all)
+    columns = [int(np.flatnonzero(scene.association.person_ids == pid)[0]) for pid in scene.person_ids]
+    with Recording(path, up=nearest_axis(first.up), up_vector=up_vector(first.up),
+                   name=f"{first.filter} · scene of {len(scene.person_ids)}") as rec:
+        for name, camera in zip(names, cameras):
+            rec.camera(camera, name)
+        for t, frame in enumerate(scene.frames):
+            rec.frame(int(frame) if frame >= 0 else t)
+            for p, pid in enumerate(scene.person_ids):
+                joints = scene.joints[t, p]
+                if not np.isfinite(joints).all():
+                    continue
+                color = MISMATCH_COLOR if scene.mismatch[t, p] else person_color(pid)
+                rec.skeleton(f"person{pid}", joints, color=color, label=f"person {pid}")
+                for name, camera in zip(names, cameras):
+                    uv, _ = camera.project(torch.as_tensor(joints))
+                    rec.points_2d(f"estimate/person{pid}", uv.numpy(), person_color(pid), camera=name, radius=2.0)
+                rec.scalar(f"loglik/person{pid}", scene.loglik[t, p])
+                rec.scalar(f"mismatch/person{pid}", float(scene.mismatch[t, p]))
+            f = scene.index[t]
+            if f < 0:
+                continue
+            for c, name in enumerate(names):
+                keypoints = scene.detections.keypoints[c, f]                    # (N, K, 3)
+                uv, confidence = to_eval15(keypoints, scene.detections.keypoint_names, min_confidence)
+                owned = {int(slots[f, c, q]): pid for q, pid in zip(columns, scene.person_ids) if slots[f, c, q] >= 0}
+                for n in range(len(keypoints)):
+                    if not np.isfinite(uv[n]).any():
+                        continue
+                    pid = owned.get(n)
+                    rec.points_2d("unassigned" if pid is None else f"detections/person{pid}", uv[n],
+                                  UNASSIGNED_COLOR if pid is None else person_color(pid), camera=name,
+                                  confidence=confidence[n])
+    return Path(path)

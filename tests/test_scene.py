@@ -1,0 +1,145 @@
+"""The scene tracker (priortrack.tracking): every person of Pose2Sim's multi-person demo with an identity
+that holds, each person's body tracked by a preset against Pose2Sim's own 3D output, the outputs a user
+reads, and the errors they get."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+
+from priortrack import PriortrackError
+from priortrack.cli.main import main
+from priortrack.data.calibration import read_calibration
+from priortrack.data.eval15 import EVAL15_NAMES
+from priortrack.data.scene_detections import read_scene_detections
+from priortrack.data.trc import read_trc
+from priortrack.experiments.compare_detections import LIMBS, read_truth
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.tracking.people import chosen_people, parse_people, track_scene
+from priortrack.tracking.scene import SceneConfig, SceneTracker
+
+from test_association import _pose2sims_association
+
+MULTIPERSON = Path(__file__).parent / "data" / "pose2sim_multiperson"
+POSE, QCA = MULTIPERSON / "pose", MULTIPERSON / "calibration" / "Calib.qca.txt"
+#: Pose2Sim's 3D output of the synthetic person (P1) and of the participant (P2).
+POSE2SIM_3D = {name: MULTIPERSON / "pose2sim_output" / f"S00_P01_T02_Participants1-2_{name}_0-100.trc"
+               for name in ("P1", "P2")}
+
+
+@pytest.fixture(scope="module")
+def demo():
+    scene = read_scene_detections(POSE, keypoints="body25b")
+    return scene, read_calibration(QCA)
+
+
+def test_the_demos_two_people_keep_their_identities_and_the_false_positive_none(demo):
+    """The scene tracker alone: two people, no track for cam01/cam02's static false positive, and in every
+    frame each person's detections are those Pose2Sim's own association gave one and the same person
+    (slot 0 the synthetic person, slot 1 the participant): no identity switch."""
+    scene, calibration = demo
+    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    uv, confidence = scene.eval15(0.3)
+    association = SceneTracker(cameras, 60.0).run(uv, confidence, scene.frames)
+    assert association.person_ids.tolist() == [0, 1]
+    reference = _pose2sims_association(scene)
+    for p in range(2):
+        owners = set()
+        for t in range(len(scene.frames)):
+            views = {c: int(association.slots[t, c, p]) for c in range(4) if association.slots[t, c, p] >= 0}
+            owners |= {k for k, e in enumerate(reference[t]) if set(views.items()) & set(e.items())}
+        assert len(owners) == 1
+    assert (association.slots >= 0).any(axis=1).all()                     # both tracked in every frame
+
+
+def test_each_person_is_within_30_mm_of_pose2sims_own_output(demo, tmp_path):
+    """ukf-real on each person: median joint distance (shoulders to ankles) to Pose2Sim's 3D output of that
+    person under 30 mm (the issue's figure; measured 14 mm for the synthetic person, 21 mm for the
+    participant); the outputs hold both people."""
+    scene, calibration = demo
+    result = track_scene(scene, calibration, "ukf-real", fps=60)
+    assert result.person_ids.tolist() == [0, 1] and not result.skipped
+    J = [EVAL15_NAMES.index(j) for j in LIMBS]
+    ticks = np.flatnonzero(result.frames >= 0)
+    for p, name in enumerate(("P1", "P2")):
+        truth = read_truth(POSE2SIM_3D[name], scene, calibration, fps=60)[result.frames[ticks]]
+        error = 1000 * np.linalg.norm(result.joints[ticks, p][:, J] - truth, axis=-1)
+        assert np.isfinite(error).mean() > 0.85
+        assert np.nanmedian(error) < 30, (name, np.nanmedian(error))
+    written = [p for path in ("s.npz", "s.csv", "s.trc") for p in result.save(tmp_path / path)]
+    assert [p.name for p in written] == ["s.npz", "s.csv", "s_person0.trc", "s_person1.trc"]
+    with np.load(tmp_path / "s.npz") as f:
+        assert f["joints"].shape == (len(result.frames), 2, 15, 3) and f["person_ids"].tolist() == [0, 1]
+        np.testing.assert_array_equal(f["joints"], result.joints)
+        assert f["slots"].shape == (100, 4, 2) and f["spread"].shape == (len(result.frames), 2, 15)
+    rows = np.genfromtxt(tmp_path / "s.csv", delimiter=",", names=True)
+    assert set(rows["person"].astype(int)) == {0, 1}
+    assert np.isfinite(result.joints[..., 0, 0]).sum() == len(rows)
+    points, names, _ = read_trc(tmp_path / "s_person1.trc", "z")              # the person's own run
+    present = np.isfinite(result.joints[:, 1, 0, 0])
+    assert present.all() and len(points) == len(result.people[1].joints)
+    np.testing.assert_allclose(points, result.joints[:, 1], atol=1e-5)
+
+
+def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys):
+    """``track --people``: the JSON summary per person, the files, and a recording with each person's
+    skeleton and label, their detections per camera and the unassigned ones (the false positive)."""
+    rrd = tmp_path / "scene.rrd"
+    assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps", "60",
+                 "--filter", "ukf-diffusion-local", "--people", "id:1", "--frames", "40", "--out",
+                 str(tmp_path / "scene.npz"), "--rrd", str(rrd), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert summary["people"] == [1] and set(summary["per_person"]) == {"1"}
+    entities = {str(c.entity_path) for c in rr.chunk.RrdReader(rrd).stream().to_chunks()}
+    assert {"/world/person1", "/world/person1/label", "/world/cam01_json/image/detections/person1",
+            "/world/cam01_json/image/unassigned", "/world/cam01_json/image/estimate/person1"} <= entities
+    assert not any("person0" in e for e in entities)
+
+
+def test_people_are_chosen_by_count_id_point_and_box(demo):
+    scene, calibration = demo
+    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    association = SceneTracker(cameras, 60.0).run(*scene.eval15(0.3), scene.frames)
+    assert chosen_people(association, parse_people(["all"]), scene) == [0, 1]
+    assert len(chosen_people(association, parse_people(["1"]), scene)) == 1
+    assert chosen_people(association, parse_people(["id:1"]), scene) == [1]
+    # each person cam01 shows in its first frame (only the synthetic person: the participant is not there)
+    slot = association.slots[0, 0]
+    assert (slot >= 0).tolist() == [True, False]
+    for p in np.flatnonzero(slot >= 0):
+        xy = scene.keypoints[0, 0, slot[p], :, :2]
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        centre = xy.mean(axis=0)
+        assert chosen_people(association, parse_people([f"at:cam01_json:{centre[0]},{centre[1]}"]), scene) == [p]
+        box = ",".join(map(str, [*xy.min(axis=0), *xy.max(axis=0)]))
+        assert chosen_people(association, parse_people([f"box:cam01_json:{box}"]), scene) == [p]
+
+
+@pytest.mark.parametrize("words, message", [
+    (["id:x"], "--people id:x: give all, a number N"),
+    (["at:cam01_json:5"], "--people at:cam01_json:5: give all"),
+    (["two"], "--people two: give all"),
+])
+def test_bad_people_are_named(words, message):
+    with pytest.raises(PriortrackError, match=message):
+        parse_people(words)
+
+
+def test_bad_choices_and_settings_are_named(demo):
+    scene, calibration = demo
+    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    association = SceneTracker(cameras, 60.0).run(*scene.eval15(0.3), scene.frames)
+    with pytest.raises(PriortrackError, match=r"no person 7 in the scene \(people: 0, 1\)"):
+        chosen_people(association, [7], scene)
+    with pytest.raises(PriortrackError, match=r"no camera 'cam9'"):
+        chosen_people(association, parse_people(["at:cam9:1,2"]), scene)
+    with pytest.raises(PriortrackError, match="scene setting birth_s must be a number ≥ 0"):
+        SceneConfig(birth_s=-1)
+    with pytest.raises(PriortrackError, match="birth_views must be a whole number ≥ 2"):
+        SceneConfig(birth_views=1)
+    with pytest.raises(PriortrackError, match="detections of 4 cameras for 3 calibrated cameras"):
+        SceneTracker(cameras[:3], 60.0).run(*scene.eval15(0.3), scene.frames)
+    with pytest.raises(PriortrackError, match="nobody was seen by 3 cameras"):
+        track_scene(scene.head(2), calibration, "ukf-real", fps=60)
