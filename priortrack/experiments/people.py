@@ -59,22 +59,25 @@ GPDM_PEOPLE = 2
 RUN_THREADS = 1
 
 
-def fold_training(preset: Preset, held_out: str) -> tuple[str, ...]:
-    """The training motions of ``preset``'s prior with ``held_out`` left out: every walk of every other
+def fold_training(preset: Preset, held_out: str | tuple[str, ...]) -> tuple[str, ...]:
+    """The training motions of ``preset``'s prior with ``held_out`` (a person, or several: a scene's
+    walkers) left out: every walk of every other
     walking person; for the GPDM kinds, as the GPDM papers and the shipped presets do, a few sequences:
     the first walk of each of the first :data:`GPDM_PEOPLE` other people (07 and 35 unless one of them
     is held out). One walk of each of four people (N = 325–396 frames at 30 fps) was measured: the fit
     did not converge in 3000 L-BFGS iterations, its dynamics variance came out dominated by the RBF
     term (α₀ = 14–21, against 10⁻⁵ for two walks), and at the presets' annealing λ the particles diverged."""
-    if held_out not in WALKING_PEOPLE:
-        raise PriortrackError(f"unknown walking person {held_out!r}; people: {', '.join(WALKING_PEOPLE)}")
-    others = [person for person in WALKING_PEOPLE if person != held_out]
+    held_out = (held_out,) if isinstance(held_out, str) else tuple(held_out)
+    unknown = [p for p in held_out if p not in WALKING_PEOPLE]
+    if unknown:
+        raise PriortrackError(f"unknown walking person {unknown[0]!r}; people: {', '.join(WALKING_PEOPLE)}")
+    others = [person for person in WALKING_PEOPLE if person not in held_out]
     if "latent" in PRIOR_KINDS[preset.prior_kind].capabilities:
         return tuple(expand_sources(list(WALKING_PEOPLE[person]))[0] for person in others[:GPDM_PEOPLE])
     return tuple(name for person in others for name in expand_sources(list(WALKING_PEOPLE[person])))
 
 
-def fold_preset(preset: Preset, held_out: str) -> Preset:
+def fold_preset(preset: Preset, held_out: str | tuple[str, ...]) -> Preset:
     """``preset`` with its prior learned without ``held_out`` (:func:`fold_training`); a preset that
     reads a fitted prior file cannot be refitted and is refused."""
     if preset.prior_file is not None:

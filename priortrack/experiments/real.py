@@ -652,9 +652,10 @@ def pose_spread(preset: Preset, prior, skeleton: Skeleton) -> PoseSpread | None:
 
 def start_joints(seen: np.ndarray, single: bool) -> int:
     """The joints a start tick needs (:data:`START_JOINTS`, or fewer where the trial never shows as many)
-    from ``seen`` (T, 15) bool, each tick's joints triangulated (``single``: detected by the one camera); logged
-    when fewer, refused below MIN_START_JOINTS."""
+    from ``seen`` (T, 15) bool, each tick's joints triangulated (``single``: detected by the one camera), shares
+    taken over the ticks that show any joint; logged when fewer, refused below MIN_START_JOINTS."""
     how = "detected" if single else "triangulated"
+    seen = seen[seen.any(axis=1)]                # the ticks that show the person at all (one of a scene's may leave)
     shown = (seen.mean(axis=0) >= VIEW_SHARE) if len(seen) else np.zeros(15, dtype=bool)
     if shown.sum() >= START_JOINTS:
         return START_JOINTS

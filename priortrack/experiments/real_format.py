@@ -49,7 +49,7 @@ NOISE_PX, DROP, SWAP, OUTLIERS = 3.0, 0.05, 0.02, 0.01
 #: eval15 joints from shoulders to ankles (the error's joints), and the BODY_25B keypoint of each
 #: eval15 joint that a mocap body gives (the head is the head top).
 SHOULDERS_TO_ANKLES = list(range(3, 15))
-_BODY25B_OF = {2: "head_top", 3: "left_shoulder", 4: "left_elbow", 5: "left_wrist", 6: "right_shoulder",
+BODY25B_OF = {2: "head_top", 3: "left_shoulder", 4: "left_elbow", 5: "left_wrist", 6: "right_shoulder",
                7: "right_elbow", 8: "right_wrist", 9: "left_hip", 10: "left_knee", 11: "left_ankle",
                12: "right_hip", 13: "right_knee", 14: "right_ankle"}
 DEFAULT_CALIBRATION = POSE2SIM_DIR / "Calib.toml"
@@ -82,7 +82,7 @@ def detector_keypoints(X: np.ndarray, cameras: list[PinholeCamera], rng: np.rand
         uv, in_front = camera.project(X)
         inside = in_front & (uv[..., 0] >= 0) & (uv[..., 0] < camera.width) & (uv[..., 1] >= 0) & \
             (uv[..., 1] < camera.height)
-        for j, name in _BODY25B_OF.items():
+        for j, name in BODY25B_OF.items():
             k = names.index(name)
             noisy = uv[:, j] + rng.normal(0, NOISE_PX, size=(T, 2))
             confidence = rng.uniform(0.6, 1.0, size=T)

@@ -139,7 +139,8 @@ class SceneTrack:
     Attributes:
         person_ids: (P,) ids (the scene tracker's, in order of first appearance).
         frames: (T,) the detection frame each tick consumed (−1 where none), fps the tick rate.
-        joints: (T, P, 15, 3) metres in the calibration's world, NaN where the person is absent.
+        joints: (T, P, 15, 3) metres in the calibration's world, NaN where the person is absent (no
+            detection of theirs, beyond gaps the scene tracker bridges: :attr:`SceneAssociation.present`).
         spread, loglik, mismatch: (T, P, 15), (T, P), (T, P) bool per person, NaN / False where absent.
         people: each person's single-person result, in ``person_ids``' order.
         association: the scene tracker's decisions (slots per frame, camera and person).
@@ -266,7 +267,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, fps: f
 def _gathered(association: SceneAssociation, kept: list[int], results: list[DetectionTrack], index: np.ndarray,
               frames: np.ndarray, skipped: dict[int, str]) -> SceneTrack:
     """The people's results on one tick grid (``index`` into the detection frames per tick), NaN where a
-    person is absent (not live in the scene tracker at that tick's frame)."""
+    person is absent (:attr:`SceneAssociation.present`)."""
     tick_frames = np.where(index >= 0, frames[np.maximum(index, 0)], -1)
     T, P = len(index), len(kept)
     joints, spread = np.full((T, P, 15, 3), np.nan), np.full((T, P, 15), np.nan)
@@ -274,7 +275,7 @@ def _gathered(association: SceneAssociation, kept: list[int], results: list[Dete
     position = {int(f): t for t, f in enumerate(tick_frames) if f >= 0}
     # each tick's detection frame, a tick without one taking the last tick's (25 fps data at 30 fps ticks)
     nearest = np.maximum.accumulate(np.where(index >= 0, np.arange(T), 0))
-    live = np.isfinite(association.joints[..., 0, 0])[np.maximum(index[nearest], 0)]   # (T, P_all)
+    live = association.present[np.maximum(index[nearest], 0)]                      # (T, P_all)
     for q, (p, result) in enumerate(zip(kept, results)):
         k0 = int(np.flatnonzero(result.frames >= 0)[0])
         ticks = position[int(result.frames[k0])] - k0 + np.arange(len(result.frames))   # the run's ticks on the grid

@@ -6,8 +6,10 @@ Per frame, as Stone Soup's ``MultiTargetTracker`` steps (associate; update or pr
 2. **associate** (:class:`PredictionAssociator`): in each camera, every track's predicted joints are
    projected with their spread S (2 × 2 a joint, in undistorted normalised image coordinates); a
    detection's cost for a track is the median over the joints both have of the Mahalanobis distance
-   eᵀ S⁻¹ e (e the residual, S with the detection's confidence in R); an optimal assignment (Hungarian, :func:`scipy.optimize.linear_sum_assignment`)
-   with a "not this track" option at the gate's cost, so no detection is forced onto a track;
+   eᵀ S⁻¹ e (e the residual, S with the detection's confidence in R), over as few as one joint (a person
+   half hidden behind another shows a few); an optimal assignment (Hungarian,
+   :func:`scipy.optimize.linear_sum_assignment`) with a "not this track" option at the gate's cost, so no
+   detection is forced onto a track;
 3. **update** each track with its detections, camera by camera (a track with none is predicted only);
 4. **delete** (:class:`MissedFramesDeleter`): a track no camera has seen for ``death_s`` seconds ends
    (kept, for re-identification);
@@ -36,10 +38,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from priortrack.data.eval15 import EVAL15_PARENTS
+from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS, EVAL15_PARENTS
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.tracking.association import MIN_SHARED, PAIR_GATE_M, associate, normalised
+from priortrack.tracking.association import PAIR_GATE_M, associate, normalised
 from priortrack.tracking.motion import JointKalman, View
 
 log = logging.getLogger(__name__)
@@ -107,46 +109,67 @@ class Track:
         return np.median(self.bones, axis=0) if self.bones else None
 
 
+def _mirrored() -> np.ndarray:
+    """(15,) the eval15 joints with left and right exchanged (a detector's swap undone by indexing)."""
+    order = np.arange(15)
+    for a, b in EVAL15_MIRROR_PAIRS:
+        order[a], order[b] = b, a
+    return order
+
+
+MIRRORED = _mirrored()
+
+
 class PredictionAssociator:
-    """Step 2 of the module docstring: each camera's detections to the live tracks."""
+    """Step 2 of the module docstring: each camera's detections to the live tracks. A detection's cost is
+    the smaller of its own and its left/right mirror's (a detector's swap, common on a side view, would
+    otherwise leave the person's detection to nobody or to a vaguer track), plus the spread penalty
+    median_j log(det S_j / det R_j) ≥ 0: the log-likelihood's normaliser, so that of two tracks whose
+    gates both hold a detection the sharper prediction wins, and a track whose prediction has spread far
+    beyond the detections' noise (unseen for a while) takes none and ends (a person who comes back is
+    born again and re-identified)."""
 
     def __init__(self, gate: float = GATE):
         self.gate = gate
 
     @staticmethod
-    def costs(tracks: list[Track], view: View, xy: np.ndarray, confidence: np.ndarray) -> np.ndarray:
-        """(tracks, N) median over the joints a detection shares with a track's prediction of eᵀ S⁻¹ e
-        (e the residual, S = H P Hᵀ + R in normalised units), inf where fewer than MIN_SHARED joints.
-        xy (N, J, 2) normalised points, confidence (N, J)."""
-        out = np.full((len(tracks), len(xy)), np.inf)
+    def costs(tracks: list[Track], view: View, xy: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(tracks, N) costs (class docstring) and whether the mirror gave each, from xy (N, J, 2) normalised
+        points and confidence (N, J); inf where a detection shares no joint with a track's prediction."""
+        out, mirror = np.full((len(tracks), len(xy)), np.inf), np.zeros((len(tracks), len(xy)), dtype=bool)
         for k, track in enumerate(tracks):
             h, _, HPH = track.motion.predicted(view)
-            seen = np.isfinite(xy).all(-1) & (confidence > 0) & np.isfinite(h).all(-1)             # (N, J)
-            r2 = (track.motion.sigma_px / (view.f * np.where(seen, confidence, 1.0))) ** 2
-            S = HPH[None] + r2[..., None, None] * np.eye(2)                                       # (N, J, 2, 2)
-            e = np.where(seen[..., None], xy - h, 0.0)
-            m = np.einsum("nji,nji->nj", e, np.linalg.solve(np.where(seen[..., None, None], S, np.eye(2)),
-                                                            e[..., None])[..., 0])
-            out[k] = np.where(seen.sum(1) >= MIN_SHARED, _median_of_seen(m, seen), np.inf)
-        return out
+            both = []
+            for order in (slice(None), MIRRORED):
+                points, c = xy[:, order], confidence[:, order]
+                seen = np.isfinite(points).all(-1) & (c > 0) & np.isfinite(h).all(-1)           # (N, J)
+                r2 = (track.motion.sigma_px / (view.f * np.where(seen, c, 1.0))) ** 2
+                S = np.where(seen[..., None, None], HPH[None] + r2[..., None, None] * np.eye(2), np.eye(2))
+                e = np.where(seen[..., None], points - h, 0.0)
+                m = np.einsum("nji,nji->nj", e, np.linalg.solve(S, e[..., None])[..., 0])
+                spread = np.log(np.linalg.det(S) / r2 ** 2)
+                both.append(_median_of_seen(m, seen) + _median_of_seen(spread, seen))
+            mirror[k] = both[1] < both[0]
+            out[k] = np.minimum(*both)
+        return out, mirror
 
     def __call__(self, tracks: list[Track], views: list[View], xy: list[np.ndarray],
-                 confidence: list[np.ndarray]) -> dict[int, dict[int, int]]:
-        """{track id: {camera: detection index}} for this frame."""
-        assigned: dict[int, dict[int, int]] = {t.id: {} for t in tracks}
+                 confidence: list[np.ndarray]) -> dict[int, dict[int, tuple[int, bool]]]:
+        """{track id: {camera: (detection index, mirrored)}} for this frame."""
+        assigned: dict[int, dict[int, tuple[int, bool]]] = {t.id: {} for t in tracks}
         if not tracks:
             return assigned
         for c, view in enumerate(views):
             if not len(xy[c]):
                 continue
-            cost = self.costs(tracks, view, xy[c], confidence[c])
+            cost, mirror = self.costs(tracks, view, xy[c], confidence[c])
             padded = np.concatenate([np.where(cost < self.gate, cost, np.inf),
                                      np.full((len(tracks), len(tracks)), np.inf)], axis=1)
             padded[:, len(xy[c]):][np.diag_indices(len(tracks))] = self.gate           # "not this track"
             rows, cols = linear_sum_assignment(np.where(np.isfinite(padded), padded, 1e12))
             for k, n in zip(rows, cols):
                 if n < len(xy[c]) and np.isfinite(padded[k, n]):
-                    assigned[tracks[k].id][c] = int(n)
+                    assigned[tracks[k].id][c] = (int(n), bool(mirror[k, n]))
         return assigned
 
 
@@ -186,7 +209,7 @@ class ProposalInitiator:
                 continue                                  # a live person's detections the gate let go
             previous = min(self.tentative, key=lambda s: _median_distance(p.joints, s["joints"]), default=None)
             if previous is not None and _median_distance(p.joints, previous["joints"]) < FOLLOW_M:
-                self.tentative.remove(previous)
+                self.tentative = [s for s in self.tentative if s is not previous]
                 history, seen = previous["history"] + [p.joints], {**previous["views"], scene.frame: (views, p.joints)}
             else:
                 history, seen = [p.joints], {scene.frame: (views, p.joints)}
@@ -252,12 +275,27 @@ class SceneAssociation:
         joints: (T, P, 15, 3) each person's joints as the motion model has them, metres, NaN where the
             person is not tracked.
         frames: (T,) the detections' frame numbers.
+        present: (T, P) where each person is in the scene: the frames a camera's detection is theirs, and the
+            gaps between two such frames no longer than ``gap`` frames (the deleter's; after a person's last
+            detection they are gone, though their track coasts until the deleter ends it).
     """
 
     person_ids: np.ndarray
     slots: np.ndarray
     joints: np.ndarray
     frames: np.ndarray
+    gap: int = 0
+
+    @property
+    def present(self) -> np.ndarray:
+        seen = (self.slots >= 0).any(axis=1)                                          # (T, P)
+        out = seen.copy()
+        for p in range(seen.shape[1]):
+            frames = np.flatnonzero(seen[:, p])
+            for a, b in zip(frames[:-1], frames[1:]):
+                if 1 < b - a <= self.gap + 1:
+                    out[a:b, p] = True
+        return out
 
 
 class SceneTracker:
@@ -293,13 +331,15 @@ class SceneTracker:
         returns {person id: {camera: detection index}} for the people tracked at this frame."""
         for track in self.live:
             track.motion.predict(1 / self.fps)
-        assigned = self.associator(self.live, self.views, xy, confidence)
+        decided = self.associator(self.live, self.views, xy, confidence)
+        assigned = {pid: {c: n for c, (n, _) in views.items()} for pid, views in decided.items()}
         used: list[set[int]] = [set() for _ in self.cameras]
         for track in self.live:
-            views = assigned[track.id]
-            track.motion.update([self.views[c] for c in views], [xy[c][n] for c, n in views.items()],
-                                [confidence[c][n] for c, n in views.items()])
-            for c, n in views.items():
+            views = decided[track.id]
+            order = {c: MIRRORED if mirrored else slice(None) for c, (_, mirrored) in views.items()}
+            track.motion.update([self.views[c] for c in views], [xy[c][n][order[c]] for c, (n, _) in views.items()],
+                                [confidence[c][n][order[c]] for c, (n, _) in views.items()])
+            for c, (n, _) in views.items():
                 used[c].add(n)
             if views:
                 track.last_seen = self.frame
@@ -345,4 +385,5 @@ class SceneTracker:
                     out_slots[t, c, p] = n
                 if pid in at:
                     out_joints[t, p] = at[pid]
-        return SceneAssociation(np.array(ids, dtype=int), out_slots, out_joints, np.asarray(frames))
+        return SceneAssociation(np.array(ids, dtype=int), out_slots, out_joints, np.asarray(frames),
+                                self.deleter.frames if isinstance(self.deleter, MissedFramesDeleter) else 0)
