@@ -19,7 +19,8 @@ EXPECTED = {
     "3_the_lie_prior": (["conditional  mean next pose", "marginal     mean next pose"], 2, []),
     "4_a_filter_comparison": (["12 runs", "World MPJPE", "best run:"], 1,
                               ["comparison/results.csv", "comparison/plots/summary.png"]),
-    "5_real_detections_from_four_cameras": (["ticks at 30 fps; median reprojection", "held out", "mean spread"], 2, []),
+    "5_real_detections_from_four_cameras": (["ticks at 30 fps; median reprojection", "held out", "mean spread",
+                                             "scene: 3 people tracked, ids [0, 1, 2]"], 3, ["crossing/cam01"]),
 }
 
 

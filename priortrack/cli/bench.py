@@ -32,6 +32,13 @@ def _bench_lie_sample(args: argparse.Namespace) -> None:
     print_json(bench_lie_sample(n=args.n, threads=args.threads))
 
 
+def _bench_scene(args: argparse.Namespace) -> None:
+    from priortrack.experiments.benchmarks.scene import bench_scene
+
+    print_json(bench_scene(people=args.people, cameras=args.cameras, frames=args.frames, fps=args.fps,
+                           preset=args.filter, seed=args.seed))
+
+
 def _bench_ukf(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.ukf import bench_ukf
 
@@ -119,6 +126,15 @@ def add_parsers(verbs) -> None:
     _json_options(pf)
     pf.set_defaults(run=_bench_pf)
 
+    scene = bench.add_parser("scene", help="the whole track --detections --people all command on several people, "
+                                           "beside the single-person command on one")
+    scene.add_argument("--people", type=int, default=4, help="people in the scene, 1 to 9 (default %(default)s)")
+    scene.add_argument("--cameras", type=int, default=5, help="ring cameras, 3 to 12 (default %(default)s)")
+    scene.add_argument("--frames", type=int, default=300, help="frames, 10 to 1800 (default %(default)s)")
+    scene.add_argument("--fps", type=float, default=30.0, help="the input's frame rate (default %(default)s)")
+    scene.add_argument("--filter", default="ukf-real", help="the preset (default %(default)s)")
+    _json_options(scene)
+    scene.set_defaults(run=_bench_scene)
     real_track = bench.add_parser("real-track", help="the whole track --detections command on real-format input "
                                                      "(4 cameras), beside DLT of the same input")
     real_track.add_argument("--frames", type=int, default=100, help="frames of the synthetic input, 3 to 1800 (default %(default)s)")

@@ -14,8 +14,8 @@ shifted sideways and to the middle of the floor every camera sees (:func:`captur
 
 Every person gets a detector's errors (:func:`~priortrack.experiments.real_format.detector_keypoints`);
 a joint hidden behind a nearer person (within :data:`BODY_RADIUS_M` of one of their bones, seen from the
-camera) is dropped; a static false positive (a standing body, confidences 0.3–0.5) is seen by the first
-two cameras only; and each file holds every person, in a shuffled order, with no id
+camera) is dropped; a static false positive (a standing body 1 m or more from the walkers, confidences
+0.3–0.5) is seen by the first two cameras only, consistently (it triangulates); and each file holds every person, in a shuffled order, with no id
 (:func:`write_scene_openpose`). The walkers are people the preset's prior never saw: its prior is learned
 again without them (:func:`~priortrack.experiments.people.fold_preset`).
 
@@ -40,7 +40,7 @@ import numpy as np
 
 from priortrack.data.calibration import read_calibration
 from priortrack.data.detections import read_detections
-from priortrack.data.eval15 import EVAL15_NAMES, EVAL15_PARENTS
+from priortrack.data.eval15 import EVAL15_PARENTS
 from priortrack.data.keypoints import LAYOUTS, detector_map
 from priortrack.data.scene_detections import read_scene_detections
 from priortrack.errors import PriortrackError
@@ -77,23 +77,51 @@ SCENES: dict[str, tuple[Walker, ...]] = {
 }
 
 
-def capture_centre(cameras: list[PinholeCamera], step: float = 0.1, reach: float = 5.0) -> np.ndarray:
-    """(3,) the centre, on the floor (z = 0), of the ground points whose standing body (z from 0.05 to
-    1.8 m) every camera sees whole: the place a scene is played (the Pose2Sim demo's four cameras share
-    about 2 × 1.3 m around (−0.8, −0.1))."""
+def _floor_seen(cameras: list[PinholeCamera], up: str, step: float = 0.1, reach: float = 5.0):
+    """The floor grid (two (n, n) coordinate arrays along the floor axes of a world whose up is ``up``) and
+    where each camera sees a standing body (up from 0.05 to 1.8 m) whole: (C, n, n) bool."""
     grid = np.arange(-reach, reach + 1e-9, step)
-    x, y = np.meshgrid(grid, grid)
-    seen = np.ones(x.shape, dtype=bool)
-    for z in (0.05, 1.8):
-        points = np.stack([x, y, np.full_like(x, z)], axis=-1).reshape(-1, 1, 3)
-        for camera in cameras:
-            uv, front = camera.project(points)
+    a, b = np.meshgrid(grid, grid)
+    k = "xyz".index(up)
+    floor = [i for i in range(3) if i != k]
+    seen = np.ones((len(cameras),) + a.shape, dtype=bool)
+    for height in (0.05, 1.8):
+        points = np.zeros(a.shape + (3,))
+        points[..., floor[0]], points[..., floor[1]], points[..., k] = a, b, height
+        for c, camera in enumerate(cameras):
+            uv, front = camera.project(points.reshape(-1, 1, 3))
             inside = front & (uv[..., 0] >= 0) & (uv[..., 0] < camera.width) & (uv[..., 1] >= 0) & \
                 (uv[..., 1] < camera.height)
-            seen &= inside.reshape(x.shape)
-    if not seen.any():
+            seen[c] &= inside.reshape(a.shape)
+    return a, b, floor, seen
+
+
+def capture_centre(cameras: list[PinholeCamera], up: str = "z") -> np.ndarray:
+    """(3,) the centre, on the floor, of the ground points whose standing body every camera sees whole:
+    the place a scene is played (the Pose2Sim demo's four cameras share about 2 × 1.3 m around
+    (−0.8, −0.1))."""
+    a, b, floor, seen = _floor_seen(cameras, up)
+    every = seen.all(axis=0)
+    if not every.any():
         raise PriortrackError("no place on the floor within 5 m is seen by every camera: no scene can be played")
-    return np.array([x[seen].mean(), y[seen].mean(), 0.0])
+    centre = np.zeros(3)
+    centre[floor] = a[every].mean(), b[every].mean()
+    return centre
+
+
+def false_positive_place(X: np.ndarray, cameras: list[PinholeCamera], up: str = "z") -> np.ndarray:
+    """(3,) where on the floor the static false positive stands: seen whole by the first two cameras, at
+    least 1 m from every walker's path (X (P, T, 15, 3)), the nearest such place to the walkers."""
+    a, b, floor, seen = _floor_seen(cameras[:2], up)
+    paths = X[:, :, 0][..., floor].reshape(-1, 2)
+    gap = np.min(np.linalg.norm(np.stack([a, b], axis=-1)[:, :, None] - paths[None, None], axis=-1), axis=-1)
+    fits = seen.all(axis=0) & (gap >= 1.0)
+    if not fits.any():
+        raise PriortrackError("the first two cameras share no floor 1 m from the walkers for a false positive")
+    i = np.argmin(np.where(fits, gap, np.inf))
+    place = np.zeros(3)
+    place[floor] = a.flat[i], b.flat[i]
+    return place
 
 
 def composed(walkers: tuple[Walker, ...], seconds: float = SECONDS, fps: float = DATA_FPS,
@@ -140,10 +168,11 @@ def hidden(X: np.ndarray, camera: PinholeCamera) -> np.ndarray:
 
 
 def scene_keypoints(X: np.ndarray, cameras: list[PinholeCamera], rng: np.random.Generator,
-                    away: np.ndarray | None = None) -> np.ndarray:
+                    away: np.ndarray | None = None, up: str = "z") -> np.ndarray:
     """(C, T, P + 1, 25, 3) BODY_25B keypoints of the walkers X (P, T, 15, 3) and the static false
-    positive (the last slot; first two cameras only), with the detector's errors, occlusions, and
-    nothing of walker p at the frames where ``away`` (P, T) holds."""
+    positive (the last slot: the first walker's first pose, standing where :func:`false_positive_place`
+    puts it in a world whose up is ``up``; first two cameras only), with the detector's errors, occlusions,
+    and nothing of walker p at the frames where ``away`` (P, T) holds."""
     P, T = X.shape[:2]
     people = [detector_keypoints(X[p], cameras, rng) for p in range(P)]                 # each (C, T, 25, 3)
     out = np.zeros((len(cameras), T, P + 1, 25, 3))
@@ -157,7 +186,8 @@ def scene_keypoints(X: np.ndarray, cameras: list[PinholeCamera], rng: np.random.
             if away is not None:
                 kp[away[p]] = 0.0
             out[c, :, p] = kp
-    standing = X[0, 0] - X[0, 0, 0] + [2.2, 2.2, X[0, 0, 0, 2]]                            # a body 3 m off the centre
+    k = "xyz".index(up)
+    standing = X[0, 0] + false_positive_place(X, cameras, up) - np.where(np.arange(3) == k, 0.0, X[0, 0, 0])
     for c in range(min(2, len(cameras))):
         still = detector_keypoints(np.repeat(standing[None], T, axis=0), cameras[c:c + 1], rng)[0]
         still[..., 2] = np.where(still[..., 2] > 0, rng.uniform(0.3, 0.5, still.shape[:2]), 0.0)
@@ -179,8 +209,9 @@ def write_scene_openpose(keypoints: np.ndarray, folder: Path, rng: np.random.Gen
     return folder
 
 
-#: Limbs scored by PCP: (parent, child) eval15 joints; the torso is neck–pelvis, the head neck–head.
-PCP_LIMBS = tuple((int(EVAL15_PARENTS[j]), j) for j in range(15) if EVAL15_PARENTS[j] >= 0 and j != 1) + ((0, 1),)
+#: The ten parts PCP scores (as on the Shelf and Campus benchmarks), eval15 joint pairs: the head (neck–head),
+#: the torso (pelvis–neck), upper and lower arms, upper and lower legs.
+PCP_LIMBS = ((1, 2), (0, 1), (3, 4), (4, 5), (6, 7), (7, 8), (9, 10), (10, 11), (12, 13), (13, 14))
 
 
 def pcp(estimate: np.ndarray, truth: np.ndarray) -> float:
@@ -207,8 +238,10 @@ def score_scene(result, truth: np.ndarray, present: np.ndarray, alone_mm: list[f
     """The scores of the module docstring: ``result`` a SceneTrack, ``truth`` (P, T_frames, 15, 3) the
     walkers' joints in the detector's definitions at every detection frame, ``present`` (P, T_frames)
     where each is in view."""
-    import motmetrics as mm
-
+    try:
+        import motmetrics as mm
+    except ImportError:
+        raise PriortrackError("scoring scenes needs py-motmetrics: pip install 'priortrack[scenes]'") from None
     accumulator = mm.MOTAccumulator(auto_id=True)
     ticks = np.flatnonzero(result.frames >= 0)
     matches = np.zeros((truth.shape[0], len(result.person_ids)), dtype=int)
@@ -289,3 +322,39 @@ def run_scene(scene: str, preset, seed: int = 0, gap: float | None = None, away_
     row = score_scene(result, truth, present, alone_mm if alone else None)
     return {"scene": scene, "preset": preset.name, "seed": seed, "gap": gap, "seconds": result.seconds,
             "trained_without": sorted({w.person for w in walkers}), **row}
+
+
+def eval_scenes(scenes=tuple(SCENES), presets=("ukf-real", "pf-lie"), seeds: int = 3,
+                gaps=(0.3, 1.0), cache=None) -> dict:
+    """Every scene × preset × seed (``passing`` once per gap), each :func:`run_scene`; the rows and a
+    summary per scene and preset: mean MOTA and IDF1, identity switches and false tracks summed, the
+    lowest PCP and the highest MPJPE ratio to the person tracked alone."""
+    unknown = [s for s in scenes if s not in SCENES]
+    if unknown:
+        raise PriortrackError(f"unknown scene {unknown[0]!r}; scenes: {', '.join(SCENES)}")
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
+        raise PriortrackError(f"seeds must be a whole number ≥ 1, got {seeds!r}")
+    rows = []
+    for scene in scenes:
+        for gap in (gaps if scene == "passing" else (None,)):
+            for preset in presets:
+                for seed in range(seeds):
+                    rows.append(run_scene(scene, preset, seed, gap, cache=cache))
+                    log.info("%s%s %s seed %d: IDF1 %.3f, %d switches, %d false tracks", scene,
+                             "" if gap is None else f" {gap} m", preset, seed, rows[-1]["idf1"],
+                             rows[-1]["num_switches"], rows[-1]["false_tracks"])
+    summary = {}
+    for row in rows:
+        key = f"{row['scene']}{'' if row['gap'] is None else ' ' + str(row['gap']) + ' m'} · {row['preset']}"
+        summary.setdefault(key, []).append(row)
+    table = {key: {"runs": len(group), "mota": float(np.mean([r["mota"] for r in group])),
+                   "idf1": float(np.mean([r["idf1"] for r in group])),
+                   "switches": int(sum(r["num_switches"] for r in group)),
+                   "false_tracks": int(sum(r["false_tracks"] for r in group)),
+                   "min_pcp": float(min(p["pcp"] for r in group for p in r["people"])),
+                   "mpjpe_mm": float(np.mean([p["mpjpe_mm"] for r in group for p in r["people"]
+                                              if p["mpjpe_mm"] is not None])),
+                   "max_ratio_to_alone": float(max(p.get("ratio_to_alone") or np.inf for r in group
+                                                   for p in r["people"]))}
+             for key, group in summary.items()}
+    return {"rows": rows, "table": table}
