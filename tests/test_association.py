@@ -126,3 +126,26 @@ def test_pose2sims_demo_is_grouped_as_pose2sim_grouped_it(cameras):
         false_positive = [g for g in groups if not any(set(g.items()) & set(e.items()) for e in expected)]
         assert all(len(g) <= 2 and set(g) <= {0, 1} for g in false_positive), (t, groups, expected)
     assert agree >= 98
+
+
+def test_every_person_is_read_from_coco_results_and_npz(tmp_path):
+    """Several people per image in a COCO results file (MMPose writes one entry each; an entry with no
+    keypoints is nobody) and in an .npz of (cameras, frames, people, K, 3), read slot by slot."""
+    rng = np.random.default_rng(0)
+    people = rng.uniform(10, 500, (3, 2, 17, 3))                       # (frames, people, K, 3)
+    people[..., 2] = 0.9
+    entries = [{"image_id": t, "keypoints": people[t, n].ravel().tolist(), "score": 0.9}
+               for t in range(3) for n in range(2)] + [{"image_id": 1, "keypoints": [], "score": 0.1}]
+    (tmp_path / "results.json").write_text(json.dumps(entries))
+    scene = read_scene_detections(tmp_path / "results.json")
+    assert scene.layout == "coco17" and scene.keypoints.shape == (1, 3, 2, 17, 3)
+    np.testing.assert_allclose(scene.keypoints[0], people, rtol=1e-6)
+    np.savez(tmp_path / "s.npz", keypoints=people[None], keypoint_names=np.array(scene.keypoint_names), fps=30.0)
+    scene = read_scene_detections(tmp_path / "s.npz")
+    assert scene.fps == 30.0 and scene.people.tolist() == [[2, 2, 2]]
+    np.savez(tmp_path / "bad.npz", keypoints=people, keypoint_names=np.array(scene.keypoint_names))
+    with pytest.raises(PriortrackError, match=r"expected \(cameras, frames, people, keypoints, 3\)"):
+        read_scene_detections(tmp_path / "bad.npz")
+    (tmp_path / "results.txt").write_text("x")
+    with pytest.raises(PriortrackError, match="several people are read from"):
+        read_scene_detections(tmp_path / "results.txt")

@@ -221,22 +221,30 @@ def _camera_folders(path: Path) -> list[Path]:
     return folders
 
 
-def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Detections:
-    """Each camera's files parsed one at a time, in frame order, as its person is followed: a file's people
-    are let go once the followed one is kept (an hour of several people's detections is not held at once)."""
+def openpose_cameras(path: Path, keypoints: str | None):
+    """An OpenPose folder (or folder of camera folders): (camera names (C,), frames (T,), layout, K, people)
+    where ``people(c)`` yields camera c's frames' people, (K, 3) each, in frame order, one file parsed at a
+    time and each person's keypoint count checked as it is read."""
     folders = _camera_folders(path)
     files = [_frame_files(folder) for folder in folders]
     frames = np.array(sorted(set().union(*files)))
     check_frames(frames, str(path))
     numbers = frames.tolist()
     K = _keypoint_count(files, numbers, path)
-    layout = layout_for(keypoints, K, str(path))
-    out = np.full((len(folders), len(frames), K, 3), np.nan, dtype=np.float32)
-    switches = []
-    for c, by_frame in enumerate(files):
-        people = (_people(by_frame[n]) if n in by_frame else [] for n in numbers)
-        switches.append(_follow(_with_count(people, K, path), out[c], person, folders[c].name))
-    return Detections(layout, tuple(f.name for f in folders), frames, None, str(path), tuple(switches), keypoints=out)
+
+    def people(c: int) -> Iterator[list[np.ndarray]]:
+        return _with_count((_people(files[c][n]) if n in files[c] else [] for n in numbers), K, path)
+
+    return tuple(f.name for f in folders), frames, layout_for(keypoints, K, str(path)), K, people
+
+
+def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Detections:
+    """Each camera's files parsed one at a time, in frame order, as its person is followed: a file's people
+    are let go once the followed one is kept (an hour of several people's detections is not held at once)."""
+    cameras, frames, layout, K, people = openpose_cameras(path, keypoints)
+    out = np.full((len(cameras), len(frames), K, 3), np.nan, dtype=np.float32)
+    switches = tuple(_follow(people(c), out[c], person, name) for c, name in enumerate(cameras))
+    return Detections(layout, cameras, frames, None, str(path), switches, keypoints=out)
 
 
 def _frame_files(folder: Path) -> dict[int, Path]:
@@ -323,7 +331,9 @@ def _distance(a: np.ndarray, b: np.ndarray) -> float:
 
 # ---- COCO results and NPZ ---------------------------------------------------------------------
 
-def _read_coco_results(path: Path, keypoints: str | None, person: int | None) -> Detections:
+def coco_people(path: Path) -> tuple[dict[int, list[np.ndarray]], int]:
+    """A COCO results file's people by frame (``image_id``: a list of (K, 3) keypoints each; an entry with an
+    empty keypoint list is nobody) and K, checked: one keypoint count, frame numbers whole."""
     try:
         data = json.loads(path.read_text(errors="replace"))
     except json.JSONDecodeError as exc:
@@ -339,11 +349,17 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
         image = entry["image_id"]
         if isinstance(image, bool) or not isinstance(image, int):
             raise PriortrackError(f"{path}: entry {i}: image_id {image!r} is not a frame number")
-        by_frame.setdefault(image, []).append(_triples(entry["keypoints"], f"{path}: entry {i} keypoints"))
+        if entry["keypoints"]:
+            by_frame.setdefault(image, []).append(_triples(entry["keypoints"], f"{path}: entry {i} keypoints"))
     counts = {len(p) for people in by_frame.values() for p in people}
-    if len(counts) > 1:
-        raise PriortrackError(f"{path}: entries have different keypoint counts ({sorted(counts)})")
-    K = counts.pop()
+    if len(counts) != 1:
+        raise PriortrackError(f"{path}: " + ("nobody is detected" if not counts else
+                                             f"entries have different keypoint counts ({sorted(counts)})"))
+    return by_frame, counts.pop()
+
+
+def _read_coco_results(path: Path, keypoints: str | None, person: int | None) -> Detections:
+    by_frame, K = coco_people(path)
     layout = layout_for(keypoints, K, str(path))
     frames = np.array(sorted(by_frame))
     check_frames(frames, str(path))
@@ -365,6 +381,15 @@ def _npz_source(path: Path, keypoints: str | None) -> "Detections | DetectionFil
     C, T, K, _ = shape
     if not 1 <= C <= MAX_CAMERAS or T < 1:
         raise PriortrackError(f"{path}: keypoints has {C} cameras and {T} frames")
+    layout, order, frames, fps, names_c = npz_header(path, arrays, C, T, K, keypoints)
+    source = DetectionFile(layout, names_c, frames, fps, str(path), (0,) * C, array=on_disk, order=order)
+    return source if kp is None else source.in_memory(cleaned_keypoints(kp, source.order, source.source))
+
+
+def npz_header(path: Path, arrays: dict, C: int, T: int, K: int, keypoints: str | None):
+    """What an .npz of detections says besides its keypoints, checked: (layout, the stored keypoints of the
+    layout in its order (K,), frames (T,) int, fps or None, camera names (C,)), from its ``keypoint_names``
+    and optional ``frames``, ``fps``, ``camera_names``; ``keypoints`` the layout the user named, or None."""
     names = tuple(str(n) for n in arrays["keypoint_names"].reshape(-1))
     if len(names) != K:
         raise PriortrackError(f"{path}: {len(names)} keypoint_names for {K} keypoints")
@@ -378,12 +403,10 @@ def _npz_source(path: Path, keypoints: str | None) -> "Detections | DetectionFil
     fps = None if fps is None else float(fps)
     if fps is not None and not 0 < fps < 1e4:
         raise PriortrackError(f"{path}: fps {fps} is not a frame rate")
-    names_c = tuple(str(n) for n in arrays.get("camera_names", np.array([f"cam{c + 1}" for c in range(C)])))
-    if len(names_c) != C:
-        raise PriortrackError(f"{path}: {len(names_c)} camera_names for {C} cameras")
-    source = DetectionFile(layout, names_c, frames.astype(int), fps, str(path), (0,) * C, array=on_disk,
-                           order=tuple(int(k) for k in order))
-    return source if kp is None else source.in_memory(cleaned_keypoints(kp, source.order, source.source))
+    cameras = tuple(str(n) for n in arrays.get("camera_names", np.array([f"cam{c + 1}" for c in range(C)])))
+    if len(cameras) != C:
+        raise PriortrackError(f"{path}: {len(cameras)} camera_names for {C} cameras")
+    return layout, tuple(int(k) for k in order), frames.astype(int), fps, cameras
 
 
 def _npy_source(path: Path, keypoints: str | None) -> "Detections | DetectionFile":

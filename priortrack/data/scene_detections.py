@@ -16,16 +16,14 @@ a COCO results ``.json`` (one camera: every entry of an ``image_id``), or an ``.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from priortrack.data.detections import (MAX_CAMERAS, MAX_NPZ_BYTES, DetectionsHeader, _camera_folders,
-                                        _frame_files, _keypoint_count, _people, _triples, _with_count,
-                                        check_frames, cleaned_keypoints)
-from priortrack.data.keypoints import layout_for, layout_of_names, to_eval15
+from priortrack.data.detections import (MAX_CAMERAS, MAX_NPZ_BYTES, DetectionsHeader, check_frames,
+                                        cleaned_keypoints, coco_people, npz_header, openpose_cameras)
+from priortrack.data.keypoints import layout_for, to_eval15
 from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
 
@@ -97,40 +95,13 @@ def _stacked(per_camera: list[list[list[np.ndarray]]], K: int, where: str) -> np
 
 
 def _openpose(path: Path, keypoints: str | None) -> SceneDetections:
-    folders = _camera_folders(path)
-    files = [_frame_files(folder) for folder in folders]
-    frames = np.array(sorted(set().union(*files)))
-    check_frames(frames, str(path))
-    numbers = frames.tolist()
-    K = _keypoint_count(files, numbers, path)
-    layout = layout_for(keypoints, K, str(path))
-    per_camera = [[_seen(people) for people in _with_count((_people(by_frame[n]) if n in by_frame else []
-                                                           for n in numbers), K, path)] for by_frame in files]
-    return SceneDetections(layout, tuple(f.name for f in folders), frames, None, str(path),
-                           keypoints=_stacked(per_camera, K, str(path)))
+    cameras, frames, layout, K, people = openpose_cameras(path, keypoints)
+    per_camera = [[_seen(frame) for frame in people(c)] for c in range(len(cameras))]
+    return SceneDetections(layout, cameras, frames, None, str(path), keypoints=_stacked(per_camera, K, str(path)))
 
 
 def _coco(path: Path, keypoints: str | None) -> SceneDetections:
-    try:
-        data = json.loads(path.read_text(errors="replace"))
-    except json.JSONDecodeError as exc:
-        raise PriortrackError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(data, list) or not data:
-        raise PriortrackError(f"{path}: not a COCO results file (a non-empty list of image_id, keypoints, score)")
-    by_frame: dict[int, list[np.ndarray]] = {}
-    for i, entry in enumerate(data):
-        if not isinstance(entry, dict) or "image_id" not in entry or not isinstance(entry.get("keypoints"), list):
-            raise PriortrackError(f"{path}: entry {i} lacks image_id or keypoints")
-        image = entry["image_id"]
-        if isinstance(image, bool) or not isinstance(image, int):
-            raise PriortrackError(f"{path}: entry {i}: image_id {image!r} is not a frame number")
-        if entry["keypoints"]:
-            by_frame.setdefault(image, []).append(_triples(entry["keypoints"], f"{path}: entry {i} keypoints"))
-    counts = {len(p) for people in by_frame.values() for p in people}
-    if len(counts) != 1:
-        raise PriortrackError(f"{path}: " + ("nobody is detected" if not counts else
-                                             f"entries have different keypoint counts ({sorted(counts)})"))
-    K = counts.pop()
+    by_frame, K = coco_people(path)
     frames = np.array(sorted(by_frame))
     check_frames(frames, str(path))
     per_camera = [[_seen(by_frame[int(n)]) for n in frames]]
@@ -149,22 +120,6 @@ def _npz(path: Path, keypoints: str | None) -> SceneDetections:
     C, T, N, K, _ = kp.shape
     if not 1 <= C <= MAX_CAMERAS or T < 1 or not 1 <= N <= MAX_PEOPLE:
         raise PriortrackError(f"{path}: keypoints has {C} cameras, {T} frames and {N} people a frame")
-    names = tuple(str(n) for n in arrays["keypoint_names"].reshape(-1))
-    if len(names) != K:
-        raise PriortrackError(f"{path}: {len(names)} keypoint_names for {K} keypoints")
-    layout, order = layout_of_names(names, str(path))
-    if keypoints is not None and layout_for(keypoints, K, str(path)) != layout:
-        raise PriortrackError(f"{path}: keypoint_names are layout {layout}, not {keypoints}")
-    frames = arrays.get("frames", np.arange(T))
-    if frames.shape != (T,) or frames.dtype.kind not in "iu" or np.any(np.diff(frames) <= 0):
-        raise PriortrackError(f"{path}: frames must be {T} increasing integers")
-    fps = arrays.get("fps")
-    fps = None if fps is None else float(fps)
-    if fps is not None and not 0 < fps < 1e4:
-        raise PriortrackError(f"{path}: fps {fps} is not a frame rate")
-    cameras = tuple(str(n) for n in arrays.get("camera_names", np.array([f"cam{c + 1}" for c in range(C)])))
-    if len(cameras) != C:
-        raise PriortrackError(f"{path}: {len(cameras)} camera_names for {C} cameras")
-    order = tuple(int(k) for k in order)
+    layout, order, frames, fps, cameras = npz_header(path, arrays, C, T, K, keypoints)
     cleaned = np.stack([cleaned_keypoints(kp[:, :, n], order, f"{path}: person slot {n}") for n in range(N)], axis=2)
-    return SceneDetections(layout, cameras, frames.astype(int), fps, str(path), keypoints=cleaned)
+    return SceneDetections(layout, cameras, frames, fps, str(path), keypoints=cleaned)
