@@ -133,9 +133,11 @@ def synthetic():
 @pytest.fixture(scope="module")
 def walk_split():
     """Train on 07_01, 07_02 and subject 35's walks (35_01 and the walk/jog set's first 12 training
-    walks, to keep the fit to a few seconds); test on 07_10."""
+    walks, to keep the fit to a few seconds); test on 07_10. Four EM starts, the least message length
+    kept: one start lands in a poor local optimum for 2 seeds in 5 (held-out log-density −53 against −33;
+    LiePrior.fit's docstring), four all do so for about 1 seed offset in 40."""
     train = [load_motion(n) for n in ("cmu:07_01", "cmu:07_02", "cmu:35_01")] + list(load_walkjog().walks("train")[:12])
-    prior = LiePrior.fit(train, seed=0)
+    prior = LiePrior.fit(train, seed=0, restarts=4)
     return prior, train, load_motion("cmu:07_10")
 
 

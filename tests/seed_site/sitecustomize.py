@@ -2,4 +2,4 @@
 
 import seed_offset
 
-seed_offset.apply(seed_offset.offset_from_env())
+seed_offset.apply_on_import(seed_offset.offset_from_env())
