@@ -259,11 +259,12 @@ def add_parsers(verbs) -> None:
     scenes.add_argument("--scenes", nargs="+", default=["passing", "return", "crossing"],
                         help="passing (two walking towards each other), return (one leaves the view and comes "
                              "back), crossing (three)")
-    scenes.add_argument("--presets", nargs="+", default=["ukf-real", "pf-lie"])
-    scenes.add_argument("--seeds", type=int, default=3)
+    scenes.add_argument("--presets", nargs="+", default=["ukf-real", "pf-lie"],
+                        help="presets, each with its prior refitted without the scene's people (default: ukf-real pf-lie)")
+    scenes.add_argument("--seeds", type=int, default=3, help="runs of each scene, each with its own detector errors (3)")
     scenes.add_argument("--gaps", nargs="+", type=float, default=[0.3, 1.0],
                         help="passing: the distances the two pass apart, metres (default 0.3 1.0)")
-    scenes.add_argument("--json", action="store_true")
+    scenes.add_argument("--json", action="store_true", help="print every run's scores and the table as JSON")
     scenes.set_defaults(run=_eval_scenes)
     smoothing = evaluate.add_parser("smoothing", help="smoothed vs filtered through a blackout on held-out walks")
     smoothing.add_argument("--presets", nargs="+",
