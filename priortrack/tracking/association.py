@@ -209,8 +209,7 @@ def _merged_duplicates(cameras, xy, conf, proposals: list[Proposal]) -> tuple[li
     left: list[tuple[int, int]] = []
     for p in proposals:
         for i, q in enumerate(kept):
-            gap = np.linalg.norm(p.joints - q.joints, axis=-1)
-            if np.isfinite(gap).any() and np.median(gap[np.isfinite(gap)]) < DUPLICATE_M:
+            if median_distance(p.joints, q.joints) < DUPLICATE_M:
                 if set(p.views) & set(q.views):
                     left += list(p.views.items())
                 else:
@@ -219,3 +218,10 @@ def _merged_duplicates(cameras, xy, conf, proposals: list[Proposal]) -> tuple[li
         else:
             kept.append(p)
     return kept, left
+
+
+def median_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """The median distance between two sets of joints (J, 3) over the joints both have, inf where none."""
+    gap = np.linalg.norm(a - b, axis=-1)
+    gap = gap[np.isfinite(gap)]
+    return float(np.median(gap)) if len(gap) else np.inf

@@ -41,7 +41,7 @@ from scipy.optimize import linear_sum_assignment
 from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS, EVAL15_PARENTS
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.tracking.association import PAIR_GATE_M, associate, normalised
+from priortrack.tracking.association import PAIR_GATE_M, associate, median_distance, normalised
 from priortrack.tracking.motion import JointKalman, View
 
 log = logging.getLogger(__name__)
@@ -205,10 +205,10 @@ class ProposalInitiator:
         followed, born = [], []
         for p in proposals:
             views = {c: int(left[c][n]) for c, n in p.views.items()}
-            if any(_median_distance(p.joints, t.motion.joints) < FOLLOW_M for t in scene.live):
+            if any(median_distance(p.joints, t.motion.joints) < FOLLOW_M for t in scene.live):
                 continue                                  # a live person's detections the gate let go
-            previous = min(self.tentative, key=lambda s: _median_distance(p.joints, s["joints"]), default=None)
-            if previous is not None and _median_distance(p.joints, previous["joints"]) < FOLLOW_M:
+            previous = min(self.tentative, key=lambda s: median_distance(p.joints, s["joints"]), default=None)
+            if previous is not None and median_distance(p.joints, previous["joints"]) < FOLLOW_M:
                 self.tentative = [s for s in self.tentative if s is not previous]
                 history, seen = previous["history"] + [p.joints], {**previous["views"], scene.frame: (views, p.joints)}
             else:
@@ -257,12 +257,6 @@ def _median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
     rows = np.arange(len(values))
     low, high = ordered[rows, np.maximum(k - 1, 0) // 2], ordered[rows, np.minimum(k // 2, values.shape[1] - 1)]
     return np.where(k > 0, (low + high) / 2, np.inf)
-
-
-def _median_distance(a: np.ndarray, b: np.ndarray) -> float:
-    gap = np.linalg.norm(a - b, axis=-1)
-    gap = gap[np.isfinite(gap)]
-    return float(np.median(gap)) if len(gap) else np.inf
 
 
 @dataclass
