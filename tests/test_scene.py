@@ -83,6 +83,21 @@ def test_each_person_is_within_30_mm_of_pose2sims_own_output(demo, tmp_path):
     np.testing.assert_allclose(points, result.joints[:, 1], atol=1e-5)
 
 
+def test_people_tracked_in_worker_processes_are_the_runs_of_this_process_and_their_warnings_reach_it(demo, caplog):
+    """``workers=2``: each person's run in a loky worker is the run made here (the workers' torch has one
+    thread, as this suite's), and what a worker logs (here a mismatch warning) is logged here too."""
+    scene, calibration = demo
+    runs, warnings = {}, {}
+    for workers in (2, 1):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="priortrack"):
+            runs[workers] = track_scene(scene, calibration, "ukf-real", fps=60, workers=workers)
+        warnings[workers] = sorted(r.getMessage() for r in caplog.records if r.name == "priortrack.experiments.real")
+    np.testing.assert_array_equal(runs[2].joints, runs[1].joints)
+    np.testing.assert_array_equal(runs[2].loglik, runs[1].loglik)
+    assert warnings[2] == warnings[1] and any("flagged as mismatch" in w for w in warnings[1])
+
+
 def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys):
     """``track --people``: the JSON summary per person, the files, and a recording with each person's
     skeleton and label, their detections per camera and the unassigned ones (the false positive)."""
@@ -127,7 +142,7 @@ def test_bad_people_are_named(words, message):
         parse_people(words)
 
 
-def test_bad_choices_and_settings_are_named(demo):
+def test_bad_choices_and_settings_are_named(demo, capsys):
     scene, calibration = demo
     cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
     association = SceneTracker(cameras, 60.0).run(*scene.eval15(0.3), scene.frames)
@@ -143,3 +158,8 @@ def test_bad_choices_and_settings_are_named(demo):
         SceneTracker(cameras[:3], 60.0).run(*scene.eval15(0.3), scene.frames)
     with pytest.raises(PriortrackError, match="nobody was seen by 3 cameras"):
         track_scene(scene.head(2), calibration, "ukf-real", fps=60)
+    with pytest.raises(PriortrackError, match="workers must be a number of processes ≥ 1, got 0"):
+        track_scene(scene, calibration, "ukf-real", fps=60, workers=0)
+    assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps", "60",
+                 "--filter", "ukf-real", "--workers", "2"]) == 2
+    assert "--workers tracks several people side by side: give --people" in capsys.readouterr().err

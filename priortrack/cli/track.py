@@ -17,7 +17,8 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.experiments.tracking import track
     from priortrack.viz.replay import replay
 
-    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory"):   # (--height has a default)
+    for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory",
+                 "workers"):                                                                  # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -104,6 +105,8 @@ def _track_detections(args: argparse.Namespace) -> None:
     if args.people is not None:
         _track_scene(args, camera_map, memory)
         return
+    if args.workers is not None:
+        raise PriortrackError("--workers tracks several people side by side: give --people")
     detections = open_detections(args.detections, keypoints=args.keypoints, person=args.person)   # npz, npy: in blocks
     if args.frames is not None:
         detections = detections.head(args.frames)
@@ -145,6 +148,8 @@ def _track_scene(args: argparse.Namespace, camera_map: dict | None, memory: int)
     for name in ("person", "skeleton"):
         if getattr(args, name) is not None:
             raise PriortrackError(f"--{name} follows one person; --people tracks the scene's (give one of them)")
+    if args.workers is not None and args.workers < 1:
+        raise PriortrackError(f"--workers must be a number of processes ≥ 1, got {args.workers}")
     people = parse_people(args.people)
     scene = read_scene_detections(args.detections, keypoints=args.keypoints)
     if args.frames is not None:
@@ -152,7 +157,8 @@ def _track_scene(args: argparse.Namespace, camera_map: dict | None, memory: int)
     calibration = read_calibration(args.cameras, units=args.units)
     result = track_scene(scene, calibration, args.filter, fps=args.fps, up=args.up, camera_map=camera_map,
                          config=SceneConfig(min_confidence=args.min_confidence), people=people, seed=args.seed,
-                         height=args.height, device=args.device, memory=memory, **_smoothing(args))
+                         height=args.height, device=args.device, memory=memory, workers=args.workers,
+                         **_smoothing(args))
     written = [str(p) for path in args.out or [] for p in result.save(path)]
     if args.rrd:
         from priortrack.viz.scene import record_scene
@@ -194,6 +200,8 @@ def add_parsers(verbs) -> None:
                             "id:A,B; at:CAMERA:X,Y or box:CAMERA:X0,Y0,X1,Y1 (the person there in that camera's "
                             "first frame). Outputs hold every person: .npz joints (T, P, 15, 3), .csv with a person "
                             "column, a .trc/.bvh per person; the recording colours and labels each")
+    track.add_argument("--workers", type=int, metavar="N",
+                       help="--people: processes tracking people side by side (default: one per core)")
     track.add_argument("--skeleton", help="the person's own body (.asf, or a .bvh's hierarchy) instead of the "
                                          "template scaled to the detections")
     track.add_argument("--height", type=float, default=1.7,

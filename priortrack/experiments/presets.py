@@ -273,10 +273,10 @@ def write_cached(path: Path, save: Callable[[Path], Any], what: str = "prior") -
     renamed); a cache that cannot be written costs the next run a refit, no more."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_suffix(".partial" + path.suffix)
+        partial = path.with_suffix(f".partial{os.getpid()}" + path.suffix)     # one per process writing it
         save(partial)
         text = hashlib.sha256(partial.read_bytes()).hexdigest()
-        digest_partial = _digest_path(path).with_suffix(".partial.sha256")
+        digest_partial = _digest_path(path).with_suffix(f".partial{os.getpid()}.sha256")
         digest_partial.write_text(text + "\n")
         partial.replace(path)
         digest_partial.replace(_digest_path(path))

@@ -577,6 +577,27 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     return result
 
 
+def no_fit_check(preset: Preset) -> str | None:
+    """Why the preset's runs get no fit-check (:func:`tracked_fit_check`), None where they do."""
+    from priortrack.priors.registry import PRIOR_KINDS
+
+    return ("the preset names a prior file" if preset.prior_file is not None
+            else "a GPDM's pose density is in its training skeleton's angles"
+            if "latent" in PRIOR_KINDS[preset.prior_kind].capabilities else None)
+
+
+def fitted_once(preset: Preset | str, cache=None) -> Preset:
+    """The preset, its prior and its fit-check's reference fitted and cached here, so that runs side by side
+    (several people's, in worker processes) read them from the cache instead of each fitting them."""
+    from priortrack.priors.support import reference
+
+    preset = load_preset(preset) if not isinstance(preset, Preset) else preset
+    preset.prior(cache)
+    if no_fit_check(preset) is None:
+        reference(preset, cache)
+    return preset
+
+
 def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[dict | None, np.ndarray | None]:
     """The fit-check (:mod:`priortrack.priors.support`) of the tracked body's motion (its joints fitted
     by inverse kinematics) under the prior, against the preset's held-out reference, and the ticks (T,)
@@ -587,14 +608,11 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[di
     its runs rely on the likelihood's mismatch flag, which separates them (0 % on those walks, 100 % on
     a balance). The per-tick triangulation was tried as the motion judged instead (a prior-free
     estimate): its detector noise made a held-out walk "outside"."""
-    from priortrack.priors.registry import PRIOR_KINDS
     from priortrack.priors.support import frame_log_density, reference, verdict
 
     ticks = np.isfinite(result.body_joints).all(axis=(1, 2))
-    reason = ("the preset names a prior file" if preset.prior_file is not None
-              else "a GPDM's pose density is in its training skeleton's angles"
-              if "latent" in PRIOR_KINDS[preset.prior_kind].capabilities
-              else f"{int(ticks.sum())} tracked ticks" if ticks.sum() < MIN_FIT_CHECK_TICKS else None)
+    reason = no_fit_check(preset) or (f"{int(ticks.sum())} tracked ticks" if ticks.sum() < MIN_FIT_CHECK_TICKS
+                                      else None)
     if reason is not None:
         log.info("no fit-check of the tracked motion: %s", reason)
         return None, None

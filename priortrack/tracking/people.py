@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,8 +30,8 @@ from priortrack.data.detections import Detections
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.errors import PriortrackError
-from priortrack.experiments.real import (DetectionTrack, match_cameras, output_path, schedule, track_detections,
-                                         up_from_detections)
+from priortrack.experiments.real import (DetectionTrack, fitted_once, match_cameras, output_path, schedule,
+                                         track_detections, up_from_detections)
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
 
@@ -222,9 +223,12 @@ class SceneTrack:
 
 def track_scene(scene: SceneDetections, calibration: Calibration, preset, fps: float | None = None,
                 up=None, camera_map: dict[str, str] | None = None, config: SceneConfig | None = None,
-                people="all", seed: int = 0, **options) -> SceneTrack:
+                people="all", seed: int = 0, workers: int | None = None, **options) -> SceneTrack:
     """Track every person of ``scene`` (module docstring) with ``preset``; ``options`` go to each
-    person's :func:`~priortrack.experiments.real.track_detections` (``keep_snapshots``, ``smooth``, …)."""
+    person's :func:`~priortrack.experiments.real.track_detections` (``keep_snapshots``, ``smooth``, …).
+    ``workers``: processes that track people side by side (None: one per core this process may use, at most
+    one per person; 1: every person in this process); a person's run in a worker is the one here, up to rounding
+    where the worker's torch has fewer threads."""
     start = time.perf_counter()
     config = config or SceneConfig()
     data_fps = fps if fps is not None else scene.fps
@@ -232,36 +236,134 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, fps: f
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
     calibrated = match_cameras(scene, calibration, camera_map)
     cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
-    uv, confidence = scene.eval15(config.min_confidence)
-    association = SceneTracker(cameras, data_fps, config).run(uv, confidence, scene.frames)
-    chosen = chosen_people(association, people, scene)
-    if not chosen:
-        raise PriortrackError(f"{scene.source}: nobody was seen by {config.birth_views} cameras for "
-                              f"{config.birth_s} s: no person to track")
-    log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
-             ", ".join(map(str, association.person_ids.tolist())),
-             ", ".join(str(association.person_ids[p]) for p in chosen))
-    detections = {p: person_detections(scene, association, p) for p in chosen}
-    if up is None and calibration.up is None:                # one up for every person: the longest-seen's
-        longest = max(chosen, key=lambda p: int((association.slots[:, :, p] >= 0).sum()))
-        up = up_from_detections(cameras, detections[longest], config.min_confidence, calibration.source)
+    workers = _workers(workers, options)
+    with _Pool(workers) as pool:                 # its processes start (import) while the scene is associated
+        uv, confidence = scene.eval15(config.min_confidence)
+        association = SceneTracker(cameras, data_fps, config).run(uv, confidence, scene.frames)
+        chosen = chosen_people(association, people, scene)
+        if not chosen:
+            raise PriortrackError(f"{scene.source}: nobody was seen by {config.birth_views} cameras for "
+                                  f"{config.birth_s} s: no person to track")
+        log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
+                 ", ".join(map(str, association.person_ids.tolist())),
+                 ", ".join(str(association.person_ids[p]) for p in chosen))
+        detections = {p: person_detections(scene, association, p) for p in chosen}
+        if up is None and calibration.up is None:            # one up for every person: the longest-seen's
+            longest = max(chosen, key=lambda p: int((association.slots[:, :, p] >= 0).sum()))
+            up = up_from_detections(cameras, detections[longest], config.min_confidence, calibration.source)
+        if pool.executor is not None and len(chosen) > 1:
+            preset = fitted_once(preset, options.get("cache"))
+        options = dict(options, fps=data_fps, up=up, camera_map=camera_map, min_confidence=config.min_confidence,
+                       seed=seed)
+        runs = pool.map(_track_person, [(detections[p], calibration, preset, options) for p in chosen])
     results, kept, skipped = [], [], {}
-    for p in chosen:
-        pid = int(association.person_ids[p])
-        try:
-            results.append(track_detections(detections[p], calibration, preset, fps=data_fps, up=up,
-                                            camera_map=camera_map, min_confidence=config.min_confidence,
-                                            seed=seed, **options))
+    for p, (result, error) in zip(chosen, runs):
+        if error is None:
+            results.append(result)
             kept.append(p)
-        except PriortrackError as exc:
-            skipped[pid] = str(exc)
-            log.warning("person %d cannot be tracked: %s", pid, exc)
+        else:
+            skipped[int(association.person_ids[p])] = error
+            log.warning("person %d cannot be tracked: %s", association.person_ids[p], error)
     if not results:
         raise PriortrackError(f"{scene.source}: no person could be tracked ({'; '.join(skipped.values())})")
     gathered = _gathered(association, kept, results, schedule(scene.frames, data_fps, results[0].fps), scene.frames,
                          skipped)
     gathered.detections, gathered.seconds = scene, time.perf_counter() - start
     return gathered
+
+
+def _workers(workers: int | None, options: dict) -> int:
+    """The processes to track people in: 1 where a run reports back as it goes (``progress``, Ctrl-C's
+    ``interruptible``), else ``workers`` or one per usable core."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise PriortrackError(f"workers must be a number of processes ≥ 1, got {workers!r}")
+    if options.get("progress") is not None or options.get("interruptible"):
+        return 1
+    return workers if workers is not None else len(os.sched_getaffinity(0))
+
+
+def _track_person(job) -> tuple[DetectionTrack | None, str | None]:
+    """One person's :func:`track_detections` (``job``: detections, calibration, preset, keywords): the result,
+    or None and why it could not be tracked. Runs in a worker or here; a worker's log records are re-logged
+    here by :class:`_Pool`."""
+    detections, calibration, preset, options = job
+    try:
+        return track_detections(detections, calibration, preset, **options), None
+    except PriortrackError as exc:
+        return None, str(exc)
+
+
+class _Captured(logging.Handler):
+    """A worker's log records, kept to be handed back with its result."""
+
+    def __init__(self):
+        super().__init__()
+        self.records = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        record.msg, record.args, record.exc_info = record.getMessage(), None, None
+        self.records.append(record)
+
+
+def _in_worker(job, level: int):
+    """:func:`_track_person` in a worker process, with the log records it made at ``level`` or above."""
+    handler = _Captured()
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(level)
+    try:
+        return _track_person(job), handler.records
+    finally:
+        root.removeHandler(handler)
+
+
+def _worker_start(threads: int) -> None:
+    """A worker's start: torch on its share of the cores (importing this module imports the tracking code,
+    while the parent associates the scene)."""
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def _ready() -> None:
+    """A task that starts a worker."""
+
+
+class _Pool:
+    """People's runs side by side in ``workers`` processes (each its own torch; none where ``workers`` is
+    1), from loky's reusable executor: it needs no ``if __name__ == "__main__"`` in a user's script, which
+    the standard library's spawned processes do, and keeps its workers (their imports) for the next scene
+    for a few minutes. ``map`` keeps the jobs' order and re-logs each worker's records here."""
+
+    IDLE_S = 300
+
+    def __init__(self, workers: int):
+        self.executor = None
+        if workers > 1:
+            from loky import get_reusable_executor
+
+            threads = max(1, len(os.sched_getaffinity(0)) // workers)
+            self.executor = get_reusable_executor(workers, timeout=self.IDLE_S, initializer=_worker_start,
+                                                  initargs=(threads,))
+            for _ in range(workers):             # the executor starts its processes for waiting tasks
+                self.executor.submit(_ready)
+
+    def map(self, function, jobs: list) -> list:
+        if self.executor is None or len(jobs) == 1:
+            return [function(job) for job in jobs]
+        level = logging.getLogger().getEffectiveLevel()
+        results = []
+        for result, records in self.executor.map(_in_worker, jobs, [level] * len(jobs)):
+            for record in records:
+                logging.getLogger(record.name).handle(record)
+            results.append(result)
+        return results
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """The executor stays for the next scene (loky ends idle workers after ``IDLE_S``)."""
 
 
 def _gathered(association: SceneAssociation, kept: list[int], results: list[DetectionTrack], index: np.ndarray,

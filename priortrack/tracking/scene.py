@@ -135,23 +135,26 @@ class PredictionAssociator:
     @staticmethod
     def costs(tracks: list[Track], view: View, xy: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tracks, N) costs (class docstring) and whether the mirror gave each, from xy (N, J, 2) normalised
-        points and confidence (N, J); inf where a detection shares no joint with a track's prediction."""
-        out, mirror = np.full((len(tracks), len(xy)), np.inf), np.zeros((len(tracks), len(xy)), dtype=bool)
-        for k, track in enumerate(tracks):
-            h, _, HPH = track.motion.predicted(view)
-            both = []
-            for order in (slice(None), MIRRORED):
-                points, c = xy[:, order], confidence[:, order]
-                seen = np.isfinite(points).all(-1) & (c > 0) & np.isfinite(h).all(-1)           # (N, J)
-                r2 = (track.motion.sigma_px / (view.f * np.where(seen, c, 1.0))) ** 2
-                S = np.where(seen[..., None, None], HPH[None] + r2[..., None, None] * np.eye(2), np.eye(2))
-                e = np.where(seen[..., None], points - h, 0.0)
-                m = np.einsum("nji,nji->nj", e, np.linalg.solve(S, e[..., None])[..., 0])
-                spread = np.log(np.linalg.det(S) / r2 ** 2)
-                both.append(_median_of_seen(m, seen) + _median_of_seen(spread, seen))
-            mirror[k] = both[1] < both[0]
-            out[k] = np.minimum(*both)
-        return out, mirror
+        points and confidence (N, J); inf where a detection shares no joint with a track's prediction.
+        Every track, detection and order at once: S (2, K, N, J, 2, 2) = H P Hᵀ + R, its 2 × 2 inverse in
+        closed form."""
+        predictions = [track.motion.predicted(view) for track in tracks]
+        h = np.stack([q[0] for q in predictions])[None, :, None]                         # (1, K, 1, J, 2)
+        HPH = np.stack([q[2] for q in predictions])[None, :, None]                       # (1, K, 1, J, 2, 2)
+        sigma_px = np.array([track.motion.sigma_px for track in tracks])[None, :, None, None]
+        points = np.stack([xy, xy[:, MIRRORED]])[:, None]                                # (2, 1, N, J, 2)
+        c = np.stack([confidence, confidence[:, MIRRORED]])[:, None]                     # (2, 1, N, J)
+        seen = np.isfinite(points).all(-1) & (c > 0) & np.isfinite(h).all(-1)            # (2, K, N, J)
+        r2 = (sigma_px / (view.f * np.where(seen, c, 1.0))) ** 2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a, b = HPH[..., 0, 0] + r2, HPH[..., 0, 1]
+            d = HPH[..., 1, 1] + r2
+            det = a * d - b * b
+            e = points - h
+            m = (d * e[..., 0] ** 2 - 2 * b * e[..., 0] * e[..., 1] + a * e[..., 1] ** 2) / det
+            spread = np.log(det / r2 ** 2)
+        both = _median_of_seen(m, seen) + _median_of_seen(spread, seen)                 # (2, K, N)
+        return np.minimum(both[0], both[1]), both[1] < both[0]
 
     def __call__(self, tracks: list[Track], views: list[View], xy: list[np.ndarray],
                  confidence: list[np.ndarray]) -> dict[int, dict[int, tuple[int, bool]]]:
@@ -251,12 +254,13 @@ class ProposalInitiator:
 
 
 def _median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
-    """(N,) the median of each row of values (N, J) over its seen entries (inf where none)."""
-    ordered = np.sort(np.where(seen, values, np.inf), axis=1)
-    k = seen.sum(axis=1)
-    rows = np.arange(len(values))
-    low, high = ordered[rows, np.maximum(k - 1, 0) // 2], ordered[rows, np.minimum(k // 2, values.shape[1] - 1)]
-    return np.where(k > 0, (low + high) / 2, np.inf)
+    """(…,) the median of values (…, J) over the seen entries of the last axis (inf where none)."""
+    ordered = np.sort(np.where(seen, values, np.inf), axis=-1)
+    k = seen.sum(axis=-1, keepdims=True)
+    low = np.take_along_axis(ordered, np.maximum(k - 1, 0) // 2, axis=-1)[..., 0]
+    high = np.take_along_axis(ordered, np.minimum(k // 2, values.shape[-1] - 1), axis=-1)[..., 0]
+    return np.where(k[..., 0] > 0, (low + high) / 2, np.inf)
+
 
 
 @dataclass

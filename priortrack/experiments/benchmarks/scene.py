@@ -8,7 +8,8 @@ distorted cameras on a ring around them (:func:`~priortrack.experiments.benchmar
 Y-up world), with the scene bench's detector errors, occlusions and static false positive
 (:func:`~priortrack.experiments.scenes.scene_keypoints`), written as a multi-person detector writes
 them. Timed in this process as the command runs it: reading the files, the scene tracker, each person's
-start and filter, writing an .npz.
+start and filter (the people side by side in one worker process per core, started as the command starts:
+:func:`~priortrack.tracking.people.track_scene`'s ``workers``), writing an .npz.
 """
 
 from __future__ import annotations
