@@ -115,7 +115,7 @@ def test_a_run_that_cannot_track_is_reported_and_the_others_scored(trial, tmp_pa
     """Leaving a camera out can leave too few views to start (a seated person's legs in caliscope's
     webcams): that run's row says why, the summary lists it, the others are scored."""
     folder, X, cameras = trial
-    from priortrack.experiments import real as real_module            # (the run imports it when it runs)
+    from priortrack.tracking import person as real_module            # (the run imports it when it runs)
 
     tracked = real_module.track_detections
 

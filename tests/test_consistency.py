@@ -91,7 +91,7 @@ def test_the_unscented_filter_is_consistent_on_the_tracking_model(tmp_path, nois
     the projections (n = 62 tangent coordinates). With 4× the noise the filter assumes, it is not
     consistent (the test's power)."""
     from priortrack.data.bundled import load_bundled
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
     from priortrack.observation.synthetic import default_camera
     from priortrack.body.fk import joint_positions
 
@@ -133,7 +133,7 @@ def test_the_particle_filter_is_consistent_on_the_tracking_model(tmp_path, parti
 
     from priortrack.body.fk import joint_positions
     from priortrack.data.bundled import load_bundled
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
     from priortrack.observation.synthetic import default_camera
 
     motion = load_bundled("cmu:07_10")[:10]

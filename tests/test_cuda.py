@@ -18,8 +18,8 @@ from priortrack.data.detections import read_detections
 from priortrack.device import resolve_device
 from priortrack.experiments.benchmarks.pf import bench_pf
 from priortrack.experiments.metrics import mpjpe
-from priortrack.experiments.presets import load_preset
-from priortrack.experiments.real import track_detections
+from priortrack.tracking.presets import load_preset
+from priortrack.tracking.person import TrackConfig, track_detections
 from priortrack.experiments.tracking import track
 from priortrack.filters.annealed import AnnealedParticleFilter
 from priortrack.filters.marginal_translation import kalman_update
@@ -150,13 +150,14 @@ def test_real_detections_track_on_the_gpu():
     the GPU run's median reprojection error within 25 % (+ 1 px) of the CPU's."""
     detections = read_detections(str(POSE2SIM_DIR / "pose"), keypoints="body25b")
     calibration = read_calibration(str(POSE2SIM_DIR / "Calib.toml"))
-    medians = {device: np.median(list(track_detections(detections, calibration, "pf-diffusion-local", fps=60,
-                                                       device=device).summary()["reprojection_px"].values()))
-               for device in ("cpu", "cuda")}
+    runs = {device: track_detections(detections, calibration, "pf-diffusion-local", TrackConfig(fps=60, device=device))
+            for device in ("cpu", "cuda")}
+    medians = {device: np.median(list(run.summary()["reprojection_px"].values())) for device, run in runs.items()}
     assert medians["cuda"] <= 1.25 * medians["cpu"] + 1.0, medians
     # the whole-run smoother on the GPU, its steps in memory and spilled to disk (read back onto the GPU)
-    held, spilled = (track_detections(detections, calibration, "pf-diffusion-local", fps=60, smooth=True, memory=memory,
-                                      device="cuda") for memory in (1 << 30, 0))
+    held, spilled = (track_detections(detections, calibration, "pf-diffusion-local",
+                                      TrackConfig(fps=60, smooth=True, memory=memory,
+                                                  device="cuda")) for memory in (1 << 30, 0))
     assert np.isfinite(held.joints).all()
     np.testing.assert_allclose(spilled.joints, held.joints, rtol=0, atol=1e-5)
 

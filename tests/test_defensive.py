@@ -10,7 +10,7 @@ import torch
 from priortrack import PriortrackError
 from priortrack.data.load import load_motion
 from priortrack.experiments.pace import at_pace
-from priortrack.experiments.presets import load_preset, parse_preset
+from priortrack.tracking.presets import load_preset, parse_preset
 from priortrack.experiments.tracking import track
 from priortrack.priors.defensive import DefensiveMixture
 

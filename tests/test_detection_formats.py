@@ -176,7 +176,7 @@ def _caliscope_cameras(kept: list[str]):
     from dataclasses import replace
 
     from priortrack.data.calibration import Calibration
-    from priortrack.experiments.real import match_cameras, up_from_detections
+    from priortrack.tracking.person import match_cameras, up_from_detections
     from priortrack.geometry.camera import PinholeCamera
 
     detections, calibration = read_detections(CALISCOPE / "xy_HOLISTIC.csv"), read_calibration(CALISCOPE / "config.toml")
@@ -195,11 +195,11 @@ def test_caliscope_seated_person_starts_from_the_joints_its_other_cameras_see(le
     the legs under the desk are seen by one camera): the start fits those 8 joints, the bones no tick
     measures take the template's proportions and the summary names them, and the estimate reprojects into
     every camera still used within the detector's error (the whole recording's up, as compare gives it)."""
-    from priortrack.experiments.real import track_detections
+    from priortrack.tracking.person import TrackConfig, track_detections
 
     seen, calibration = _caliscope_cameras([name for name in ("cam_0", "cam_1", "cam_2", "cam_3") if name != left_out])
     with caplog.at_level(logging.WARNING, logger="priortrack"):
-        result = track_detections(seen, calibration, "ukf-real", fps=30)
+        result = track_detections(seen, calibration, "ukf-real", TrackConfig(fps=30))
     assert "the trial shows 8 joints in most ticks" in caplog.text
     summary = result.summary()
     assert summary["bones_unmeasured"] == ["trunk", "hip_width", "thigh", "shin"]
@@ -212,11 +212,11 @@ def test_caliscope_one_webcam_that_never_sees_the_legs_tracks_the_upper_body(cap
     those, its depth from the upper body's least foreshortened length, with a warning that says what that costs;
     the upper body lands within 0.3 m (median) of the 4-camera track (one camera's depth: 164 mm when measured)
     and reprojects within the detector's error."""
-    from priortrack.experiments.real import track_detections
+    from priortrack.tracking.person import TrackConfig, track_detections
 
-    every = track_detections(*_caliscope_cameras(["cam_0", "cam_1", "cam_2", "cam_3"]), "ukf-real", fps=30)
+    every = track_detections(*_caliscope_cameras(["cam_0", "cam_1", "cam_2", "cam_3"]), "ukf-real", TrackConfig(fps=30))
     with caplog.at_level(logging.WARNING, logger="priortrack"):
-        result = track_detections(*_caliscope_cameras(["cam_0"]), "ukf-real", fps=30)
+        result = track_detections(*_caliscope_cameras(["cam_0"]), "ukf-real", TrackConfig(fps=30))
     assert "the trial shows 6 joints in most ticks" in caplog.text and "from one camera without the legs" in caplog.text
     assert result.summary()["reprojection_px"]["cam_0"] < 15
     T = min(len(result.joints), len(every.joints))
@@ -232,12 +232,12 @@ def test_caliscope_smoothed_arms_stay_with_the_detections_the_filter_used():
     the right wrist 150–160 mm off for 8 ticks (123 mm further than the filtered). With every step spilled
     to disk, the filter's decisions are read back with them: the same smoothed joints."""
     from priortrack.data.eval15 import EVAL15_NAMES
-    from priortrack.experiments.real import track_detections
+    from priortrack.tracking.person import TrackConfig, track_detections
     from priortrack.geometry.camera import PinholeCamera
     from priortrack.geometry.triangulation import triangulate
 
     seen, calibration = _caliscope_cameras(["cam_1", "cam_2", "cam_3"])
-    result = track_detections(seen, calibration, "ukf-real", smooth=True)
+    result = track_detections(seen, calibration, "ukf-real", TrackConfig(smooth=True))
     ticks = result.frames >= 0
     at = np.searchsorted(seen.frames, result.frames[ticks])
     uv, confidence = seen.eval15(0.3)
@@ -250,5 +250,5 @@ def test_caliscope_smoothed_arms_stay_with_the_detections_the_filter_used():
     assert np.nanmax(off["smoothed"] - off["filtered"]) < 0.04
     # the filter's decisions travel with its steps spilled to disk too (memory 0): the same joints
     assert result.gated.sum() > 50
-    spilled = track_detections(seen, calibration, "ukf-real", smooth=True, memory=0)
+    spilled = track_detections(seen, calibration, "ukf-real", TrackConfig(smooth=True, memory=0))
     np.testing.assert_array_equal(spilled.joints, result.joints)

@@ -139,7 +139,7 @@ def test_openpose(tmp_path, text):
 
 @given(text=mutated(PRESET))
 def test_preset(tmp_path, text):
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
 
     _only_priortrack_errors(load_preset, tmp_path / "mine.toml", text)
 

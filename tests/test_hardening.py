@@ -151,7 +151,7 @@ def test_prior_files_are_checked_before_anything_is_allocated(tmp_path):
 def test_a_detection_a_million_pixels_away_is_gated_and_flagged(preset, tmp_path):
     """An outlier at 10⁶ px (issue 21, item 6): dropped by the validation gate (flag "outlier-gated"),
     the estimate stays where the clean run puts it."""
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
     from priortrack.experiments.tracking import track
 
     clean = track("cmu:07_10", load_preset(preset), "clean:sigma_px=5", seed=0, frames=12, cache=tmp_path)
@@ -167,7 +167,7 @@ def test_a_detection_a_million_pixels_away_is_gated_and_flagged(preset, tmp_path
 def _ukf_run(clean, observations, tmp_path, **options):
     from dataclasses import replace
 
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
 
     preset = load_preset("ukf-diffusion-local")
     preset = replace(preset, filter_options={**preset.filter_options, **options})
@@ -180,7 +180,7 @@ def test_the_unscented_filter_gates_a_frame_of_gross_detections_and_stays_on_the
     observation model's gate keeps it, and without a validation gate the update drags the body into
     a wrong 3D pose it never leaves. The innovation gate leaves the frame out and the run stays
     with the clean one."""
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
     from priortrack.experiments.tracking import track
 
     clean = track("cmu:07_10", load_preset("ukf-diffusion-local"), "noise", seed=0, frames=40, cache=tmp_path)
@@ -199,7 +199,7 @@ def test_the_unscented_filter_gates_a_frame_of_gross_detections_and_stays_on_the
 def test_the_unscented_gate_reopens_when_no_detection_fits_the_prediction_any_more(tmp_path):
     """The detections jump 300 px and stay there (the body really is elsewhere, as after a cut in
     the video): after GATE_PATIENCE gated frames the gate opens and the filter follows the data."""
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
     from priortrack.experiments.tracking import track
     from priortrack.filters.ukf import GATE_PATIENCE
 
@@ -231,7 +231,7 @@ def test_filters_give_finite_estimates_at_the_ends_of_the_noise_range(preset, ob
     σ = 0.01 px: the filters work in log space and flag it)."""
     from dataclasses import replace
 
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
     from priortrack.experiments.tracking import track
 
     chosen = replace(load_preset(preset), observation=observation)

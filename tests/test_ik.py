@@ -9,7 +9,7 @@ from priortrack.body.ik import fitted_skeleton, inverse_kinematics, measured_dis
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.keypoints import detector_map
 from priortrack.data.load import load_motion
-from priortrack.experiments.real import steady_start
+from priortrack.tracking.person import steady_start
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import rerun as rr
 
 from priortrack.body.fk import joint_positions
 from priortrack.data.bundled import load_bundled
-from priortrack.experiments.presets import load_preset
+from priortrack.tracking.presets import load_preset
 from priortrack.observation.synthetic import default_camera, synthesize
 from priortrack.viz.logger import OCCLUDED_COLOR, TRUTH_COLOR, RerunLogger
 

@@ -5,7 +5,7 @@ import math
 import pytest
 
 from priortrack import PriortrackError
-from priortrack.experiments.presets import load_preset
+from priortrack.tracking.presets import load_preset
 from priortrack.experiments.reproductions.loglik import eval_loglik
 
 

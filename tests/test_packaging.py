@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_every_package_of_the_tree_is_listed_in_pyproject():
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "priortrack").rglob("__init__.py")}
-    assert found | {"priortrack.experiments.preset_files"} == listed
+    assert found | {"priortrack.tracking.preset_files"} == listed
 
 
 @pytest.mark.xdist_group("install")

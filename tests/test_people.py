@@ -9,7 +9,7 @@ from priortrack import PriortrackError
 from priortrack.cli.main import main
 from priortrack.data.bundled import WALKING_PEOPLE, bundled_clips, expand_sources
 from priortrack.experiments import people
-from priortrack.experiments.presets import load_preset
+from priortrack.tracking.presets import load_preset
 
 
 def test_the_walking_people_are_every_bundled_walk_once_and_08_39_stay_together():

@@ -8,8 +8,8 @@ import torch
 
 from priortrack import PriortrackError
 from priortrack.experiments.tracking import TABLE_PRESETS
-from priortrack.experiments import presets as presets_module
-from priortrack.experiments.presets import load_preset, parse_preset, preset_names
+from priortrack.tracking import presets as presets_module
+from priortrack.tracking.presets import load_preset, parse_preset, preset_names
 from priortrack.body.fk import joint_positions
 
 BASE = {

@@ -21,7 +21,7 @@ from priortrack.data.bundled import POSE2SIM_DIR
 from priortrack.data.calibration import Calibration, read_calibration
 from priortrack.data.detections import read_detections
 from priortrack.data.eval15 import EVAL15_NAMES
-from priortrack.experiments.real import schedule, track_detections
+from priortrack.tracking.person import TrackConfig, schedule, track_detections
 from priortrack.experiments.real_format import run_real_format
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.triangulation import triangulate
@@ -112,24 +112,24 @@ def test_bad_input_is_named(tmp_path, capsys):
     calibration = read_calibration(CALIB)
     three = Calibration(calibration.cameras[:3], "z", "three.toml")
     with pytest.raises(PriortrackError, match="three.toml has 3 cameras for 4 detection cameras"):
-        track_detections(detections, three, "pf-lie", fps=60)
+        track_detections(detections, three, "pf-lie", TrackConfig(fps=60))
     blind = replace(detections, keypoints=detections.keypoints.copy())
     blind.keypoints[2] = np.nan
     with pytest.raises(PriortrackError, match="camera cam03_json sees none of the detections"):
-        track_detections(blind, calibration, "pf-lie", fps=60)
+        track_detections(blind, calibration, "pf-lie", TrackConfig(fps=60))
     with pytest.raises(PriortrackError, match="do not say their frame rate; give it"):
         track_detections(detections, calibration, "pf-lie")
     one = replace(detections, keypoints=detections.keypoints[:1], camera_names=detections.camera_names[:1])
     with pytest.raises(PriortrackError, match="c.json gives no vertical and one camera cannot triangulate"):
-        track_detections(one, Calibration(calibration.cameras[:1], None, "c.json"), "pf-lie", fps=60)
+        track_detections(one, Calibration(calibration.cameras[:1], None, "c.json"), "pf-lie", TrackConfig(fps=60))
     flip = np.diag([-1.0, 1.0, -1.0])                      # the camera turned about its y axis, at its place
     turned = replace(calibration.cameras[1], R=flip @ calibration.cameras[1].R, t=flip @ calibration.cameras[1].t)
     with pytest.raises(PriortrackError, match="c.toml: camera 'cam02_json': 100% of the person it detects lies behind"):
         track_detections(detections, Calibration((calibration.cameras[0], turned) + calibration.cameras[2:], "z",
-                                                 "c.toml"), "pf-lie", fps=60)
+                                                 "c.toml"), "pf-lie", TrackConfig(fps=60))
     with pytest.raises(PriortrackError, match="no camera cam_09"):
-        track_detections(detections, calibration, "pf-lie", fps=60,
-                         camera_map={n: "cam_09" for n in detections.camera_names})
+        track_detections(detections, calibration, "pf-lie",
+                         TrackConfig(fps=60, camera_map={n: "cam_09" for n in detections.camera_names}))
     for argv, message in [
         (["track", "--detections", POSE, "--filter", "pf-lie"], "--detections with --cameras"),
         (["track", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie", "--out", str(tmp_path / "x.c3d")],
@@ -151,15 +151,18 @@ def test_one_camera_starts_from_the_height_and_tracks_the_pose():
     detections = read_detections(POSE, keypoints="body25b")
     one = replace(detections, keypoints=detections.keypoints[1:2], camera_names=detections.camera_names[1:2])
     calibration = read_calibration(CALIB)
-    result = track_detections(one, Calibration(calibration.cameras[1:2], "z", "one"), "pf-lie", fps=60, height=1.75)
+    result = track_detections(one, Calibration(calibration.cameras[1:2], "z", "one"), "pf-lie",
+                              TrackConfig(fps=60, height=1.75))
     assert np.isfinite(result.joints).all() and np.all(result.joints[:, 2, 2] - result.joints[:, [11, 14], 2].min(1) > 1.4)
     with pytest.raises(PriortrackError, match="standing height"):
-        track_detections(one, Calibration(calibration.cameras[1:2], "z", "one"), "pf-lie", fps=60, height=17.0)
+        track_detections(one, Calibration(calibration.cameras[1:2], "z", "one"), "pf-lie",
+                         TrackConfig(fps=60, height=17.0))
 
 
 @pytest.mark.parametrize("preset", ["ukf-diffusion-local", "map-gpdm"])
 def test_the_unscented_and_map_filters_take_several_cameras(preset):
-    result = track_detections(read_detections(POSE, keypoints="body25b"), read_calibration(CALIB), preset, fps=60)
+    result = track_detections(read_detections(POSE, keypoints="body25b"), read_calibration(CALIB), preset,
+                              TrackConfig(fps=60))
     assert np.isfinite(result.joints).all() and all(e < 35 for e in result.reprojection_px)
 
 
@@ -169,30 +172,31 @@ def test_a_run_keeps_a_record_a_tick_not_its_point_sets():
     a fixed lag smooths as the filter goes (no snapshot kept) and moves the estimate; an unscented
     run has no ESS (NaN, and none in the summary)."""
     detections, calibration = read_detections(POSE, keypoints="body25b"), read_calibration(CALIB)
-    plain = track_detections(detections, calibration, "pf-lie", fps=60)
+    plain = track_detections(detections, calibration, "pf-lie", TrackConfig(fps=60))
     T = len(plain.joints)
     assert plain.snapshots is None and [s.frame for s in plain.steps] == list(range(2, T))
     assert np.isfinite(plain.spread[2:]).all() and (plain.spread[2:] > 0).all()
     assert np.isfinite(plain.ess[2:]).all() and plain.summary()["mean_ess"] > 0
-    every = track_detections(detections, calibration, "pf-lie", fps=60, keep_snapshots=True, snapshot_every=3)
+    every = track_detections(detections, calibration, "pf-lie",
+                             TrackConfig(fps=60, keep_snapshots=True, snapshot_every=3))
     assert [s.frame for s in every.snapshots] == list(range(2, T, 3))
     np.testing.assert_array_equal(every.joints, plain.joints)
     # a snapshot is in the Y-up working frame; in_world maps its estimate onto the world joints of its tick
     for snapshot in every.snapshots:
         np.testing.assert_allclose(every.in_world(snapshot.estimate), every.joints[snapshot.frame], atol=1e-12)
     assert np.abs(every.snapshots[0].estimate - every.joints[2]).max() > 0.1          # the two frames differ here
-    lagged = track_detections(detections, calibration, "pf-lie", fps=60, smooth=True, lag=2)
+    lagged = track_detections(detections, calibration, "pf-lie", TrackConfig(fps=60, smooth=True, lag=2))
     assert lagged.snapshots is None and lagged.lag == 2
     np.testing.assert_array_equal(lagged.filtered_joints, plain.joints)
     assert np.isfinite(lagged.joints).all() and np.abs(lagged.joints - plain.joints)[2:].max() > 1e-4
-    ukf = track_detections(detections, calibration, "ukf-real", fps=60)
+    ukf = track_detections(detections, calibration, "ukf-real", TrackConfig(fps=60))
     assert np.isnan(ukf.ess).all() and ukf.summary()["mean_ess"] is None
 
 
 def test_a_camera_following_someone_else_is_left_out_at_those_ticks():
     """Camera 3's person replaced by another (shifted 400 px) in ticks 2–4: the other three cameras'
     triangulation disagrees with it there, and only there."""
-    from priortrack.experiments.real import cross_view_check
+    from priortrack.tracking.person import cross_view_check
 
     cameras = [PinholeCamera.from_calibration(c) for c in read_calibration(CALIB).cameras]
     uv, conf = read_detections(POSE, keypoints="body25b").eval15(0.3)
@@ -256,7 +260,7 @@ def test_smoothed_detections_are_exported_beside_the_filtered(tmp_path):
     from priortrack.viz.real import record_detections
 
     result = track_detections(read_detections(POSE, keypoints="body25b"), read_calibration(CALIB), "pf-gpdm",
-                              fps=60, smooth=True, keep_snapshots=True)
+                              TrackConfig(fps=60, smooth=True, keep_snapshots=True))
     assert result.summary()["smoothed"] is True
     with np.load(result.save(tmp_path / "s.npz")) as f:
         joints, filtered, spread = f["joints"], f["filtered_joints"], f["filtered_spread"]
@@ -283,8 +287,8 @@ def test_the_exported_spread_is_the_posteriors_spread(preset, tmp_path):
     transform of a nearly linear map); for the particle filter, the weighted particles' own (to 1e-9)."""
     import torch
 
-    from priortrack.experiments.presets import load_preset
-    from priortrack.experiments.real import _spread
+    from priortrack.tracking.presets import load_preset
+    from priortrack.tracking.person import _spread
     from priortrack.experiments.tracking import track
 
     run = track("cmu:07_10", preset, "noise:sigma_px=5", seed=0, frames=12, cache=tmp_path)
@@ -351,9 +355,9 @@ def test_ctrl_c_writes_what_was_tracked(tmp_path, capsys, monkeypatch):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        track_detections(detections, calibration, "pf-lie", fps=60, progress=interrupt)
-    cut = track_detections(detections, calibration, "pf-lie", fps=60, progress=interrupt, interruptible=True,
-                           smooth=True, lag=1)
+        track_detections(detections, calibration, "pf-lie", TrackConfig(fps=60), progress=interrupt)
+    cut = track_detections(detections, calibration, "pf-lie",
+                           TrackConfig(fps=60, interruptible=True, smooth=True, lag=1), progress=interrupt)
     assert cut.interrupted and len(cut.joints) == 4 and len(cut.filtered_joints) == 4 and len(cut.steps) == 2
     monkeypatch.setattr("priortrack.data.calibration.read_calibration",
                         lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
@@ -363,7 +367,7 @@ def test_ctrl_c_writes_what_was_tracked(tmp_path, capsys, monkeypatch):
 def test_the_mismatch_warning_says_what_it_measured_and_names_no_weaker_preset():
     """Issue 28: a run with 99.6 % of its ticks explained was told "explains 100 % … try pf-diffusion-local"
     (the preset it ran). The warning counts the ticks and gives each cause's count, and names no preset."""
-    from priortrack.experiments.real import mismatch_message
+    from priortrack.tracking.person import mismatch_message
 
     T = 2 + 998
     mismatch, lost = np.zeros(T, bool), np.zeros(T, bool)
@@ -388,7 +392,8 @@ def test_the_gate_and_each_cameras_reprojection_are_in_the_npz_and_the_recording
     keypoints = detections.keypoints.copy()
     wrist = detections.keypoint_names.index("right_wrist")
     keypoints[1, 6, wrist, :2] += 300.0                                # frame 6 = tick 3, cam02
-    result = track_detections(replace(detections, keypoints=keypoints), read_calibration(CALIB), "ukf-real", fps=60)
+    result = track_detections(replace(detections, keypoints=keypoints), read_calibration(CALIB), "ukf-real",
+                              TrackConfig(fps=60))
     assert result.gated[3, 1, 8] and result.gated[3].sum() == 1, np.argwhere(result.gated)
     result.save_npz(tmp_path / "r.npz")
     with np.load(tmp_path / "r.npz") as z:
@@ -415,7 +420,8 @@ def test_the_summary_gives_the_persons_own_body_measured_over_the_whole_trial(tm
     cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
     X = placed_walk("walkjog:35_29", "z")
     write_openpose(detector_keypoints(X, cameras, np.random.default_rng(1)), tmp_path)
-    result = track_detections(read_detections(tmp_path, keypoints="body25b"), calibration, "ukf-real", fps=60)
+    result = track_detections(read_detections(tmp_path, keypoints="body25b"), calibration, "ukf-real",
+                              TrackConfig(fps=60))
     truth = measured_distances(X)
     measured = result.summary()["bones_m"]
     assert set(measured) == set(BODY_MEASURES)
@@ -436,7 +442,8 @@ def test_a_joint_every_camera_agrees_on_is_reacquired_after_the_gate_held_it_out
     X = placed_walk("walkjog:35_29", "z")
     X[30:, 8] += [0.0, 0.0, 0.3]                                    # eval15 rwrist, 30 cm up in the Z-up world
     write_openpose(detector_keypoints(X, cameras, np.random.default_rng(2)), tmp_path)
-    result = track_detections(read_detections(tmp_path, keypoints="body25b"), calibration, "ukf-real", fps=60)
+    result = track_detections(read_detections(tmp_path, keypoints="body25b"), calibration, "ukf-real",
+                              TrackConfig(fps=60))
     flags = {step.frame: step.flags for step in result.steps}
     moved = np.flatnonzero(result.frames >= 30)[0]                 # the first tick that sees the moved wrist
     reacquired = [t for t, f in flags.items() if "joint-reacquired" in f]
@@ -480,7 +487,7 @@ def test_a_cameras_left_right_swap_is_undone_and_tracked_through(tmp_path):
         'kappa = 0.0', 'kappa = 0.0\nswaps = false')
     (tmp_path / "kept.toml").write_text(preset)
     detections = read_detections(tmp_path / "pose", keypoints="body25b")
-    runs = {name: track_detections(detections, calibration, name, fps=60)
+    runs = {name: track_detections(detections, calibration, name, TrackConfig(fps=60))
             for name in ("ukf-real", str(tmp_path / "kept.toml"))}
     corrected, kept = runs["ukf-real"], runs[str(tmp_path / "kept.toml")]
     ticks = np.flatnonzero((corrected.frames >= 32) & (corrected.frames < 68))
@@ -500,7 +507,7 @@ def test_a_cameras_left_right_swap_is_undone_and_tracked_through(tmp_path):
 def test_the_start_skips_ticks_whose_triangulation_a_camera_disagrees_with():
     """start_ticks against its definition: consecutive ticks with START_JOINTS joints, and reprojecting within
     START_CONSISTENCY × the median such tick's worst-camera error; without a consistent pair, the counts alone."""
-    from priortrack.experiments.real import START_CONSISTENCY, START_JOINTS, start_ticks
+    from priortrack.tracking.person import START_CONSISTENCY, START_JOINTS, start_ticks
 
     counts = np.array([3, 15, 15, 15, 15, 15, 15, 10, 15, 15])
     residual = np.array([1.0, 40.0, 4.0, 5.0, 4.0, 6.0, 5.0, 4.0, 5.0, 4.0])    # tick 1: a camera swapped
@@ -515,7 +522,7 @@ def test_the_start_needs_the_joints_the_trial_shows():
     """start_joints: START_JOINTS where the trial shows as many in VIEW_SHARE of its ticks; else the joints it
     shows (logged, naming those missing); fewer than MIN_START_JOINTS refused, naming the joints seen; and
     start_ticks takes the count."""
-    from priortrack.experiments.real import MIN_START_JOINTS, START_JOINTS, VIEW_SHARE, start_joints, start_ticks
+    from priortrack.tracking.person import MIN_START_JOINTS, START_JOINTS, VIEW_SHARE, start_joints, start_ticks
 
     seen = np.ones((10, 15), dtype=bool)
     seen[:3, 10] = False                                              # a knee hidden for 3 ticks
@@ -537,13 +544,13 @@ def test_a_swap_in_one_camera_on_the_first_frames_does_not_start_the_track(tmp_p
     frames every camera agrees on, and the track is as good as without the swap (seed 4: 6.3 mm mean, its
     first tick 21 mm; unswapped 5.8 and 19 mm); starting on the swapped frames (the check off) fitted the
     body to them: 57–73 mm over the first ticks, 32 mm mean."""
-    from priortrack.experiments import real
+    from priortrack.tracking import person as real
 
     calibration, X = _walk_with_a_camera_swapped(tmp_path, 4, slice(0, 12))
     detections = read_detections(tmp_path, keypoints="body25b")
 
     def errors():
-        result = track_detections(detections, calibration, "ukf-real", fps=60)
+        result = track_detections(detections, calibration, "ukf-real", TrackConfig(fps=60))
         return result.frames[0], np.linalg.norm(result.joints - X[result.frames], axis=-1)[:, 3:].mean(axis=1)
 
     start, checked = errors()
@@ -559,8 +566,8 @@ def test_the_start_pulls_to_the_priors_poses_only_where_its_state_is_joint_angle
     and spread; a prior of bone directions (ukf-lie-defensive) and a skeleton with other channels get none (a pull
     to rest)."""
     from priortrack.data.bundled import cmu_skeleton
-    from priortrack.experiments.presets import load_preset
-    from priortrack.experiments.real import pose_spread
+    from priortrack.tracking.presets import load_preset
+    from priortrack.tracking.person import pose_spread
 
     angles, directions = load_preset("ukf-real"), load_preset("ukf-lie-defensive")
     skeleton = cmu_skeleton("35")

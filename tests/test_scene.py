@@ -18,6 +18,7 @@ from priortrack.data.trc import read_trc
 from priortrack.experiments.compare_detections import LIMBS, read_truth
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.people import chosen_people, parse_people, track_scene
+from priortrack.tracking.person import TrackConfig
 from priortrack.tracking.scene import SceneConfig, SceneTracker
 
 from test_association import _pose2sims_association
@@ -59,7 +60,7 @@ def test_each_person_is_within_30_mm_of_pose2sims_own_output(demo, tmp_path):
     person under 30 mm (the issue's figure; measured 14 mm for the synthetic person, 21 mm for the
     participant); the outputs hold both people."""
     scene, calibration = demo
-    result = track_scene(scene, calibration, "ukf-real", fps=60)
+    result = track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60))
     assert result.person_ids.tolist() == [0, 1] and not result.skipped
     J = [EVAL15_NAMES.index(j) for j in LIMBS]
     ticks = np.flatnonzero(result.frames >= 0)
@@ -91,8 +92,8 @@ def test_people_tracked_in_worker_processes_are_the_runs_of_this_process_and_the
     for workers in (2, 1):
         caplog.clear()
         with caplog.at_level("WARNING", logger="priortrack"):
-            runs[workers] = track_scene(scene, calibration, "ukf-real", fps=60, workers=workers)
-        warnings[workers] = sorted(r.getMessage() for r in caplog.records if r.name == "priortrack.experiments.real")
+            runs[workers] = track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), workers=workers)
+        warnings[workers] = sorted(r.getMessage() for r in caplog.records if r.name == "priortrack.tracking.person")
     np.testing.assert_array_equal(runs[2].joints, runs[1].joints)
     np.testing.assert_array_equal(runs[2].loglik, runs[1].loglik)
     assert warnings[2] == warnings[1] and any("flagged as mismatch" in w for w in warnings[1])
@@ -157,9 +158,9 @@ def test_bad_choices_and_settings_are_named(demo, capsys):
     with pytest.raises(PriortrackError, match="detections of 4 cameras for 3 calibrated cameras"):
         SceneTracker(cameras[:3], 60.0).run(*scene.eval15(0.3), scene.frames)
     with pytest.raises(PriortrackError, match="nobody was seen by 3 cameras"):
-        track_scene(scene.head(2), calibration, "ukf-real", fps=60)
+        track_scene(scene.head(2), calibration, "ukf-real", TrackConfig(fps=60))
     with pytest.raises(PriortrackError, match="workers must be a number of processes ≥ 1, got 0"):
-        track_scene(scene, calibration, "ukf-real", fps=60, workers=0)
+        track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), workers=0)
     assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps", "60",
                  "--filter", "ukf-real", "--workers", "2"]) == 2
     assert "--workers tracks several people side by side: give --people" in capsys.readouterr().err

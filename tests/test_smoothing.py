@@ -154,7 +154,7 @@ def _tracked(preset, scenario, tmp_path, frames=None):
 
 
 def _filter(preset, run, tmp_path):
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
 
     filt = load_preset(preset).build(run.observations.camera, seed=0, cache=tmp_path)
     return filt, filt.run(run.observations.uv, run.motion, keep_snapshots=True)

@@ -14,7 +14,7 @@ from priortrack.cli.main import main
 from priortrack.data.bundled import POSE2SIM_DIR
 from priortrack.data.calibration import read_calibration
 from priortrack.data.detections import read_detections
-from priortrack.experiments.real import track_detections
+from priortrack.tracking.person import TrackConfig, track_detections
 from priortrack.filters import particle
 from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.step_store import Column, RecordArray, StepStore, parse_memory, step_bytes
@@ -79,15 +79,17 @@ def test_smoothing_through_spilled_steps_gives_the_same_numbers(trial, caplog, m
     trajectory-frames at a time (not all at once) the same to float32 rounding (their mean is summed in
     another order)."""
     detections, calibration = trial
-    held = track_detections(detections, calibration, "pf-diffusion-local", fps=60, smooth=True)
+    held = track_detections(detections, calibration, "pf-diffusion-local", TrackConfig(fps=60, smooth=True))
     with caplog.at_level(logging.INFO, logger="priortrack"):
-        spilled = track_detections(detections, calibration, "pf-diffusion-local", fps=60, smooth=True, memory=0)
+        spilled = track_detections(detections, calibration, "pf-diffusion-local",
+                                   TrackConfig(fps=60, smooth=True, memory=0))
     assert "spilling them to" in caplog.text and "read back from disk" in caplog.text
     np.testing.assert_array_equal(spilled.joints, held.joints)
     np.testing.assert_array_equal(spilled.spread, held.spread)
     assert np.abs(held.joints - held.filtered_joints).max() > 1e-3                  # it did smooth
     monkeypatch.setattr(particle, "SMOOTH_JOINT_ROWS", 7)
-    chunked = track_detections(detections, calibration, "pf-diffusion-local", fps=60, smooth=True, memory=0)
+    chunked = track_detections(detections, calibration, "pf-diffusion-local",
+                               TrackConfig(fps=60, smooth=True, memory=0))
     np.testing.assert_allclose(chunked.joints, held.joints, rtol=0, atol=1e-6)
     np.testing.assert_allclose(chunked.spread, held.spread, rtol=0, atol=1e-6)
 
@@ -122,9 +124,9 @@ def test_unscented_smoothing_with_its_matrices_on_disk_gives_the_same_numbers(tr
     """ukf-real over the bundled real trial, smoothed over the whole run with every step and every smoother
     matrix spilled (memory 0): the same smoothed joints and spread, to the bit, as all in memory."""
     detections, calibration = trial
-    held = track_detections(detections, calibration, "ukf-real", fps=60, smooth=True)
+    held = track_detections(detections, calibration, "ukf-real", TrackConfig(fps=60, smooth=True))
     with caplog.at_level(logging.INFO, logger="priortrack"):
-        spilled = track_detections(detections, calibration, "ukf-real", fps=60, smooth=True, memory=0)
+        spilled = track_detections(detections, calibration, "ukf-real", TrackConfig(fps=60, smooth=True, memory=0))
     assert "past the memory budget" in caplog.text
     np.testing.assert_array_equal(spilled.joints, held.joints)
     np.testing.assert_array_equal(spilled.spread, held.spread)

@@ -114,7 +114,7 @@ def test_a_run_from_a_file_in_small_blocks_is_the_run_in_memory(tmp_path, monkey
     ticks read 7 at a time, gives the joints, likelihoods, flags and reprojection errors of the run on the
     detections in memory in one block."""
     from priortrack.experiments.benchmarks.long import write_long_input
-    from priortrack.experiments.real import track_detections
+    from priortrack.tracking.person import track_detections
     from priortrack.experiments.real_format import DEFAULT_CALIBRATION
 
     path = write_long_input(400, tmp_path / "long.npz")

@@ -66,8 +66,8 @@ def test_the_tracker_says_when_the_tracked_motion_is_outside_the_prior():
     here: outside pf-lie's support, and the shipped prior that fits it better is named (issue 31). The
     GPDM's tracked motion is not judged (its pose density is in the training skeleton's angles)."""
     from priortrack.data.load import load_motion
-    from priortrack.experiments.presets import load_preset
-    from priortrack.experiments.real import better_fitting
+    from priortrack.tracking.presets import load_preset
+    from priortrack.tracking.person import better_fitting
     from priortrack.experiments.real_format import run_real_format
 
     walk = run_real_format("pf-lie", "cmu:07_10", seed=0)
@@ -90,7 +90,7 @@ def test_the_mismatch_flag_needs_the_prior_to_find_the_step_implausible(tmp_path
     49_18 0.70 / 0.92 / 0.90)."""
     from priortrack.data.calibration import read_calibration
     from priortrack.data.detections import read_detections
-    from priortrack.experiments.real import track_detections
+    from priortrack.tracking.person import TrackConfig, track_detections
     from priortrack.experiments.real_format import (DEFAULT_CALIBRATION, detector_keypoints, placed_walk,
                                                    write_openpose)
     from priortrack.geometry.camera import PinholeCamera
@@ -105,7 +105,7 @@ def test_the_mismatch_flag_needs_the_prior_to_find_the_step_implausible(tmp_path
             folder = write_openpose(detector_keypoints(X, cameras, np.random.default_rng(seed)),
                                     tmp_path / f"{motion.replace(':', '_')}-{seed}")
             result = track_detections(read_detections(folder, keypoints="body25b"), calibration, "pf-lie",
-                                      fps=30.0, seed=seed)
+                                      TrackConfig(fps=30.0, seed=seed))
             runs.append(result.mismatch_fraction)
         fractions[motion] = float(np.median(runs))
     assert fractions["walkjog:35_29"] < 0.3 and fractions["cmu:07_10"] < 0.3, fractions
@@ -114,7 +114,7 @@ def test_the_mismatch_flag_needs_the_prior_to_find_the_step_implausible(tmp_path
 
 def test_the_reference_is_cached_and_verified_like_the_priors(tmp_path, caplog):
     """The held-out reference goes through the prior cache's digest check: a planted file is refitted."""
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
     from priortrack.priors.support import reference
 
     preset = load_preset("pf-diffusion-local")

@@ -25,7 +25,7 @@ or, given a prior's pose spread (:class:`PoseSpread`), below the root w_c = 1 / 
 and θ̄_c its training motions' mean. A tracker's start on a prior of joint angles takes the latter: a
 converged fit otherwise traded a back twist for clavicle angles of a radian, which the walking priors'
 state leaves out (CMU 35's clavicles never move), and a walk's track went from 6 to 22 mm
-(:func:`priortrack.experiments.real.pose_spread`). Solved by
+(:func:`priortrack.tracking.person.pose_spread`). Solved by
 Levenberg–Marquardt in float64 (:class:`_LevenbergMarquardt`; 200 iterations of torch's L-BFGS, used
 before, stopped short of convergence and cost an import of torch's compiler stack). The start puts
 the root at the pelvis and turns it about the vertical to the best of ``HEADINGS`` headings.

@@ -9,7 +9,7 @@ from priortrack.output import output_path
 
 
 def _presets(args: argparse.Namespace) -> None:
-    from priortrack.experiments.presets import load_preset, preset_names
+    from priortrack.tracking.presets import load_preset, preset_names
 
     presets = [load_preset(name) for name in preset_names()]
     if args.json:

@@ -67,7 +67,7 @@ def _eval_fit_check(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from priortrack.data.load import load_motion
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
     from priortrack.priors.base import load_prior
     from priortrack.priors.support import frame_log_density, reference, verdict, verdict_rule
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 
 from priortrack.cli.common import Progress, print_json
 from priortrack.errors import PriortrackError
@@ -30,7 +31,7 @@ def _track(args: argparse.Namespace) -> None:
     finally:
         progress.close()
     if args.rrd:
-        from priortrack.experiments.presets import load_preset
+        from priortrack.tracking.presets import load_preset
 
         replay(run.motion, run.observations, args.rrd, track=run.track,
                smoothed=None if run.smoothed is None else run.smoothed.estimates,
@@ -79,7 +80,7 @@ def _track_detections(args: argparse.Namespace) -> None:
 
     from priortrack.data.calibration import read_calibration
     from priortrack.data.detections import open_detections
-    from priortrack.experiments.real import RESULT_SUFFIXES, track_detections
+    from priortrack.tracking.person import RESULT_SUFFIXES, TrackConfig, track_detections
     from priortrack.filters.step_store import DEFAULT_MEMORY, parse_memory
 
     if args.motion is not None:
@@ -94,16 +95,19 @@ def _track_detections(args: argparse.Namespace) -> None:
         output_path(args.rrd, "rerun recording")
     if args.rrd_every < 1:
         raise PriortrackError(f"--rrd-every must be a whole number of ticks ≥ 1, got {args.rrd_every}")
-    memory = DEFAULT_MEMORY if args.memory is None else parse_memory(args.memory)
     camera_map = None
     if args.camera_map:
         pairs = [item.split("=", 1) for item in args.camera_map.split(",")]
         if any(len(p) != 2 or not p[0] or not p[1] for p in pairs):
             raise PriortrackError(f"--camera-map must be FOLDER=CAMERA,…, got {args.camera_map!r}")
         camera_map = dict(pairs)
+    config = TrackConfig(fps=args.fps, up=args.up, camera_map=camera_map, min_confidence=args.min_confidence,
+                         seed=args.seed, height=args.height, device=args.device,
+                         memory=DEFAULT_MEMORY if args.memory is None else parse_memory(args.memory),
+                         **_smoothing(args))
     skeleton = _skeleton(args.skeleton) if args.skeleton else None
     if args.people is not None:
-        _track_scene(args, camera_map, memory)
+        _track_scene(args, config)
         return
     if args.workers is not None:
         raise PriortrackError("--workers tracks several people side by side: give --people")
@@ -113,12 +117,10 @@ def _track_detections(args: argparse.Namespace) -> None:
     calibration = read_calibration(args.cameras, units=args.units)
     progress = Progress(f"track {args.filter}", "frame {0} of {1}", rate=True)
     try:
-        result = track_detections(detections, calibration, args.filter, fps=args.fps, up=args.up,
-                                  camera_map=camera_map, min_confidence=args.min_confidence, seed=args.seed,
-                                  keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True,
-                                  progress=progress, height=args.height, device=args.device,
-                                  memory=memory,
-                                  skeleton=skeleton, **_smoothing(args))
+        result = track_detections(detections, calibration, args.filter,
+                                  replace(config, keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every,
+                                          interruptible=True),
+                                  skeleton=skeleton, progress=progress)
     finally:
         progress.close()
     if result.interrupted:
@@ -138,12 +140,12 @@ def _track_detections(args: argparse.Namespace) -> None:
           + (f"; wrote {', '.join(written)}" if written else ""))
 
 
-def _track_scene(args: argparse.Namespace, camera_map: dict | None, memory: int) -> None:
-    """``track --detections … --people …``: every person of the scene (:mod:`priortrack.tracking.people`)."""
+def _track_scene(args: argparse.Namespace, config) -> None:
+    """``track --detections … --people …``: every person of the scene (:mod:`priortrack.tracking.people`),
+    each tracked as ``config`` (:class:`~priortrack.tracking.person.TrackConfig`) says."""
     from priortrack.data.calibration import read_calibration
     from priortrack.data.scene_detections import read_scene_detections
     from priortrack.tracking.people import parse_people, track_scene
-    from priortrack.tracking.scene import SceneConfig
 
     for name in ("person", "skeleton"):
         if getattr(args, name) is not None:
@@ -155,10 +157,7 @@ def _track_scene(args: argparse.Namespace, camera_map: dict | None, memory: int)
     if args.frames is not None:
         scene = scene.head(args.frames)
     calibration = read_calibration(args.cameras, units=args.units)
-    result = track_scene(scene, calibration, args.filter, fps=args.fps, up=args.up, camera_map=camera_map,
-                         config=SceneConfig(min_confidence=args.min_confidence), people=people, seed=args.seed,
-                         height=args.height, device=args.device, memory=memory, workers=args.workers,
-                         **_smoothing(args))
+    result = track_scene(scene, calibration, args.filter, config, people=people, workers=args.workers)
     written = [str(p) for path in args.out or [] for p in result.save(path)]
     if args.rrd:
         from priortrack.viz.scene import record_scene

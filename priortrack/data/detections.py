@@ -467,7 +467,7 @@ def cleaned_keypoints(stored: np.ndarray, order: tuple[int, ...], where: str, fi
 class DetectionFile(DetectionsHeader):
     """Detections of an .npz or .npy whose keypoints stay in the file and are read a block of frames at a
     time: :class:`Detections`' fields and its :meth:`eval15` of a block, without the (C, T, K, 3) array in
-    memory, so that tracking a long recording (:func:`~priortrack.experiments.real.track_detections`)
+    memory, so that tracking a long recording (:func:`~priortrack.tracking.person.track_detections`)
     does not hold it. Each block is checked as it is read (:func:`cleaned_keypoints`). :func:`open_detections`
     gives one; :meth:`load` reads it whole.
 

@@ -58,7 +58,7 @@ def config_key(config, contents: bytes) -> str:
     torch threads of a run, priortrack's version, the preset file's text, then ``contents`` (the bytes of
     the run's input files, or their digests)."""
     from priortrack import __version__
-    from priortrack.experiments.presets import preset_path
+    from priortrack.tracking.presets import preset_path
 
     digest = hashlib.sha256(json.dumps([asdict(config), RUN_THREADS, __version__], sort_keys=True).encode())
     digest.update(preset_path(config.filter).read_bytes())
@@ -111,7 +111,7 @@ def check_grid(filters: Sequence[str], seeds: int, frames: int | None, smooth: b
     """The checks every grid's arguments share (one PriortrackError naming the first bad one): ``filters``
     and each of ``lists`` non-empty and without repeats, the presets readable (and smoothable with
     ``smooth``), ``seeds`` positive, ``frames`` None or at least 3 (two known, one tracked)."""
-    from priortrack.experiments.presets import load_preset
+    from priortrack.tracking.presets import load_preset
 
     for name, values in (("filters", filters), *lists.items()):
         if not values:
@@ -152,8 +152,8 @@ def run(config: RunConfig, cache: str | None = None, rrd: bool = False) -> tuple
     a Dask worker returns."""
     from priortrack.body.fk import joint_positions
     from priortrack.experiments.metrics import mpjpe
-    from priortrack.experiments.presets import load_preset
-    from priortrack.experiments.real import detection_weight, frame_log_likelihoods, mismatch_flags
+    from priortrack.tracking.presets import load_preset
+    from priortrack.tracking.person import detection_weight, frame_log_likelihoods, mismatch_flags
     from priortrack.experiments.tracking import track
     from priortrack.filters.snapshot import KNOWN_FRAMES
     from priortrack.threads import torch_threads
@@ -218,7 +218,7 @@ def compare(configs: Sequence, out: str | Path, workers: int | None = None, sche
     :class:`~priortrack.experiments.compare_detections.DetectionRunConfig`s of a user's detections: each
     knows its run and its results' files), write ``out``/results.csv, summary.md, plots/ and (``rrd``)
     recordings/; returns the rows in the grid's order."""
-    from priortrack.experiments.presets import cache_dir, load_preset
+    from priortrack.tracking.presets import cache_dir, load_preset
     from priortrack.threads import torch_threads
 
     if workers is not None and scheduler is not None:

@@ -2,7 +2,7 @@
 truth by leaving each camera out in turn.
 
 A run is one preset, one held-out camera c and one seed: the preset tracks the person from every
-camera but c (:func:`~priortrack.experiments.real.track_detections`), and the estimate's joints are
+camera but c (:func:`~priortrack.tracking.person.track_detections`), and the estimate's joints are
 projected into c (its lens distortion included) and compared with c's own detections over the limb
 joints (shoulders to ankles, where c's confidence exceeds ``min_confidence``): e_{t,j} = ‖π_c(X̂_{t,j})
 − u_{c,t,j}‖ in pixels, at every tick that consumed a frame. A camera the tracker never saw is an
@@ -115,7 +115,7 @@ def _inputs(config: DetectionRunConfig):
     camera's calibration."""
     from priortrack.data.calibration import read_calibration
     from priortrack.data.detections import read_detections
-    from priortrack.experiments.real import match_cameras
+    from priortrack.tracking.person import match_cameras
 
     detections = read_detections(config.detections, keypoints=config.keypoints)
     if config.frames is not None:
@@ -266,7 +266,7 @@ def run_detections(config: DetectionRunConfig, cache: str | None = None,
 
     from priortrack.data.calibration import Calibration
     from priortrack.experiments.compare import RUN_THREADS
-    from priortrack.experiments.real import pixel_errors, track_detections, up_from_detections
+    from priortrack.tracking.person import TrackConfig, pixel_errors, track_detections, up_from_detections
     from priortrack.geometry.camera import PinholeCamera
     from priortrack.geometry.triangulation import triangulate
     from priortrack.threads import torch_threads
@@ -287,10 +287,11 @@ def run_detections(config: DetectionRunConfig, cache: str | None = None,
            "config_hash": config.key}
     try:
         with torch_threads(RUN_THREADS):
-            result = track_detections(seen, Calibration(tuple(matched[c] for c in kept), up, calibration.source,
-                                                        calibration.format, calibration.units),
-                                      config.filter, fps=config.fps, seed=config.seed, cache=cache,
-                                      smooth=config.smooth, keep_snapshots=rrd)
+            others = Calibration(tuple(matched[c] for c in kept), up, calibration.source, calibration.format,
+                                 calibration.units)
+            result = track_detections(seen, others, config.filter,
+                                      TrackConfig(fps=config.fps, seed=config.seed, cache=cache, smooth=config.smooth,
+                                                  keep_snapshots=rrd))
     except PriortrackError as exc:                 # e.g. too few joints seen by two of the other cameras to start
         log.warning("compare: %s could not track: %s", config.label, exc)
         return {**row, "error": str(exc)}, {}, None

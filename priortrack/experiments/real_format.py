@@ -12,7 +12,7 @@ through each camera (distortion included) at ``DATA_FPS``, and given a detector'
 The keypoints are written as OpenPose BODY_25B JSON files (one folder per camera; the keypoints a
 mocap body does not give, nose, eyes, ears, upper neck and feet, as OpenPose's (0, 0, 0)), read back
 by :func:`~priortrack.data.detections.read_detections` and tracked by
-:func:`~priortrack.experiments.real.track_detections`, without the truth. The error is the world
+:func:`~priortrack.tracking.person.track_detections`, without the truth. The error is the world
 MPJPE over the 12 joints from shoulders to ankles, at the ticks the tracker consumed, against the
 mocap's joints (and the same relative to the mid-hips: ``relative_mm``); beside it, per-frame DLT
 triangulation of the same detections, over the same joints where it has them (none from one camera).
@@ -37,8 +37,8 @@ from priortrack.data.detections import read_detections
 from priortrack.data.keypoints import LAYOUTS
 from priortrack.data.load import load_motion
 from priortrack.errors import PriortrackError
-from priortrack.experiments.presets import Preset
-from priortrack.experiments.real import track_detections
+from priortrack.tracking.presets import Preset
+from priortrack.tracking.person import TrackConfig, track_detections
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.frames import to_y_up
 from priortrack.geometry.triangulation import triangulate
@@ -130,8 +130,8 @@ def run_real_format(preset: Preset | str, motion: str, seed: int = 0, calibratio
         folder = write_openpose(detector_keypoints(X, views, rng), Path(tmp))
         detections = read_detections(folder, keypoints="body25b")
         start = time.perf_counter()
-        result = track_detections(detections, calibration, preset, fps=DATA_FPS, seed=seed, cache=cache,
-                                  smooth=smooth)
+        result = track_detections(detections, calibration, preset,
+                                  TrackConfig(fps=DATA_FPS, seed=seed, cache=cache, smooth=smooth))
         seconds = time.perf_counter() - start
     ticks = result.frames >= 0
     truth_all, tracked_all = X[result.frames[ticks]], result.joints[ticks]

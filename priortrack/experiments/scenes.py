@@ -25,7 +25,7 @@ switches, false positives), a track matching a walker when its joints (shoulders
 walker, PCP (a limb correct when the mean of its two ends' errors is at most half its length: upper and
 lower arms and legs, the torso and the head, the detector's pelvis and neck) and MPJPE shoulders to
 ankles of the track that matched them most, and the MPJPE of the same walker tracked alone from their own
-detections (:func:`~priortrack.experiments.real.track_detections`, the others removed).
+detections (:func:`~priortrack.tracking.person.track_detections`, the others removed).
 """
 
 from __future__ import annotations
@@ -286,8 +286,8 @@ def run_scene(scene: str, preset, seed: int = 0, gap: float | None = None, away_
     """One scene (module docstring) tracked by ``preset`` (its prior learned without the scene's walkers)
     with every person, scored; with ``alone``, each walker also tracked from their own detections."""
     from priortrack.experiments.people import fold_preset
-    from priortrack.experiments.presets import load_preset
-    from priortrack.experiments.real import track_detections
+    from priortrack.tracking.presets import load_preset
+    from priortrack.tracking.person import TrackConfig, track_detections
     from priortrack.tracking.people import track_scene
 
     if scene not in SCENES:
@@ -308,12 +308,12 @@ def run_scene(scene: str, preset, seed: int = 0, gap: float | None = None, away_
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_scene_openpose(keypoints, Path(tmp) / "scene", rng)
         detections = read_scene_detections(folder, keypoints="body25b")
-        result = track_scene(detections, calibration, preset, fps=DATA_FPS, seed=seed, cache=cache)
+        result = track_scene(detections, calibration, preset, TrackConfig(fps=DATA_FPS, seed=seed, cache=cache))
         alone_mm = []
         for p in range(len(walkers)) if alone else ():
             own = write_openpose(keypoints[:, :, p], Path(tmp) / f"alone{p}")
-            single = track_detections(read_detections(own, keypoints="body25b"), calibration, preset, fps=DATA_FPS,
-                                      seed=seed, cache=cache)
+            single = track_detections(read_detections(own, keypoints="body25b"), calibration, preset,
+                                      TrackConfig(fps=DATA_FPS, seed=seed, cache=cache))
             f = single.frames
             ok = (f >= 0) & present[p, np.maximum(f, 0)]
             error = np.linalg.norm(single.joints[ok][:, SHOULDERS_TO_ANKLES] - truth[p, f[ok]][:, SHOULDERS_TO_ANKLES],

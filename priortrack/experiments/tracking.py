@@ -29,7 +29,7 @@ from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import error_2d, mean_std, mpjpe, mpjpe_root_relative
-from priortrack.experiments.presets import Preset, load_preset
+from priortrack.tracking.presets import Preset, load_preset
 from priortrack.filters.smoothing import TRAJECTORIES, Smoothed, smooth as smooth_run
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 from priortrack.observation.synthetic import Observations, default_camera, parse_scenario, synthesize

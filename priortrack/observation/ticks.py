@@ -1,7 +1,7 @@
 """A real run's observations tick by tick, built a block of ticks at a time from the detections.
 
 Tick t of a run on detections consumes one detection frame, ``index[t]`` (−1: none;
-:func:`~priortrack.experiments.real.schedule`), and observes z_t (C, 15, 3): each camera's eval15 pixels
+:func:`~priortrack.tracking.person.schedule`), and observes z_t (C, 15, 3): each camera's eval15 pixels
 and confidence of that frame (:meth:`~priortrack.data.detections.Detections.eval15`), NaN where the tick
 has no frame, and NaN for the camera-ticks ``left_out`` (a camera following someone else there: the
 cross-view check). :class:`TickObservations` is that (T, C, 15, 3) array without holding it: it reads

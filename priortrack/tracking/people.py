@@ -1,12 +1,12 @@
 """Every person of a scene tracked by a filter preset: the scene tracker decides who is who
 (:mod:`priortrack.tracking.scene`), then each kept person's own detections are tracked by the preset
-with their own body (:func:`~priortrack.experiments.real.track_detections`: their bones measured over
+with their own body (:func:`~priortrack.tracking.person.track_detections`: their bones measured over
 their whole trial, their start, their filter), and the people are gathered on one tick grid.
 
 :func:`track_scene` gives a :class:`SceneTrack`: ``joints`` (T, P, 15, 3) in the calibration's world,
 NaN where a person is not in the scene (before they appear, after their track ended and until they
 return); each person's spread, log-likelihood and mismatch flags on the same grid; and each person's
-whole single-person result (:class:`~priortrack.experiments.real.DetectionTrack`) for their recording,
+whole single-person result (:class:`~priortrack.tracking.person.DetectionTrack`) for their recording,
 BVH and TRC.
 
 Which people: ``people="all"``; an int N (the N seen in the most frames); a list of ids, or of
@@ -20,7 +20,7 @@ import csv
 import logging
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,7 @@ from priortrack.data.detections import Detections
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.errors import PriortrackError
-from priortrack.experiments.real import (DetectionTrack, fitted_once, match_cameras, output_path, schedule,
+from priortrack.tracking.person import (DetectionTrack, TrackConfig, fitted_once, match_cameras, output_path, schedule,
                                          track_detections, up_from_detections)
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
@@ -221,41 +221,41 @@ class SceneTrack:
         return path
 
 
-def track_scene(scene: SceneDetections, calibration: Calibration, preset, fps: float | None = None,
-                up=None, camera_map: dict[str, str] | None = None, config: SceneConfig | None = None,
-                people="all", seed: int = 0, workers: int | None = None, **options) -> SceneTrack:
-    """Track every person of ``scene`` (module docstring) with ``preset``; ``options`` go to each
-    person's :func:`~priortrack.experiments.real.track_detections` (``keep_snapshots``, ``smooth``, …).
-    ``workers``: processes that track people side by side (None: one per core this process may use, at most
-    one per person; 1: every person in this process); a person's run in a worker is the one here, up to rounding
-    where the worker's torch has fewer threads."""
+def track_scene(scene: SceneDetections, calibration: Calibration, preset, config: TrackConfig | None = None,
+                scene_config: SceneConfig | None = None, people="all", workers: int | None = None) -> SceneTrack:
+    """Track every person of ``scene`` (module docstring) with ``preset``: who is who as ``scene_config``
+    says (:class:`~priortrack.tracking.scene.SceneConfig`), each person as ``config`` says
+    (:class:`~priortrack.tracking.person.TrackConfig`: its frame rate, up, camera map, confidence threshold
+    and seed are the scene's too). ``workers``: processes that track people side by side (None: one per core
+    this process may use, at most one per person; 1: every person in this process; an ``interruptible`` run
+    is tracked here); a person's run in a worker is the one here, up to rounding where the worker's torch
+    has fewer threads."""
     start = time.perf_counter()
-    config = config or SceneConfig()
-    data_fps = fps if fps is not None else scene.fps
+    config, scene_config = config or TrackConfig(), scene_config or SceneConfig()
+    data_fps = config.fps if config.fps is not None else scene.fps
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
-    calibrated = match_cameras(scene, calibration, camera_map)
+    calibrated = match_cameras(scene, calibration, config.camera_map)
     cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
-    workers = _workers(workers, options)
-    with _Pool(workers) as pool:                 # its processes start (import) while the scene is associated
+    with _Pool(1 if config.interruptible else _workers(workers)) as pool:   # workers start while the scene is associated
         uv, confidence = scene.eval15(config.min_confidence)
-        association = SceneTracker(cameras, data_fps, config).run(uv, confidence, scene.frames)
+        association = SceneTracker(cameras, data_fps, scene_config).run(uv, confidence, scene.frames)
         chosen = chosen_people(association, people, scene)
         if not chosen:
-            raise PriortrackError(f"{scene.source}: nobody was seen by {config.birth_views} cameras for "
-                                  f"{config.birth_s} s: no person to track")
+            raise PriortrackError(f"{scene.source}: nobody was seen by {scene_config.birth_views} cameras for "
+                                  f"{scene_config.birth_s} s: no person to track")
         log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
                  ", ".join(map(str, association.person_ids.tolist())),
                  ", ".join(str(association.person_ids[p]) for p in chosen))
         detections = {p: person_detections(scene, association, p) for p in chosen}
+        up = config.up
         if up is None and calibration.up is None:            # one up for every person: the longest-seen's
             longest = max(chosen, key=lambda p: int((association.slots[:, :, p] >= 0).sum()))
             up = up_from_detections(cameras, detections[longest], config.min_confidence, calibration.source)
         if pool.executor is not None and len(chosen) > 1:
-            preset = fitted_once(preset, options.get("cache"))
-        options = dict(options, fps=data_fps, up=up, camera_map=camera_map, min_confidence=config.min_confidence,
-                       seed=seed)
-        runs = pool.map(_track_person, [(detections[p], calibration, preset, options) for p in chosen])
+            preset = fitted_once(preset, config.cache)
+        person = replace(config, fps=data_fps, up=up)
+        runs = pool.map(_track_person, [(detections[p], calibration, preset, person) for p in chosen])
     results, kept, skipped = [], [], {}
     for p, (result, error) in zip(chosen, runs):
         if error is None:
@@ -272,25 +272,23 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, fps: f
     return gathered
 
 
-def _workers(workers: int | None, options: dict) -> int:
-    """The processes to track people in: 1 where a run reports back as it goes (``progress``, Ctrl-C's
-    ``interruptible``), else ``workers`` or one per usable core."""
+def _workers(workers: int | None) -> int:
+    """The processes to track people in: ``workers``, or one per core this process may use."""
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise PriortrackError(f"workers must be a number of processes ≥ 1, got {workers!r}")
-    if options.get("progress") is not None or options.get("interruptible"):
-        return 1
     return workers if workers is not None else len(os.sched_getaffinity(0))
 
 
 def _track_person(job) -> tuple[DetectionTrack | None, str | None]:
-    """One person's :func:`track_detections` (``job``: detections, calibration, preset, keywords): the result,
-    or None and why it could not be tracked. Runs in a worker or here; a worker's log records are re-logged
-    here by :class:`_Pool`."""
-    detections, calibration, preset, options = job
+    """One person's :func:`track_detections` (``job``: detections, calibration, preset, :class:`TrackConfig`):
+    the result, or None and why it could not be tracked. Runs in a worker or here; a worker's log records
+    are re-logged here by :class:`_Pool`."""
+    detections, calibration, preset, config = job
     try:
-        return track_detections(detections, calibration, preset, **options), None
+        return track_detections(detections, calibration, preset, config), None
     except PriortrackError as exc:
         return None, str(exc)
+
 
 
 class _Captured(logging.Handler):

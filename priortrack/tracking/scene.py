@@ -67,7 +67,6 @@ class SceneConfig:
     """How the scene tracker decides (module docstring).
 
     Attributes:
-        min_confidence: detections' keypoints below it are missing.
         pair_gate_m: the cross-view pair gate, metres (:mod:`~priortrack.tracking.association`).
         gate: a detection's cost gate for a track (median squared Mahalanobis distance of its joints).
         birth_s: seconds of proposals that confirm a new person.
@@ -75,7 +74,6 @@ class SceneConfig:
         death_s: seconds unseen after which a person's track ends.
     """
 
-    min_confidence: float = 0.3
     pair_gate_m: float = PAIR_GATE_M
     gate: float = GATE
     birth_s: float = 0.1
@@ -83,7 +81,7 @@ class SceneConfig:
     death_s: float = 0.5
 
     def __post_init__(self):
-        for name in ("min_confidence", "pair_gate_m", "gate", "birth_s", "death_s"):
+        for name in ("pair_gate_m", "gate", "birth_s", "death_s"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value) or value < 0:
                 raise PriortrackError(f"scene setting {name} must be a number ≥ 0, got {value!r}")

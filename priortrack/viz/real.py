@@ -1,4 +1,4 @@
-"""Rerun recordings of real detections tracked by :func:`priortrack.experiments.real.track_detections`.
+"""Rerun recordings of real detections tracked by :func:`priortrack.tracking.person.track_detections`.
 
 In the calibration's world (its up axis): every camera as a pinhole with its image size, its
 detections (radius and brightness by confidence; green over them, those the unscented filter's

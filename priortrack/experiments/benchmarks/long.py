@@ -59,13 +59,13 @@ def run_once(detections: str, preset: str, smooth: bool, out: str) -> dict:
     """One tracked run in this process: seconds, ticks, time per tick over the first and last tenth, and
     this process's peak resident memory (MB)."""
     from priortrack.data.detections import open_detections
-    from priortrack.experiments.real import track_detections
+    from priortrack.tracking.person import TrackConfig, track_detections
 
     stamps = []
     start = time.perf_counter()
     read = open_detections(detections)                # as the command opens it: read a block of frames at a time
     result = track_detections(read, read_calibration(DEFAULT_CALIBRATION), preset,
-                              smooth=smooth, progress=lambda t, T: stamps.append(time.perf_counter()))
+                              TrackConfig(smooth=smooth), progress=lambda t, T: stamps.append(time.perf_counter()))
     result.save(out)
     seconds = time.perf_counter() - start
     per_tick = np.diff(stamps)

@@ -47,7 +47,7 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
     """Seconds of the whole command's work on ``frames`` frames × ``cameras`` cameras at ``fps``, and of
     DLT on the same input."""
     from priortrack.experiments.benchmarks.long import LOOP_SECONDS, ping_pong
-    from priortrack.experiments.real import track_detections
+    from priortrack.tracking.person import TrackConfig, track_detections
 
     if not 3 <= frames <= MAX_FRAMES:
         raise PriortrackError(f"bench real-track: frames must be in [3, {MAX_FRAMES}], got {frames}")
@@ -67,7 +67,7 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
         folder = write_openpose(detector_keypoints(X, views, np.random.default_rng(seed)), Path(tmp) / "pose")
         start = time.perf_counter()
         detections = read_detections(folder, keypoints="body25b")
-        result = track_detections(detections, calibration, preset, fps=fps, seed=seed)
+        result = track_detections(detections, calibration, preset, TrackConfig(fps=fps, seed=seed))
         result.save(Path(tmp) / "out.npz")
         seconds = time.perf_counter() - start
         start = time.perf_counter()

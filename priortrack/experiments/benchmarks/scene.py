@@ -38,6 +38,7 @@ def bench_scene(people: int = 4, cameras: int = 5, frames: int = 300, fps: float
     from priortrack.data.scene_detections import read_scene_detections
     from priortrack.experiments.scenes import scene_keypoints, write_scene_openpose
     from priortrack.tracking.people import track_scene
+    from priortrack.tracking.person import TrackConfig
 
     if not 1 <= people <= 9:
         raise PriortrackError(f"bench scene: people must be in [1, 9], got {people}")
@@ -55,8 +56,8 @@ def bench_scene(people: int = 4, cameras: int = 5, frames: int = 300, fps: float
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_scene_openpose(scene_keypoints(X, views, rng, up="y"), Path(tmp) / "scene", rng)
         start = time.perf_counter()
-        result = track_scene(read_scene_detections(folder, keypoints="body25b"), calibration, preset, fps=fps,
-                             seed=seed)
+        result = track_scene(read_scene_detections(folder, keypoints="body25b"), calibration, preset,
+                             TrackConfig(fps=fps, seed=seed))
         result.save(Path(tmp) / "scene.npz")
         seconds = time.perf_counter() - start
     single = bench_real_track(frames=frames, preset=preset, seed=seed, cameras=cameras, fps=fps)

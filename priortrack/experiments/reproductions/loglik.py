@@ -35,7 +35,7 @@ from priortrack.data.bundled import bundled_clips
 from priortrack.data.load import load_motion
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
-from priortrack.experiments.presets import load_preset
+from priortrack.tracking.presets import load_preset
 from priortrack.priors.base import DEFAULT_FPS
 from priortrack.priors.defensive import DefensiveMixture
 from priortrack.priors.diffusion import Diffusion

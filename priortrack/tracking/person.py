@@ -76,7 +76,7 @@ from priortrack.filters.smoothing import TRAJECTORIES, FixedLagSmoother, joint_s
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
-from priortrack.experiments.presets import Preset, load_preset
+from priortrack.tracking.presets import Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.filters.step_store import DEFAULT_MEMORY, StepStore
 from priortrack.geometry.camera import PinholeCamera
@@ -411,25 +411,64 @@ def up_from_detections(cameras: list[PinholeCamera], detections, min_confidence:
     return up
 
 
+@dataclass(frozen=True)
+class TrackConfig:
+    """How a person's detections are tracked: one object for the command line's options and the API's
+    (:func:`track_detections`, and every person of :func:`~priortrack.tracking.people.track_scene`).
+
+    Attributes:
+        fps: the detections' frame rate, where their files do not say it.
+        up: the calibration world's up, an axis name or a (3,) vector; None: the calibration's, else
+            found from the person (module docstring, 1).
+        camera_map: {detection camera (folder): calibration camera} where they are not matched in order.
+        min_confidence: keypoints below it are missing.
+        seed: seeds the filter.
+        height: the person's standing height, metres: the body's size and depth from one camera.
+        smooth: also smooth the run (:mod:`priortrack.filters.smoothing`) and give the smoothed joints;
+            lag: with a fixed lag of that many ticks (None: over the whole run); trajectories: the
+            particle smoother's backward trajectories.
+        keep_snapshots: keep the filter's steps (a recording's particle clouds), every ``snapshot_every``-th
+            tick's.
+        interruptible: Ctrl-C during the filter's run ends it there; the result holds the ticks tracked
+            until then (``interrupted``).
+        device: where a particle filter's particles live ("cpu", "cuda"; :meth:`Preset.filter_for`).
+        memory: bytes of the whole-run smoother's steps held in memory, the rest spilled to a temporary
+            folder (:class:`~priortrack.filters.step_store.StepStore`).
+        cache: the prior cache's folder (None: :func:`~priortrack.tracking.presets.cache_dir`).
+    """
+
+    fps: float | None = None
+    up: str | np.ndarray | None = None
+    camera_map: dict[str, str] | None = None
+    min_confidence: float = 0.3
+    seed: int = 0
+    height: float = 1.7
+    smooth: bool = False
+    lag: int | None = None
+    trajectories: int = TRAJECTORIES
+    keep_snapshots: bool = False
+    snapshot_every: int = 1
+    interruptible: bool = False
+    device: str = "cpu"
+    memory: int = DEFAULT_MEMORY
+    cache: Path | str | None = None
+
+    def __post_init__(self):
+        if self.fps is not None and not (isinstance(self.fps, (int, float)) and 0 < self.fps < 1e4):
+            raise PriortrackError(f"fps must be a positive frame rate, got {self.fps}")
+        if not isinstance(self.min_confidence, (int, float)) or not 0 <= self.min_confidence <= 1:
+            raise PriortrackError(f"min_confidence must be in [0, 1], got {self.min_confidence!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)):
+            raise PriortrackError(f"seed must be a whole number, got {self.seed!r}")
+
+
 def track_detections(detections: Detections, calibration: Calibration, preset: Preset | str,
-                     fps: float | None = None, up: str | np.ndarray | None = None, camera_map: dict[str, str] | None = None,
-                     min_confidence: float = 0.3, seed: int = 0, cache=None, keep_snapshots: bool = False,
-                     height: float = 1.7, skeleton: Skeleton | None = None,
-                     progress: Callable[[int, int], None] | None = None, smooth: bool = False,
-                     lag: int | None = None, trajectories: int = TRAJECTORIES,
-                     snapshot_every: int = 1, interruptible: bool = False, device: str = "cpu",
-                     memory: int = DEFAULT_MEMORY) -> DetectionTrack:
+                     config: TrackConfig | None = None, skeleton: Skeleton | None = None,
+                     progress: Callable[[int, int], None] | None = None) -> DetectionTrack:
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
-    (module docstring). ``fps``: the detections' frame rate (if the file does not say it); ``height``:
-    the person's standing height in metres, which sets the body's size and depth from one camera;
-    ``skeleton``: the person's own body (an ASF or BVH skeleton) instead of the scaled template;
-    ``smooth``: also smooth the run (with a fixed ``lag``, or over the whole run) and give the smoothed
-    joints (:mod:`priortrack.filters.smoothing`); ``keep_snapshots``: keep the filter's steps (a
-    recording's particle clouds), every ``snapshot_every``-th tick's; ``interruptible``: Ctrl-C during the
-    filter's run ends it there, and the result holds the ticks tracked until then (``interrupted``);
-    ``device``: where a particle filter's particles live ("cpu", "cuda"; :meth:`Preset.filter_for`);
-    ``memory``: bytes of the whole-run smoother's steps held in memory, the rest spilled to a temporary
-    folder (:class:`~priortrack.filters.step_store.StepStore`).
+    (module docstring), as ``config`` says (:class:`TrackConfig`; None: its defaults); ``skeleton``: the
+    person's own body (an ASF or BVH skeleton) instead of the template scaled to the detections;
+    ``progress(tick, ticks)``: called as the filter goes.
 
     Memory: the detections' observations are read a block of ticks at a time
     (:class:`~priortrack.observation.ticks.TickObservations`; from a file too, given a
@@ -438,6 +477,10 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     reprojection errors; each tick's spread and step record are taken as the filter goes; its point sets
     are let go unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
     start_time = time.perf_counter()
+    config = config or TrackConfig()
+    fps, up, camera_map, min_confidence, seed, height = (config.fps, config.up, config.camera_map, config.min_confidence,
+                                                         config.seed, config.height)
+    smooth, lag, trajectories, memory = config.smooth, config.lag, config.trajectories, config.memory
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     data_fps = fps if fps is not None else detections.fps
     if data_fps is None:
@@ -452,7 +495,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     up = up if isinstance(up, str) and up in UP_AXES else up_vector(up)
     A = to_y_up(up)
     cameras = [in_working_frame(c, A) for c in world_cameras]
-    prior = preset.prior(cache)
+    prior = preset.prior(config.cache)
     index = schedule(detections.frames, data_fps, prior.fps)
     z = TickObservations(detections, index, min_confidence)        # (T, C, 15, 3), read a block at a time
     single = len(cameras) == 1
@@ -492,7 +535,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                    **preset.observation}
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
-    filt = preset.filter_for(model, seed, device)
+    filt = preset.filter_for(model, seed, config.device)
     torch.manual_seed(seed)
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
     z, index = z.between(first), index[first:]         # from here on, tick 0 is the filter's first
@@ -509,8 +552,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         if whole:
             for_smoother.append(snapshot)
 
-    run = filt.run(z, known, keep_snapshots=keep_snapshots, progress=progress, snapshot_every=snapshot_every,
-                   on_step=on_step, interruptible=interruptible, **initial)
+    run = filt.run(z, known, keep_snapshots=config.keep_snapshots, progress=progress,
+                   snapshot_every=config.snapshot_every, on_step=on_step, interruptible=config.interruptible, **initial)
     if whole:
         for_smoother.truncate(len(run.estimates) - KNOWN_FRAMES)          # an interrupted run's steps
         if for_smoother.spilled:
