@@ -114,6 +114,28 @@ def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys)
     assert not any("person0" in e for e in entities)
 
 
+def test_one_person_asked_of_a_scene_is_the_longest_seen_through_the_scene_tracker(tmp_path, capsys, caplog):
+    """``track --detections`` without ``--people`` on files that hold several people: a scene of one (the person
+    the scene tracker sees longest, here the synthetic person, in all 100 frames of every camera but one), said
+    in a warning; the outputs are one person's, within 30 mm of Pose2Sim's own 3D output of that person."""
+    out = tmp_path / "one.npz"
+    with caplog.at_level("WARNING"):
+        assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps",
+                     "60", "--filter", "ukf-real", "--out", str(out), "--json"]) == 0
+    assert any("people in a frame: tracking the one seen longest" in r.getMessage()
+               for r in caplog.records)
+    summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert "per_person" not in summary and summary["written"] == [str(out)]
+    scene, calibration = read_scene_detections(POSE, keypoints="body25b"), read_calibration(QCA)
+    with np.load(out) as f:
+        joints, frames = f["joints"], f["frames"]
+    assert joints.shape == (len(frames), 15, 3)
+    ticks = np.flatnonzero(frames >= 0)
+    truth = read_truth(POSE2SIM_3D["P1"], scene, calibration, fps=60)[frames[ticks]]
+    J = [EVAL15_NAMES.index(j) for j in LIMBS]
+    assert np.nanmedian(1000 * np.linalg.norm(joints[ticks][:, J] - truth, axis=-1)) < 30
+
+
 def test_people_are_chosen_by_count_id_point_and_box(demo):
     scene, calibration = demo
     cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]

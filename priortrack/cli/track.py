@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from dataclasses import replace
 
 from priortrack.cli.common import Progress, print_json
 from priortrack.errors import PriortrackError
 from priortrack.output import output_path
+
+log = logging.getLogger(__name__)
 
 
 def _track(args: argparse.Namespace) -> None:
@@ -111,16 +114,23 @@ def _track_detections(args: argparse.Namespace) -> None:
         return
     if args.workers is not None:
         raise PriortrackError("--workers tracks several people side by side: give --people")
-    detections = open_detections(args.detections, keypoints=args.keypoints, person=args.person)   # npz, npy: in blocks
-    if args.frames is not None:
-        detections = detections.head(args.frames)
     calibration = read_calibration(args.cameras, units=args.units)
+    config = replace(config, keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True)
+    scene = _several_people(args, calibration)
     progress = Progress(f"track {args.filter}", "frame {0} of {1}", rate=True)
     try:
-        result = track_detections(detections, calibration, args.filter,
-                                  replace(config, keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every,
-                                          interruptible=True),
-                                  skeleton=skeleton, progress=progress)
+        if scene is not None:                     # a scene of one: the person seen longest
+            from priortrack.tracking.people import track_scene
+
+            result = track_scene(scene, calibration, args.filter, config, people=1, skeleton=skeleton,
+                                 progress=progress).people[0]
+        else:
+            # an npz or npy is read a block of frames at a time
+            detections = open_detections(args.detections, keypoints=args.keypoints, person=args.person)
+            if args.frames is not None:
+                detections = detections.head(args.frames)
+            result = track_detections(detections, calibration, args.filter, config, skeleton=skeleton,
+                                      progress=progress)
     finally:
         progress.close()
     if result.interrupted:
@@ -138,6 +148,28 @@ def _track_detections(args: argparse.Namespace) -> None:
     print(f"{result.filter}: {summary['frames']} frames at {result.fps:g} fps in {summary['seconds']:.1f} s; "
           f"median reprojection {errors}; mismatch {100 * summary['mismatch_fraction']:.0f}% of frames"
           + (f"; wrote {', '.join(written)}" if written else ""))
+
+
+def _several_people(args: argparse.Namespace, calibration):
+    """The scene, where ``track --detections`` without ``--people`` or ``--person`` is given an OpenPose folder or a
+    COCO results file of two calibrated cameras or more that holds several people in a frame: their person is the one
+    the scene tracker sees longest (logged, with ``--people`` named); else None (one person: read as one)."""
+    from pathlib import Path
+
+    from priortrack.data.scene_detections import read_scene_detections
+
+    path = Path(args.detections)
+    if args.person is not None or len(calibration.cameras) < 2 or not (path.is_dir() or path.suffix.lower() == ".json"):
+        return None
+    scene = read_scene_detections(path, keypoints=args.keypoints)
+    if args.frames is not None:
+        scene = scene.head(args.frames)
+    most = int(scene.people.max(initial=0))
+    if most < 2:
+        return None
+    log.warning("%s holds up to %d people in a frame: tracking the one seen longest (--people all tracks each, "
+                "--people at:CAMERA:X,Y the one there)", path, most)
+    return scene
 
 
 def _track_scene(args: argparse.Namespace, config) -> None:

@@ -20,6 +20,7 @@ import csv
 import logging
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from priortrack.data.calibration import Calibration
 from priortrack.data.detections import Detections
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.scene_detections import SceneDetections
+from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
 from priortrack.tracking.person import (DetectionTrack, TrackConfig, fitted_once, match_cameras, output_path, schedule,
                                          track_detections, up_from_detections)
@@ -222,14 +224,16 @@ class SceneTrack:
 
 
 def track_scene(scene: SceneDetections, calibration: Calibration, preset, config: TrackConfig | None = None,
-                scene_config: SceneConfig | None = None, people="all", workers: int | None = None) -> SceneTrack:
+                scene_config: SceneConfig | None = None, people="all", workers: int | None = None,
+                skeleton: Skeleton | None = None, progress: Callable[[int, int], None] | None = None) -> SceneTrack:
     """Track every person of ``scene`` (module docstring) with ``preset``: who is who as ``scene_config``
     says (:class:`~priortrack.tracking.scene.SceneConfig`), each person as ``config`` says
     (:class:`~priortrack.tracking.person.TrackConfig`: its frame rate, up, camera map, confidence threshold
     and seed are the scene's too). ``workers``: processes that track people side by side (None: one per core
     this process may use, at most one per person; 1: every person in this process; an ``interruptible`` run
     is tracked here); a person's run in a worker is the one here, up to rounding where the worker's torch
-    has fewer threads."""
+    has fewer threads. A scene of one (``people=1``, or one id) takes what one person's run takes: their own
+    body (``skeleton``) and a ``progress(tick, ticks)``."""
     start = time.perf_counter()
     config, scene_config = config or TrackConfig(), scene_config or SceneConfig()
     data_fps = config.fps if config.fps is not None else scene.fps
@@ -237,10 +241,14 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
     calibrated = match_cameras(scene, calibration, config.camera_map)
     cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
-    with _Pool(1 if config.interruptible else _workers(workers)) as pool:   # workers start while the scene is associated
+    alone = config.interruptible or progress is not None or skeleton is not None
+    with _Pool(1 if alone else _workers(workers)) as pool:   # workers start while the scene is associated
         uv, confidence = scene.eval15(config.min_confidence)
         association = SceneTracker(cameras, data_fps, scene_config).run(uv, confidence, scene.frames)
         chosen = chosen_people(association, people, scene)
+        if (skeleton is not None or progress is not None) and len(chosen) > 1:
+            raise PriortrackError(f"a skeleton or a progress report is one person's: choose one of the scene's "
+                                  f"{len(chosen)} people")
         if not chosen:
             raise PriortrackError(f"{scene.source}: nobody was seen by {scene_config.birth_views} cameras for "
                                   f"{scene_config.birth_s} s: no person to track")
@@ -255,7 +263,8 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
         if pool.executor is not None and len(chosen) > 1:
             preset = fitted_once(preset, config.cache)
         person = replace(config, fps=data_fps, up=up)
-        runs = pool.map(_track_person, [(detections[p], calibration, preset, person) for p in chosen])
+        runs = pool.map(_track_person, [(detections[p], calibration, preset, person, skeleton, progress)
+                                        for p in chosen])
     results, kept, skipped = [], [], {}
     for p, (result, error) in zip(chosen, runs):
         if error is None:
@@ -280,12 +289,11 @@ def _workers(workers: int | None) -> int:
 
 
 def _track_person(job) -> tuple[DetectionTrack | None, str | None]:
-    """One person's :func:`track_detections` (``job``: detections, calibration, preset, :class:`TrackConfig`):
-    the result, or None and why it could not be tracked. Runs in a worker or here; a worker's log records
-    are re-logged here by :class:`_Pool`."""
-    detections, calibration, preset, config = job
+    """One person's :func:`track_detections` (``job``: its arguments, detections to progress): the result, or
+    None and why it could not be tracked. Runs in a worker or here; a worker's log records are re-logged
+    here by :class:`_Pool`."""
     try:
-        return track_detections(detections, calibration, preset, config), None
+        return track_detections(*job), None
     except PriortrackError as exc:
         return None, str(exc)
 
