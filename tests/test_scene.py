@@ -110,7 +110,8 @@ def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys)
     assert summary["people"] == [1] and set(summary["per_person"]) == {"1"}
     entities = {str(c.entity_path) for c in rr.chunk.RrdReader(rrd).stream().to_chunks()}
     assert {"/world/person1", "/world/person1/label", "/world/cam01_json/image/detections/person1",
-            "/world/cam01_json/image/unassigned", "/world/cam01_json/image/estimate/person1"} <= entities
+            "/world/cam01_json/image/unassigned", "/world/cam01_json/image/estimate/person1",
+            "/world/cam01_json/image/association/person1"} <= entities
     assert not any("person0" in e for e in entities)
 
 

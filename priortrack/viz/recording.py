@@ -178,6 +178,16 @@ class Recording:
         self.stream.log(f"world/{camera}/image/{name}", rr.Points2D(
             uv[seen], class_ids=self._class(color), keypoint_ids=seen, colors=colors, radii=radii, show_labels=False))
 
+    def links_2d(self, name: str, a, b, color=(255, 120, 0), camera: str = "camera", label: str | None = None) -> None:
+        """Log a segment from each point of ``a`` (J, 2) pixels to the same joint of ``b`` (J, 2) where both are
+        seen, in a camera's image (a detection to the estimate it was given to)."""
+        a, b = np.asarray(a, dtype=np.float32), np.asarray(b, dtype=np.float32)
+        seen = np.flatnonzero(np.isfinite(a).all(axis=-1) & np.isfinite(b).all(axis=-1))
+        if len(seen):
+            self.stream.log(f"world/{camera}/image/{name}", rr.LineStrips2D(
+                np.stack([a[seen], b[seen]], axis=1), colors=[color], radii=1.0,
+                labels=None if label is None else [label], show_labels=False))
+
     def scalar(self, name: str, value: float) -> None:
         """Log a per-frame scalar at ``metrics/<name>`` (NaN is skipped); ``name``'s first part is its
         quantity (:data:`QUANTITIES`), which gets its own time-series view."""

@@ -3,8 +3,9 @@
 In the calibration's world: every camera as a pinhole with its image size; each person's skeleton in
 their own colour with a label (``person <id>``) at ``world/person<id>``; in each camera's image, the
 detections the scene tracker gave each person, in that person's colour, the detections it gave nobody
-in grey (``unassigned``: false positives, people seen by one camera), and each person's estimate
-reprojected; per-frame scalars per person: each camera's median reprojection error, the log-likelihood
+in grey (``unassigned``: false positives, people seen by one camera), each person's estimate
+reprojected, and the association (``association/person<id>``: a segment from each joint of a detection to
+the same joint of the estimate of the person it was given to); per-frame scalars per person: each camera's median reprojection error, the log-likelihood
 and the mismatch flag. A mismatch tick draws the person's skeleton in the mismatch colour.
 """
 
@@ -42,6 +43,7 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
             rec.camera(camera, name)
         for t, frame in enumerate(scene.frames):
             rec.frame(int(frame) if frame >= 0 else t)
+            estimates = {}                                                   # {(person id, camera): uv (15, 2)}
             for p, pid in enumerate(scene.person_ids):
                 joints = scene.joints[t, p]
                 if not np.isfinite(joints).all():
@@ -49,8 +51,9 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
                 color = MISMATCH_COLOR if scene.mismatch[t, p] else person_color(pid)
                 rec.skeleton(f"person{pid}", joints, color=color, label=f"person {pid}")
                 for name, camera in zip(names, cameras):
-                    uv, _ = camera.project(torch.as_tensor(joints))
-                    rec.points_2d(f"estimate/person{pid}", uv.numpy(), person_color(pid), camera=name, radius=2.0)
+                    uv = camera.project(torch.as_tensor(joints))[0].numpy()
+                    estimates[pid, name] = uv
+                    rec.points_2d(f"estimate/person{pid}", uv, person_color(pid), camera=name, radius=2.0)
                 rec.scalar(f"loglik/person{pid}", scene.loglik[t, p])
                 rec.scalar(f"mismatch/person{pid}", float(scene.mismatch[t, p]))
             f = scene.index[t]
@@ -67,4 +70,7 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
                     rec.points_2d("unassigned" if pid is None else f"detections/person{pid}", uv[n],
                                   UNASSIGNED_COLOR if pid is None else person_color(pid), camera=name,
                                   confidence=confidence[n])
+                    if (pid, name) in estimates:
+                        rec.links_2d(f"association/person{pid}", uv[n], estimates[pid, name], person_color(pid),
+                                     camera=name, label=f"person {pid}")
     return Path(path)
