@@ -14,6 +14,9 @@ def _compare(args: argparse.Namespace) -> None:
     from priortrack.experiments.compare import compare, plan, series_of, table
     from priortrack.experiments.compare_detections import LIMBS, plan_detections, summary
 
+    if args.people is not None:
+        _compare_people(args)
+        return
     if args.detections is not None:
         if args.motions or args.scenarios:
             raise PriortrackError("compare --detections scores the filters on your recording: give no --motions or "
@@ -77,6 +80,45 @@ def _compare(args: argparse.Namespace) -> None:
               f"{args.out}/recordings/*.rrd)")
 
 
+def _compare_people(args: argparse.Namespace) -> None:
+    """``compare --detections … --people …``: each chosen person of a scene compared on their own, in
+    OUT/person<id>/ (as ``compare --detections`` writes one person's)."""
+    from pathlib import Path
+
+    from priortrack.experiments.compare import compare, series_of
+    from priortrack.experiments.compare_detections import LIMBS, plan_detections, scene_people, summary
+    from priortrack.tracking.people import parse_people
+
+    if args.detections is None or args.cameras is None:
+        raise PriortrackError("--people compares the people of your recording: give --detections and --cameras")
+    if args.motions or args.scenarios:
+        raise PriortrackError("compare --detections scores the filters on your recording: give no --motions or "
+                              "--scenarios")
+    ids = scene_people(args.detections, args.cameras, parse_people(args.people), args.keypoints, args.fps, args.frames)
+    grids = {pid: plan_detections(args.filters, args.detections, args.cameras, args.seeds, args.truth, args.keypoints,
+                                  args.fps, args.frames, args.smooth, args.joints or LIMBS, person=pid) for pid in ids}
+    progress = Progress("compare", "{0}")
+
+    def show(p) -> None:
+        progress(f"run {p.done} of {p.total} ({p.cached} cached): {p.label}", 0)
+
+    results = {}
+    try:
+        for pid, configs in grids.items():
+            out = Path(args.out) / f"person{pid}"
+            rows = compare(configs, out, workers=args.workers, scheduler=args.scheduler, rrd=args.rrd, progress=show)
+            results[pid] = {"rows": rows, "summary": summary(rows, series_of(out, configs)), "out": str(out)}
+    finally:
+        progress.close()
+    if args.json:
+        print_json({"people": {str(pid): r for pid, r in results.items()}, "out": args.out})
+        return
+    for pid, result in results.items():
+        print(f"## person {pid}\n")
+        print((Path(result["out"]) / "summary.md").read_text())
+    print(f"wrote {', '.join(r['out'] for r in results.values())}: results.csv, summary.md and plots/ each")
+
+
 def add_parsers(verbs) -> None:
     """Register this family's verbs on the ``priortrack`` sub-parsers."""
     grid = verbs.add_parser("compare", help="a grid of filters x motions x scenarios x seeds, or filters on your own "
@@ -93,6 +135,9 @@ def add_parsers(verbs) -> None:
     grid.add_argument("--fps", type=float, help="--detections: their frame rate, if the files do not say it")
     grid.add_argument("--joints", nargs="+", help="--detections: the eval15 joints scored (default shoulders to "
                                                   "ankles; e.g. the arms' six for a person seated at a desk)")
+    grid.add_argument("--people", nargs="+", metavar="WHO",
+                      help="--detections of several people: compare each (all; N seen longest; id:A,B; at:CAMERA:X,Y; "
+                           "box:CAMERA:X0,Y0,X1,Y1, as track --people), each in OUT/person<id>/")
     grid.add_argument("--seeds", type=int, default=1, help="seeds per motion and scenario (1)")
     grid.add_argument("--frames", type=int, help="track only the first N frames of each motion")
     grid.add_argument("--out", required=True, help="the results folder (reused: finished runs are not run again)")

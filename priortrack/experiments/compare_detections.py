@@ -63,7 +63,9 @@ def _digest(path: Path) -> bytes:
 @dataclass(frozen=True)
 class DetectionRunConfig:
     """One run of a detections grid (plain values: what a Dask worker is sent). ``held_out``: the
-    detection camera left out (its name), or :data:`ALL_CAMERAS`."""
+    detection camera left out (its name), or :data:`ALL_CAMERAS`; ``person``: in files of several people,
+    the scene tracker's id of the person tracked (:func:`~priortrack.tracking.people.associated`, from every
+    camera: the camera left out helps tell who is who, never where they are); None: files of one person."""
 
     filter: str
     detections: str
@@ -76,6 +78,7 @@ class DetectionRunConfig:
     frames: int | None = None
     smooth: bool = False
     joints: tuple[str, ...] = LIMBS
+    person: int | None = None
 
     @cached_property
     def key(self) -> str:
@@ -89,7 +92,9 @@ class DetectionRunConfig:
     @property
     def label(self) -> str:
         """filter · held-out camera · seed: the run's name in recordings and logs."""
-        return f"{self.filter} · {'all cameras' if self.held_out == ALL_CAMERAS else 'without ' + self.held_out} · seed {self.seed}"
+        who = "" if self.person is None else f"person {self.person} · "
+        return (f"{who}{self.filter} · {'all cameras' if self.held_out == ALL_CAMERAS else 'without ' + self.held_out}"
+                f" · seed {self.seed}")
 
     @property
     def recording_stem(self) -> str:
@@ -117,19 +122,57 @@ def _inputs(config: DetectionRunConfig):
     from priortrack.data.detections import read_detections
     from priortrack.tracking.person import match_cameras
 
-    detections = read_detections(config.detections, keypoints=config.keypoints)
-    if config.frames is not None:
-        detections = detections.head(config.frames)
+    calibration = read_calibration(config.cameras)
+    if config.person is None:
+        detections = read_detections(config.detections, keypoints=config.keypoints)
+        if config.frames is not None:
+            detections = detections.head(config.frames)
+    else:
+        detections = scene_person(config, calibration)
     if len(detections.camera_names) < 2:
         raise PriortrackError(f"compare --detections scores each camera left out: {config.detections} has "
                               f"{len(detections.camera_names)} camera; it needs two or more")
-    calibration = read_calibration(config.cameras)
     return detections, calibration, match_cameras(detections, calibration)
+
+
+def scene_people(detections: str, cameras: str, people, keypoints: str | None = None, fps: float | None = None,
+                 frames: int | None = None) -> list[int]:
+    """The scene tracker's ids of the ``people`` asked for (:func:`~priortrack.tracking.people.parse_people`'s
+    forms) in files of several people."""
+    from priortrack.data.calibration import read_calibration
+    from priortrack.tracking.people import associated, chosen_people
+
+    scene, rate = _scene(detections, keypoints, fps, frames)
+    association, _ = associated(scene, read_calibration(cameras), rate)
+    return [int(association.person_ids[p]) for p in chosen_people(association, people, scene)]
+
+
+def scene_person(config: DetectionRunConfig, calibration):
+    """The detections of ``config.person`` in files of several people (:class:`DetectionRunConfig`)."""
+    from priortrack.tracking.people import associated, chosen_people, person_detections
+
+    scene, rate = _scene(config.detections, config.keypoints, config.fps, config.frames)
+    association, _ = associated(scene, calibration, rate)
+    return person_detections(scene, association, chosen_people(association, [config.person], scene)[0])
+
+
+def _scene(detections: str, keypoints: str | None, fps: float | None, frames: int | None):
+    """Every person of the files (their first ``frames``) and their frame rate."""
+    from priortrack.data.scene_detections import read_scene_detections
+
+    scene = read_scene_detections(detections, keypoints=keypoints)
+    if frames is not None:
+        scene = scene.head(frames)
+    rate = fps if fps is not None else scene.fps
+    if rate is None:
+        raise PriortrackError(f"{detections}: the detections do not say their frame rate; give it (--fps)")
+    return scene, rate
 
 
 def plan_detections(filters: Sequence[str], detections: str, cameras: str, seeds: int, truth: str | None = None,
                     keypoints: str | None = None, fps: float | None = None, frames: int | None = None,
-                    smooth: bool = False, joints: Sequence[str] = LIMBS) -> list[DetectionRunConfig]:
+                    smooth: bool = False, joints: Sequence[str] = LIMBS,
+                    person: int | None = None) -> list[DetectionRunConfig]:
     """Every run of the grid (each preset × each held-out camera × each seed, and with a ``truth`` the
     all-camera runs), after checking every argument (one PriortrackError naming the first bad one,
     before any work): the presets, the files, at least two cameras, the joints scored (eval15 names from
@@ -142,15 +185,16 @@ def plan_detections(filters: Sequence[str], detections: str, cameras: str, seeds
         raise PriortrackError(f"compare: --joints must name distinct joints among {', '.join(LIMBS)}"
                               + (f"; {', '.join(unknown)} is not one" if unknown else ""))
     check_grid(filters, seeds, frames, smooth)
-    probe = DetectionRunConfig(filters[0], str(detections), str(cameras), ALL_CAMERAS, 0, truth, keypoints, fps, frames)
+    probe = DetectionRunConfig(filters[0], str(detections), str(cameras), ALL_CAMERAS, 0, truth, keypoints, fps, frames,
+                               person=person)
     found, calibration, _ = _inputs(probe)
     if fps is None and found.fps is None:
         raise PriortrackError(f"{detections}: the detections do not say their frame rate; give it (--fps)")
     if truth is not None:
         read_truth(truth, found, calibration, joints, fps)
     held = list(found.camera_names) + ([ALL_CAMERAS] if truth is not None else [])
-    return [DetectionRunConfig(f, str(detections), str(cameras), c, seed, truth, keypoints, fps, frames, smooth, joints)
-            for f in filters for c in held for seed in range(seeds)]
+    return [DetectionRunConfig(f, str(detections), str(cameras), c, seed, truth, keypoints, fps, frames, smooth, joints,
+                               person) for f in filters for c in held for seed in range(seeds)]
 
 
 # ---- truth --------------------------------------------------------------------------------------

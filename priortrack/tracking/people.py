@@ -239,12 +239,9 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     data_fps = config.fps if config.fps is not None else scene.fps
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
-    calibrated = match_cameras(scene, calibration, config.camera_map)
-    cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
     alone = config.interruptible or progress is not None or skeleton is not None
     with _Pool(1 if alone else _workers(workers)) as pool:   # workers start while the scene is associated
-        uv, confidence = scene.eval15(config.min_confidence)
-        association = SceneTracker(cameras, data_fps, scene_config).run(uv, confidence, scene.frames)
+        association, cameras = associated(scene, calibration, data_fps, config, scene_config)
         chosen = chosen_people(association, people, scene)
         if (skeleton is not None or progress is not None) and len(chosen) > 1:
             raise PriortrackError(f"a skeleton or a progress report is one person's: choose one of the scene's "
@@ -279,6 +276,16 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
                          skipped)
     gathered.detections, gathered.seconds = scene, time.perf_counter() - start
     return gathered
+
+
+def associated(scene: SceneDetections, calibration: Calibration, fps: float, config: TrackConfig | None = None,
+               scene_config: SceneConfig | None = None) -> tuple[SceneAssociation, list[PinholeCamera]]:
+    """Who is who in ``scene`` (the scene tracker's decisions, at the detections' ``fps``) and the detection
+    cameras, matched to the calibration as ``config`` says."""
+    config = config or TrackConfig()
+    cameras = [PinholeCamera.from_calibration(c) for c in match_cameras(scene, calibration, config.camera_map)]
+    uv, confidence = scene.eval15(config.min_confidence)
+    return SceneTracker(cameras, fps, scene_config).run(uv, confidence, scene.frames), cameras
 
 
 def _workers(workers: int | None) -> int:
