@@ -35,7 +35,8 @@ def record_detections(result, path: str | Path) -> Path:
     snapshots = {s.frame: s for s in result.snapshots or []}
     steps = {s.frame: s for s in result.steps or []}
     with Recording(path, up=nearest_axis(result.up), up_vector=up_vector(result.up),
-                   name=f"{result.filter} · detections") as rec:
+                   name=f"{result.filter} · detections",
+                   colors=(ESTIMATE_COLOR, MISMATCH_COLOR, FILTERED_COLOR, DETECTION_COLOR, GATED_COLOR)) as rec:
         for name, camera in zip(result.camera_names, result.cameras):
             rec.camera(camera, name)
         for t, joints in enumerate(result.joints):

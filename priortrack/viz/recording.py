@@ -52,7 +52,8 @@ def entry_name(text: str) -> str:
 
 
 class Recording:
-    """A rerun recording saved to an ``.rrd`` file.
+    """A rerun recording saved to an ``.rrd`` file; ``colors``: the skeletons' colours known at the start (one
+    annotation context for the whole recording; a colour first used later re-sends it).
 
     Example::
 
@@ -64,7 +65,7 @@ class Recording:
     """
 
     def __init__(self, path: str | Path, application_id: str = "priortrack", up: str = "y", name: str | None = None,
-                 up_vector=None):
+                 up_vector=None, colors=()):
         self.path = output_path(path, "rerun recording")
         self.stream = rr.RecordingStream(entry_name(application_id))
         self.stream.save(self.path)
@@ -83,6 +84,8 @@ class Recording:
         self.stream.log("world", views[up], static=True)
         #: One annotation class per skeleton colour (its bones drawn in it), class 0 uncoloured.
         self.classes: dict[tuple[int, int, int] | None, int] = {None: EVAL15_CLASS}
+        for color in colors:                       # the colours known now: one context for the whole recording
+            self.classes.setdefault(tuple(int(c) for c in color), len(self.classes))
         self._send_context()
 
     def _send_context(self) -> None:

@@ -37,8 +37,9 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
     names, cameras = first.camera_names, first.cameras
     slots = scene.association.slots                                          # (T_frames, C, P_all)
     columns = [int(np.flatnonzero(scene.association.person_ids == pid)[0]) for pid in scene.person_ids]
+    colors = [person_color(pid) for pid in scene.person_ids] + [MISMATCH_COLOR, UNASSIGNED_COLOR]
     with Recording(path, up=nearest_axis(first.up), up_vector=up_vector(first.up),
-                   name=f"{first.filter} · scene of {len(scene.person_ids)}") as rec:
+                   name=f"{first.filter} · scene of {len(scene.person_ids)}", colors=colors) as rec:
         for name, camera in zip(names, cameras):
             rec.camera(camera, name)
         for t, frame in enumerate(scene.frames):
