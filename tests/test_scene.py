@@ -108,7 +108,14 @@ def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys)
                  str(tmp_path / "scene.npz"), "--rrd", str(rrd), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert summary["people"] == [1] and set(summary["per_person"]) == {"1"}
-    entities = {str(c.entity_path) for c in rr.chunk.RrdReader(rrd).stream().to_chunks()}
+    chunks = list(rr.chunk.RrdReader(rrd).stream().to_chunks())
+    entities = {str(c.entity_path) for c in chunks}
+    # one annotation context with every colour's bones (re-sent contexts drew no bones in the web viewer)
+    contexts = [row for c in chunks if str(c.entity_path) == "/world"
+                for name in c.to_record_batch().schema.names if name.startswith("AnnotationContext")
+                for row in c.to_record_batch().column(name).to_pylist()]
+    assert len(contexts) == 1 and len(contexts[0][0]) >= 3
+    assert all(len(e["class_description"]["keypoint_connections"]) == 14 for e in contexts[0][0])
     assert {"/world/person1", "/world/person1/label", "/world/cam01_json/image/detections/person1",
             "/world/cam01_json/image/unassigned", "/world/cam01_json/image/estimate/person1",
             "/world/cam01_json/image/association/person1"} <= entities
