@@ -207,6 +207,8 @@ def test_bad_choices_and_settings_are_named(demo, capsys):
         SceneConfig(birth_s=-1)
     with pytest.raises(PriortrackError, match="birth_views must be a whole number ≥ 2"):
         SceneConfig(birth_views=1)
+    with pytest.raises(PriortrackError, match="told apart by triangulation: 1 calibrated camera, two or more"):
+        SceneTracker(cameras[:1], 60.0)
     with pytest.raises(PriortrackError, match="detections of 4 cameras for 3 calibrated cameras"):
         SceneTracker(cameras[:3], 60.0).run(*scene.eval15(0.3), scene.frames)
     with pytest.raises(PriortrackError, match="nobody was seen by 3 cameras"):

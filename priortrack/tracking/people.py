@@ -247,7 +247,8 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
             raise PriortrackError(f"a skeleton or a progress report is one person's: choose one of the scene's "
                                   f"{len(chosen)} people")
         if not chosen:
-            raise PriortrackError(f"{scene.source}: nobody was seen by {scene_config.birth_views} cameras for "
+            raise PriortrackError(f"{scene.source}: nobody was seen by {min(scene_config.birth_views, len(cameras))} "
+                                  f"cameras for "
                                   f"{scene_config.birth_s} s: no person to track")
         log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
                  ", ".join(map(str, association.person_ids.tolist())),

@@ -308,6 +308,9 @@ class SceneTracker:
                  associator=None, deleter=None, initiator=None):
         if not 0 < fps < 1e4:
             raise PriortrackError(f"fps must be a positive frame rate, got {fps}")
+        if len(cameras) < 2:
+            raise PriortrackError(f"a scene's people are told apart by triangulation: {len(cameras)} calibrated camera, "
+                                  f"two or more are needed (one camera follows one person: track without --people)")
         self.cameras, self.fps, self.config = list(cameras), float(fps), config or SceneConfig()
         self.views = [View.of(c) for c in self.cameras]
         frames = lambda seconds: max(1, int(round(seconds * self.fps)))          # noqa: E731
