@@ -99,6 +99,22 @@ def test_people_tracked_in_worker_processes_are_the_runs_of_this_process_and_the
     assert warnings[2] == warnings[1] and any("flagged as mismatch" in w for w in warnings[1])
 
 
+class _EndsItsProcess:
+    """Unpickled in a worker, it ends that process (a worker killed, as by the kernel out of memory)."""
+
+    def __reduce__(self):
+        import os
+
+        return os._exit, (1,)
+
+
+def test_a_worker_that_dies_is_a_clear_error():
+    from priortrack.tracking.people import _Pool
+
+    with pytest.raises(PriortrackError, match="a worker process tracking a person ended abruptly .*--workers 1"):
+        _Pool(2).track([(_EndsItsProcess(),), (_EndsItsProcess(),)])
+
+
 def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys):
     """``track --people``: the JSON summary per person, the files, and a recording with each person's
     skeleton and label, their detections per camera and the unassigned ones (the false positive)."""

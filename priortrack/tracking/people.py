@@ -240,29 +240,27 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
     alone = config.interruptible or progress is not None or skeleton is not None
-    with _Pool(1 if alone else _workers(workers)) as pool:   # workers start while the scene is associated
-        association, cameras = associated(scene, calibration, data_fps, config, scene_config)
-        chosen = chosen_people(association, people, scene)
-        if (skeleton is not None or progress is not None) and len(chosen) > 1:
-            raise PriortrackError(f"a skeleton or a progress report is one person's: choose one of the scene's "
-                                  f"{len(chosen)} people")
-        if not chosen:
-            raise PriortrackError(f"{scene.source}: nobody was seen by {min(scene_config.birth_views, len(cameras))} "
-                                  f"cameras for "
-                                  f"{scene_config.birth_s} s: no person to track")
-        log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
-                 ", ".join(map(str, association.person_ids.tolist())),
-                 ", ".join(str(association.person_ids[p]) for p in chosen))
-        detections = {p: person_detections(scene, association, p) for p in chosen}
-        up = config.up
-        if up is None and calibration.up is None:            # one up for every person: the longest-seen's
-            longest = max(chosen, key=lambda p: int((association.slots[:, :, p] >= 0).sum()))
-            up = up_from_detections(cameras, detections[longest], config.min_confidence, calibration.source)
-        if pool.executor is not None and len(chosen) > 1:
-            preset = fitted_once(preset, config.cache)
-        person = replace(config, fps=data_fps, up=up)
-        runs = pool.map(_track_person, [(detections[p], calibration, preset, person, skeleton, progress)
-                                        for p in chosen])
+    pool = _Pool(1 if alone else _workers(workers))          # its workers start while the scene is associated
+    association, cameras = associated(scene, calibration, data_fps, config, scene_config)
+    chosen = chosen_people(association, people, scene)
+    if (skeleton is not None or progress is not None) and len(chosen) > 1:
+        raise PriortrackError(f"a skeleton or a progress report is one person's: choose one of the scene's "
+                              f"{len(chosen)} people")
+    if not chosen:
+        raise PriortrackError(f"{scene.source}: nobody was seen by {min(scene_config.birth_views, len(cameras))} "
+                              f"cameras for {scene_config.birth_s} s: no person to track")
+    log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
+             ", ".join(map(str, association.person_ids.tolist())),
+             ", ".join(str(association.person_ids[p]) for p in chosen))
+    detections = {p: person_detections(scene, association, p) for p in chosen}
+    up = config.up
+    if up is None and calibration.up is None:                # one up for every person: the longest-seen's
+        longest = max(chosen, key=lambda p: int((association.slots[:, :, p] >= 0).sum()))
+        up = up_from_detections(cameras, detections[longest], config.min_confidence, calibration.source)
+    if pool.executor is not None and len(chosen) > 1:
+        preset = fitted_once(preset, config.cache)
+    person = replace(config, fps=data_fps, up=up)
+    runs = pool.track([(detections[p], calibration, preset, person, skeleton, progress) for p in chosen])
     results, kept, skipped = [], [], {}
     for p, (result, error) in zip(chosen, runs):
         if error is None:
@@ -306,7 +304,6 @@ def _track_person(job) -> tuple[DetectionTrack | None, str | None]:
         return None, str(exc)
 
 
-
 class _Captured(logging.Handler):
     """A worker's log records, kept to be handed back with its result."""
 
@@ -347,7 +344,7 @@ class _Pool:
     """People's runs side by side in ``workers`` processes (each its own torch; none where ``workers`` is
     1), from loky's reusable executor: it needs no ``if __name__ == "__main__"`` in a user's script, which
     the standard library's spawned processes do, and keeps its workers (their imports) for the next scene
-    for a few minutes. ``map`` keeps the jobs' order and re-logs each worker's records here."""
+    for a few minutes (``IDLE_S``)."""
 
     IDLE_S = 300
 
@@ -362,22 +359,24 @@ class _Pool:
             for _ in range(workers):             # the executor starts its processes for waiting tasks
                 self.executor.submit(_ready)
 
-    def map(self, function, jobs: list) -> list:
+    def track(self, jobs: list) -> list:
+        """Each job's :func:`_track_person`, in the jobs' order; a worker's log records re-logged here."""
         if self.executor is None or len(jobs) == 1:
-            return [function(job) for job in jobs]
+            return [_track_person(job) for job in jobs]
+        from loky.process_executor import TerminatedWorkerError
+
         level = logging.getLogger().getEffectiveLevel()
         results = []
-        for result, records in self.executor.map(_in_worker, jobs, [level] * len(jobs)):
-            for record in records:
-                logging.getLogger(record.name).handle(record)
-            results.append(result)
+        try:
+            for result, records in self.executor.map(_in_worker, jobs, [level] * len(jobs)):
+                for record in records:
+                    logging.getLogger(record.name).handle(record)
+                results.append(result)
+        except TerminatedWorkerError as exc:
+            log.debug("loky: %s", exc)
+            raise PriortrackError("a worker process tracking a person ended abruptly (killed out of memory, or a "
+                                  "crash): track the people one at a time (workers=1, --workers 1)") from None
         return results
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        """The executor stays for the next scene (loky ends idle workers after ``IDLE_S``)."""
 
 
 def _gathered(association: SceneAssociation, kept: list[int], results: list[DetectionTrack], index: np.ndarray,
