@@ -186,10 +186,12 @@ class MissedFramesDeleter:
 
 class ProposalInitiator:
     """Step 5: tentative people from the leftover detections' cross-view proposals, confirmed after
-    ``frames`` frames; a confirmed person re-identified among the ended ones or given a new id."""
+    ``frames`` frames; a confirmed person re-identified among the ended ones or given a new id. A new person's
+    motion model is ``motion(joints (15, 3), velocity (15, 3) or None)`` (:class:`~priortrack.tracking.motion.JointKalman`
+    by default; any object with its ``joints``, ``sigma_px``, ``predict``, ``predicted`` and ``update``)."""
 
-    def __init__(self, frames: int, views: int, pair_gate: float, fps: float):
-        self.frames, self.views, self.pair_gate, self.fps = frames, views, pair_gate, fps
+    def __init__(self, frames: int, views: int, pair_gate: float, fps: float, motion=JointKalman):
+        self.frames, self.views, self.pair_gate, self.fps, self.motion = frames, views, pair_gate, fps, motion
         self.tentative: list[dict] = []
 
     def __call__(self, scene: "SceneTracker", xy: list[np.ndarray], confidence: list[np.ndarray],
@@ -224,7 +226,7 @@ class ProposalInitiator:
     def _born(self, scene: "SceneTracker", history: list[np.ndarray], views: dict[int, tuple]) -> Track:
         joints = history[-1]
         velocity = (history[-1] - history[-2]) * self.fps if len(history) > 1 else None
-        track = Track(-1, JointKalman(joints, velocity), min(views), scene.frame, birth=views)
+        track = Track(-1, self.motion(joints, velocity), min(views), scene.frame, birth=views)
         track.bones = [b for b in bone_lengths(np.stack(history)) if np.isfinite(b).all()]
         track.id = self._identity(scene, track)
         return track
@@ -296,7 +298,9 @@ class SceneAssociation:
 
 class SceneTracker:
     """The scene tracker of the module docstring, composed of an ``associator``, a ``deleter`` and an
-    ``initiator`` (the defaults built from ``config``; any object with the same call can replace them).
+    ``initiator`` (the defaults built from ``config``; any object with the same call can replace them), and each
+    person's ``motion`` model in the association (the default initiator's: a class or factory called with a new
+    person's joints and velocity, :class:`~priortrack.tracking.motion.JointKalman` by default).
 
     Args:
         cameras: the C calibrated cameras (in the calibration's world).
@@ -305,7 +309,7 @@ class SceneTracker:
     """
 
     def __init__(self, cameras: list[PinholeCamera], fps: float, config: SceneConfig | None = None,
-                 associator=None, deleter=None, initiator=None):
+                 associator=None, deleter=None, initiator=None, motion=JointKalman):
         if not 0 < fps < 1e4:
             raise PriortrackError(f"fps must be a positive frame rate, got {fps}")
         if len(cameras) < 2:
@@ -318,7 +322,7 @@ class SceneTracker:
         self.deleter = deleter or MissedFramesDeleter(frames(self.config.death_s))
         self.initiator = initiator or ProposalInitiator(frames(self.config.birth_s),
                                                         min(self.config.birth_views, len(self.cameras)),
-                                                        self.config.pair_gate_m, self.fps)
+                                                        self.config.pair_gate_m, self.fps, motion)
         self.live: list[Track] = []
         self.ended: list[Track] = []
         self.born: list[Track] = []
