@@ -578,3 +578,16 @@ def test_the_start_pulls_to_the_priors_poses_only_where_its_state_is_joint_angle
     assert pose_spread(directions, directions.prior(), skeleton) is None
     other = replace(skeleton, channel_names=tuple(f"x{c}" for c in range(skeleton.num_channels)))
     assert pose_spread(angles, angles.prior(), other) is None
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"fps": 0}, "fps must be a positive frame rate, got 0"),
+    ({"min_confidence": 2}, r"min_confidence must be in \[0, 1\], got 2"),
+    ({"seed": 1.5}, "seed must be a whole number, got 1.5"),
+    ({"height": 0.0}, r"height must be a person's standing height in metres \(0.5–2.6\), got 0.0"),
+])
+def test_a_bad_track_config_is_named_when_it_is_made(settings, message):
+    """TrackConfig checks what it can on its own, before any file is read (its height whatever the cameras:
+    with several it is unused, and a wrong one is still a mistake worth naming)."""
+    with pytest.raises(PriortrackError, match=message):
+        TrackConfig(**settings)

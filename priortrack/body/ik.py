@@ -207,11 +207,16 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
     return Motion(skeleton, channels, float(fps), name)
 
 
+def check_height(height: float) -> None:
+    """A person's standing height in metres, or a PriortrackError naming what it must be."""
+    if not isinstance(height, (int, float)) or isinstance(height, bool) or not 0.5 < height < 2.6:
+        raise PriortrackError(f"height must be a person's standing height in metres (0.5–2.6), got {height}")
+
+
 def scaled_to_height(template: Skeleton, height: float) -> Skeleton:
     """The template scaled uniformly so that its rest pose's head top stands ``height`` metres above its
     lower ankle (a detector's ankle, not the sole: about 5 cm short of the standing height)."""
-    if not 0.5 < height < 2.6:
-        raise PriortrackError(f"height must be a person's standing height in metres (0.5–2.6), got {height}")
+    check_height(height)
     rest = ForwardKinematics(template, dtype=torch.float64)(np.zeros(template.num_channels))[
         eval15_indices(template)].numpy()
     measured = rest[2, 1] - min(rest[11, 1], rest[14, 1])

@@ -64,8 +64,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from priortrack.body.ik import (PoseSpread, body_measures, fitted_skeleton, inverse_kinematics, inverse_kinematics_2d,
-                                scaled_to_height, unmeasured_measures)
+from priortrack.body.ik import (PoseSpread, body_measures, check_height, fitted_skeleton, inverse_kinematics,
+                                inverse_kinematics_2d, scaled_to_height, unmeasured_measures)
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -460,6 +460,7 @@ class TrackConfig:
             raise PriortrackError(f"min_confidence must be in [0, 1], got {self.min_confidence!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)):
             raise PriortrackError(f"seed must be a whole number, got {self.seed!r}")
+        check_height(self.height)
 
 
 def track_detections(detections: Detections, calibration: Calibration, preset: Preset | str,
