@@ -218,7 +218,8 @@ def compare(configs: Sequence, out: str | Path, workers: int | None = None, sche
     :class:`~priortrack.experiments.compare_detections.DetectionRunConfig`s of a user's detections: each
     knows its run and its results' files), write ``out``/results.csv, summary.md, plots/ and (``rrd``)
     recordings/; returns the rows in the grid's order."""
-    from priortrack.tracking.presets import cache_dir, load_preset
+    from priortrack.priors.cache import cache_dir
+    from priortrack.tracking.presets import load_preset
     from priortrack.threads import torch_threads
 
     if workers is not None and scheduler is not None:

@@ -36,7 +36,8 @@ import torch
 
 from priortrack.data.bundled import WALKING_PEOPLE, expand_sources
 from priortrack.errors import PriortrackError
-from priortrack.tracking.presets import Preset, cache_dir, load_preset, preset_path
+from priortrack.priors.cache import cache_dir
+from priortrack.tracking.presets import Preset, load_preset, preset_path
 from priortrack.priors.registry import PRIOR_KINDS
 
 log = logging.getLogger(__name__)

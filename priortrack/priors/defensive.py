@@ -23,6 +23,9 @@ import torch
 
 from priortrack.errors import PriortrackError
 
+#: The state spaces a defensive diffusion can share, by the learned prior's space class.
+DEFENSIVE_SPACES = {"DirectionSpace": "directions", "AngleSpace": "angles"}
+
 
 class DefensiveMixture:
     """(1 − ε) ``learned`` + ε ``fallback`` (module docstring). Everything but the transition

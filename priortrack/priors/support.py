@@ -77,7 +77,7 @@ def reference(preset, cache: Path | None = None) -> np.ndarray:
     """ℓ_t on held-out frames of the preset's training data (module docstring): two-fold cross-fits (with
     the preset's defensive mixture, if it has one: the density it tracks with), cached as
     ``support<version>-<kind>-<key>[-defensive<ε>].npz`` in the prior cache, verified by its digest as the priors are."""
-    from priortrack.tracking.presets import cache_dir, read_cached, write_cached
+    from priortrack.priors.cache import cache_dir, read_cached, write_cached
 
     if preset.prior_file is not None:
         raise PriortrackError(f"preset {preset.name!r} names a prior file: its training motions are not known, so "
@@ -95,7 +95,7 @@ def reference(preset, cache: Path | None = None) -> np.ndarray:
         fitted = fit_prior(preset.prior_kind, fit_on, fps=preset.fps, **preset.prior_options)
         fitted = fitted if preset.annealing == 1.0 else fitted.annealed(preset.annealing)
         if preset.defensive:                    # the density the preset tracks with: its defensive mixture
-            from priortrack.tracking.presets import DEFENSIVE_SPACES
+            from priortrack.priors.defensive import DEFENSIVE_SPACES
             from priortrack.priors.defensive import DefensiveMixture
 
             fallback = fit_prior("diffusion-local", fit_on, fps=preset.fps,

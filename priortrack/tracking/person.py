@@ -434,7 +434,7 @@ class TrackConfig:
         device: where a particle filter's particles live ("cpu", "cuda"; :meth:`Preset.filter_for`).
         memory: bytes of the whole-run smoother's steps held in memory, the rest spilled to a temporary
             folder (:class:`~priortrack.filters.step_store.StepStore`).
-        cache: the prior cache's folder (None: :func:`~priortrack.tracking.presets.cache_dir`).
+        cache: the prior cache's folder (None: :func:`~priortrack.priors.cache.cache_dir`).
     """
 
     fps: float | None = None

@@ -39,7 +39,6 @@ import inspect
 import json
 import logging
 import math
-import os
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -58,6 +57,8 @@ from priortrack.geometry.camera import PinholeCamera
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors.base import DEFAULT_FPS, FORMAT_VERSION, TransitionModel, load_prior, prepare_motions
+from priortrack.priors.cache import cache_dir, read_cached, write_cached
+from priortrack.priors.defensive import DEFENSIVE_SPACES
 from priortrack.priors.registry import PRIOR_KINDS, check_options, fit_prior, kinds_with
 
 log = logging.getLogger(__name__)
@@ -69,8 +70,6 @@ PRESET_DIR = next((d for d in (Path(__file__).resolve().parent / "preset_files",
                   Path(__file__).resolve().parent / "preset_files")
 TOP_KEYS = ("description", "filter", "prior", "observation")
 PRIOR_KEYS = ("kind", "train", "fps", "options", "annealing", "file", "defensive")
-#: The state spaces a defensive diffusion can share, by the prior's space class.
-DEFENSIVE_SPACES = {"DirectionSpace": "directions", "AngleSpace": "angles"}
 
 
 #: Filter kind → (module, class). Each class says what it needs of a prior in ``requires``
@@ -242,55 +241,6 @@ class Preset:
             raise PriortrackError(f"preset {self.name!r}: its {cls.__name__} runs on the CPU only (numpy updates of "
                                   f"a few points); --device {device} is for the particle filters (pf, apf)")
         return cls(model, **given, **self.filter_options)
-
-
-def _digest_path(path: Path) -> Path:
-    return path.with_suffix(".sha256")
-
-
-def read_cached(path: Path, load: Callable[[Path], Any], what: str = "prior"):
-    """``load(path)`` of the cache entry ``path`` if it is a regular file (not a link) whose SHA-256
-    matches the digest written beside it; None (logged) otherwise, for a refit."""
-    if not path.exists() and not path.is_symlink():
-        return None
-    digest = _digest_path(path)
-    if path.is_symlink() or digest.is_symlink() or not path.is_file() or not digest.is_file():
-        log.warning("cached %s %s is a link or lacks its digest: not used, refitting", what, path)
-        return None
-    try:
-        if hashlib.sha256(path.read_bytes()).hexdigest() != digest.read_text().strip():
-            log.warning("cached %s %s does not match its digest (corrupted or replaced): refitting", what, path)
-            return None
-        log.info("%s from cache %s", what, path)
-        return load(path)
-    except (OSError, PriortrackError) as exc:
-        log.warning("cached %s %s cannot be read (%s): refitting", what, path, exc)
-        return None
-
-
-def write_cached(path: Path, save: Callable[[Path], Any], what: str = "prior") -> None:
-    """Write a cache entry by ``save(file)`` and its digest atomically (each to a partial file, then
-    renamed); a cache that cannot be written costs the next run a refit, no more."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_suffix(f".partial{os.getpid()}" + path.suffix)     # one per process writing it
-        save(partial)
-        text = hashlib.sha256(partial.read_bytes()).hexdigest()
-        digest_partial = _digest_path(path).with_suffix(f".partial{os.getpid()}.sha256")
-        digest_partial.write_text(text + "\n")
-        partial.replace(path)
-        digest_partial.replace(_digest_path(path))
-        log.info("fitted %s cached at %s", what, path)
-    except (PriortrackError, OSError) as exc:
-        log.warning("fitted %s not cached (%s)", what, exc)
-
-
-def cache_dir() -> Path:
-    """``$PRIORTRACK_CACHE``, else ``$XDG_CACHE_HOME/priortrack/priors``, else ``~/.cache/priortrack/priors``."""
-    if os.environ.get("PRIORTRACK_CACHE"):
-        return Path(os.environ["PRIORTRACK_CACHE"])
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "priortrack" / "priors"
 
 
 def preset_names() -> list[str]:
