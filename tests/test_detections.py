@@ -98,6 +98,15 @@ def test_several_people_the_same_one_is_followed_and_a_jump_is_not_taken(tmp_pat
     pinned = read_detections(folder, person=1)
     np.testing.assert_array_equal(pinned.keypoints[0, 0].ravel(), np.float32(_person(100)))
     assert np.isnan(pinned.keypoints[0, 2]).all()
+    # every person read once, then followed (track --detections of an OpenPose folder): the same person
+    from priortrack.data.scene_detections import read_scene_detections
+
+    for path, layout in ((folder, None), (POSE2SIM_DIR / "pose", "body25b"),
+                         (Path(__file__).parent / "data" / "pose2sim_multiperson" / "pose", "body25b")):
+        once, twice = read_scene_detections(path, layout).followed(), read_detections(path, layout)
+        np.testing.assert_array_equal(once.keypoints, twice.keypoints)
+        assert (once.switches, once.camera_names, once.layout) == (twice.switches, twice.camera_names, twice.layout)
+        np.testing.assert_array_equal(once.frames, twice.frames)
 
 
 def test_coco_results_mediapipe_and_npz(tmp_path):

@@ -116,17 +116,20 @@ def _track_detections(args: argparse.Namespace) -> None:
         raise PriortrackError("--workers tracks several people side by side: give --people")
     calibration = read_calibration(args.cameras, units=args.units)
     config = replace(config, keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True)
-    scene = _several_people(args, calibration)
+    scene = _every_person(args, calibration)
     progress = Progress(f"track {args.filter}", "frame {0} of {1}", rate=True)
     try:
-        if scene is not None:                     # a scene of one: the person seen longest
+        if scene is not None and int(scene.people.max(initial=0)) > 1:      # a scene of one: the person seen longest
             from priortrack.tracking.people import track_scene
 
+            log.warning("%s holds up to %d people in a frame: tracking the one seen longest (--people all tracks "
+                        "each, --people at:CAMERA:X,Y the one there)", args.detections, scene.people.max())
             result = track_scene(scene, calibration, args.filter, config, people=1, skeleton=skeleton,
                                  progress=progress).people[0]
         else:
-            # an npz or npy is read a block of frames at a time
-            detections = open_detections(args.detections, keypoints=args.keypoints, person=args.person)
+            # one person per frame: followed in what was read; else an npz or npy read a block of frames at a time
+            detections = (scene.followed() if scene is not None else
+                          open_detections(args.detections, keypoints=args.keypoints, person=args.person))
             if args.frames is not None:
                 detections = detections.head(args.frames)
             result = track_detections(detections, calibration, args.filter, config, skeleton=skeleton,
@@ -150,26 +153,19 @@ def _track_detections(args: argparse.Namespace) -> None:
           + (f"; wrote {', '.join(written)}" if written else ""))
 
 
-def _several_people(args: argparse.Namespace, calibration):
-    """The scene, where ``track --detections`` without ``--people`` or ``--person`` is given an OpenPose folder or a
-    COCO results file of two calibrated cameras or more that holds several people in a frame: their person is the one
-    the scene tracker sees longest (logged, with ``--people`` named); else None (one person: read as one)."""
+def _every_person(args: argparse.Namespace, calibration):
+    """Every person of an OpenPose folder given to ``track --detections`` without ``--people`` or ``--person`` with
+    two calibrated cameras or more (its files parsed once: several people in a frame make it a scene of one, one
+    person is followed as :func:`~priortrack.data.detections.read_detections` would); else None."""
     from pathlib import Path
 
     from priortrack.data.scene_detections import read_scene_detections
 
     path = Path(args.detections)
-    if args.person is not None or len(calibration.cameras) < 2 or not (path.is_dir() or path.suffix.lower() == ".json"):
+    if args.person is not None or len(calibration.cameras) < 2 or not path.is_dir():
         return None
     scene = read_scene_detections(path, keypoints=args.keypoints)
-    if args.frames is not None:
-        scene = scene.head(args.frames)
-    most = int(scene.people.max(initial=0))
-    if most < 2:
-        return None
-    log.warning("%s holds up to %d people in a frame: tracking the one seen longest (--people all tracks each, "
-                "--people at:CAMERA:X,Y the one there)", path, most)
-    return scene
+    return scene.head(args.frames) if args.frames is not None else scene
 
 
 def _track_scene(args: argparse.Namespace, config) -> None:

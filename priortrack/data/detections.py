@@ -243,7 +243,7 @@ def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Det
     are let go once the followed one is kept (an hour of several people's detections is not held at once)."""
     cameras, frames, layout, K, people = openpose_cameras(path, keypoints)
     out = np.full((len(cameras), len(frames), K, 3), np.nan, dtype=np.float32)
-    switches = tuple(_follow(people(c), out[c], person, name) for c, name in enumerate(cameras))
+    switches = tuple(follow(people(c), out[c], person, name) for c, name in enumerate(cameras))
     return Detections(layout, cameras, frames, None, str(path), switches, keypoints=out)
 
 
@@ -288,7 +288,7 @@ def _size(p: np.ndarray) -> float:
     return float(np.linalg.norm(xy.max(axis=0) - xy.min(axis=0))) if len(xy) > 1 else 0.0
 
 
-def _follow(people: Iterable[list[np.ndarray]], out: np.ndarray, person: int | None, camera: str) -> int:
+def follow(people: Iterable[list[np.ndarray]], out: np.ndarray, person: int | None, camera: str) -> int:
     """Write into ``out`` (T, K, 3) (NaN where nobody is followed) the keypoints of the person followed through
     one camera's T frames of people, read in order (module docstring); returns the number of frames left
     missing as possible switches."""
@@ -364,7 +364,7 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
     frames = np.array(sorted(by_frame))
     check_frames(frames, str(path))
     followed = np.full((1, len(frames), K, 3), np.nan, dtype=np.float32)
-    switches = _follow([by_frame[int(n)] for n in frames], followed[0], person, path.stem)
+    switches = follow([by_frame[int(n)] for n in frames], followed[0], person, path.stem)
     return Detections(layout, (path.stem,), frames, None, str(path), (switches,), keypoints=followed)
 
 

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from priortrack.data.detections import (MAX_CAMERAS, MAX_NPZ_BYTES, DetectionsHeader, check_frames,
-                                        cleaned_keypoints, coco_people, npz_header, openpose_cameras)
+from priortrack.data.detections import (MAX_CAMERAS, MAX_NPZ_BYTES, Detections, DetectionsHeader, check_frames,
+                                        cleaned_keypoints, coco_people, follow, npz_header, openpose_cameras)
 from priortrack.data.keypoints import layout_for, to_eval15
 from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
@@ -54,6 +54,14 @@ class SceneDetections(DetectionsHeader):
         """(C, T, N, 15, 2) pixels (NaN where missing) and (C, T, N, 15) confidences (0 where missing)
         in the evaluation layout (:func:`~priortrack.data.keypoints.to_eval15`)."""
         return to_eval15(self.keypoints, self.keypoint_names, min_confidence)
+
+    def followed(self) -> Detections:
+        """One person per camera, followed from frame to frame as
+        :func:`~priortrack.data.detections.read_detections` follows them in the files (the same result,
+        without parsing them again)."""
+        out = np.full(self.keypoints.shape[:2] + self.keypoints.shape[3:], np.nan, dtype=np.float32)
+        switches = tuple(follow(iter(self.keypoints[c]), out[c], None, name) for c, name in enumerate(self.camera_names))
+        return Detections(self.layout, self.camera_names, self.frames, self.fps, self.source, switches, keypoints=out)
 
     def head(self, n: int) -> "SceneDetections":
         """The first ``n`` frames."""
