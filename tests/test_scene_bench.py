@@ -33,6 +33,17 @@ def test_passing_walkers_pass_the_gap_apart_where_every_camera_sees_them(cameras
         assert front.all() and ((uv >= 0) & (uv < [camera.width, camera.height])).all()
 
 
+def test_walkers_together_stay_shoulder_to_shoulder_and_hide_each_other(cameras):
+    """``together``: the same heading, 0.5 m apart (0.48–0.57 m pelvis to pelvis as their paces differ), and from
+    some camera the nearer hides joints of the other in most frames."""
+    X = composed(SCENES["together"], centre=capture_centre(cameras))
+    apart = np.linalg.norm(X[0, :, 0, :2] - X[1, :, 0, :2], axis=-1)
+    assert 0.45 < apart.min() and apart.max() < 0.6, (apart.min(), apart.max())
+    travel = X[:, -1, 0, :2] - X[:, 0, 0, :2]
+    assert travel[0] @ travel[1] > 0.9 * np.linalg.norm(travel[0]) * np.linalg.norm(travel[1])    # side by side
+    assert max(hidden(X, camera).any(axis=(0, 2)).mean() for camera in cameras) > 0.5
+
+
 def test_a_joint_behind_a_nearer_body_is_hidden_and_the_false_positive_is_seen_by_two(cameras):
     camera = cameras[0]
     X = composed(SCENES["passing"], centre=capture_centre(cameras))[:, :1]

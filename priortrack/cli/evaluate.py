@@ -258,7 +258,7 @@ def add_parsers(verbs) -> None:
                                                 "PCP and MPJPE beside each person tracked alone")
     scenes.add_argument("--scenes", nargs="+", default=["passing", "return", "crossing"],
                         help="passing (two walking towards each other), return (one leaves the view and comes "
-                             "back), crossing (three)")
+                             "back), crossing (three), together (two side by side, shoulder to shoulder)")
     scenes.add_argument("--presets", nargs="+", default=["ukf-real", "pf-lie"],
                         help="presets, each with its prior refitted without the scene's people (default: ukf-real pf-lie)")
     scenes.add_argument("--seeds", type=int, default=3, help="runs of each scene, each with its own detector errors (3)")

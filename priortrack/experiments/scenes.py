@@ -10,7 +10,9 @@ shifted sideways and to the middle of the floor every camera sees (:func:`captur
 - ``return``: two side by side 0.8 m apart; the second leaves the cameras' view for ``away_s`` seconds
   in the middle (no detection of them anywhere) and comes back;
 - ``crossing``: three people on headings 0°, 150° and 210°, their paths offset 0.3 m from the centre,
-  crossing one another (the demo's common view is a strip about 2 m long).
+  crossing one another (the demo's common view is a strip about 2 m long);
+- ``together``: two people walking side by side, shoulder to shoulder (0.5 m apart centre to centre), the whole
+  clip: the nearer one hides much of the other from the side cameras.
 
 Every person gets a detector's errors (:func:`~priortrack.experiments.real_format.detector_keypoints`);
 a joint hidden behind a nearer person (within :data:`BODY_RADIUS_M` of one of their bones, seen from the
@@ -74,6 +76,7 @@ SCENES: dict[str, tuple[Walker, ...]] = {
     "return": (Walker("cmu:07_10", "07", 0.0, 0.4), Walker("cmu:08_04", "08+39", 0.0, -0.4)),
     "crossing": (Walker("walkjog:35_29", "35", 0.0, 0.3), Walker("cmu:02_02", "02", 150.0, 0.3),
                  Walker("cmu:08_04", "08+39", 210.0, 0.3)),
+    "together": (Walker("cmu:02_01", "02", 0.0, 0.25), Walker("cmu:05_01", "05", 0.0, -0.25)),
 }
 
 
