@@ -192,7 +192,7 @@ def test_compare_detections_per_person_scores_each_persons_held_out_cameras(tmp_
     """``compare --detections … --people all``: each person's grid in OUT/person<id>/, every camera left out
     in turn and scored on that person's own detections there: the median over held-out cameras within 1.25× of
     the other cameras' per-frame DLT of the same person (measured: the synthetic person 27.6 px against 23.5);
-    a person asked for who is not there is named."""
+    a person asked for who is not there is named, and a truth file is one person's."""
     out = tmp_path / "cmp"
     common = ["compare", "--filters", "ukf-real", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints",
               "body25b", "--fps", "60", "--frames", "60"]
@@ -208,6 +208,14 @@ def test_compare_detections_per_person_scores_each_persons_held_out_cameras(tmp_
                                                                 for r in rows])
     assert main(common + ["--people", "id:5", "--out", str(out)]) == 2
     assert "no person 5 in the scene (people: 0, 1)" in capsys.readouterr().err
+    truth = POSE2SIM_3D["P2"]
+    assert main(common + ["--people", "all", "--truth", str(truth), "--out", str(out)]) == 2
+    assert "--truth holds one person's joints: compare that person alone" in capsys.readouterr().err
+    # one person with their truth (Pose2Sim's 3D of the participant): the all-camera run scored in mm
+    assert main(common + ["--people", "id:1", "--truth", str(truth), "--out", str(out), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out.splitlines()[-1])["people"]["1"]["rows"]
+    every = [r for r in rows if r["held_out"] == ""]
+    assert len(every) == 1 and every[0]["mpjpe_mm"] < 40, every          # measured 29.9 (its DLT 20.9)
 
 
 def test_people_are_chosen_by_count_id_point_and_box(demo):

@@ -95,6 +95,9 @@ def _compare_people(args: argparse.Namespace) -> None:
         raise PriortrackError("compare --detections scores the filters on your recording: give no --motions or "
                               "--scenarios")
     ids = scene_people(args.detections, args.cameras, parse_people(args.people), args.keypoints, args.fps, args.frames)
+    if args.truth is not None and len(ids) > 1:
+        raise PriortrackError(f"--truth holds one person's joints: compare that person alone (--people id:N; the "
+                              f"scene's people: {', '.join(map(str, ids))})")
     grids = {pid: plan_detections(args.filters, args.detections, args.cameras, args.seeds, args.truth, args.keypoints,
                                   args.fps, args.frames, args.smooth, args.joints or LIMBS, person=pid) for pid in ids}
     progress = Progress("compare", "{0}")
