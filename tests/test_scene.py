@@ -114,17 +114,20 @@ def test_each_person_is_within_30_mm_of_pose2sims_own_output(demo, tmp_path):
 
 def test_people_tracked_in_worker_processes_are_the_runs_of_this_process_and_their_warnings_reach_it(demo, caplog):
     """``workers=2``: each person's run in a loky worker is the run made here (the workers' torch has one
-    thread, as this suite's), and what a worker logs (here a mismatch warning) is logged here too."""
+    thread, as this suite's), what a worker logs (here a mismatch warning) is logged here too, and the progress
+    report counts the people tracked."""
     scene, calibration = demo
-    runs, warnings = {}, {}
+    runs, warnings, reports = {}, {}, {2: [], 1: []}
     for workers in (2, 1):
         caplog.clear()
         with caplog.at_level("WARNING", logger="priortrack"):
-            runs[workers] = track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), workers=workers)
+            runs[workers] = track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), workers=workers,
+                                        progress=lambda done, total: reports[workers].append((done, total)))
         warnings[workers] = sorted(r.getMessage() for r in caplog.records if r.name == "priortrack.tracking.person")
     np.testing.assert_array_equal(runs[2].joints, runs[1].joints)
     np.testing.assert_array_equal(runs[2].loglik, runs[1].loglik)
     assert warnings[2] == warnings[1] and any("flagged as mismatch" in w for w in warnings[1])
+    assert reports[2] == reports[1] == [(1, 2), (2, 2)]                # each person as their run ends
 
 
 class _EndsItsProcess:

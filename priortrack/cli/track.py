@@ -185,7 +185,12 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     if args.frames is not None:
         scene = scene.head(args.frames)
     calibration = read_calibration(args.cameras, units=args.units)
-    result = track_scene(scene, calibration, args.filter, config, people=people, workers=args.workers)
+    progress = Progress(f"track {args.filter}", "{0} of {1}")          # people tracked (one person: ticks)
+    try:
+        result = track_scene(scene, calibration, args.filter, config, people=people, workers=args.workers,
+                             progress=progress)
+    finally:
+        progress.close()
     written = [str(p) for path in args.out or [] for p in result.save(path)]
     if args.rrd:
         from priortrack.viz.scene import record_scene

@@ -232,20 +232,18 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     and seed are the scene's too). ``workers``: processes that track people side by side (None: one per core
     this process may use, at most one per person; 1: every person in this process; an ``interruptible`` run
     is tracked here); a person's run in a worker is the one here, up to rounding where the worker's torch
-    has fewer threads. A scene of one (``people=1``, or one id) takes what one person's run takes: their own
-    body (``skeleton``) and a ``progress(tick, ticks)``."""
+    has fewer threads. ``progress(done, total)``: a scene of one's ticks as its filter goes, else the people
+    tracked so far. A scene of one (``people=1``, or one id) may take their own body (``skeleton``)."""
     start = time.perf_counter()
     config, scene_config = config or TrackConfig(), scene_config or SceneConfig()
     data_fps = config.fps if config.fps is not None else scene.fps
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
-    alone = config.interruptible or progress is not None or skeleton is not None
-    pool = _Pool(1 if alone else _workers(workers))          # its workers start while the scene is associated
+    pool = _Pool(1 if config.interruptible or skeleton is not None else _workers(workers))   # workers start now
     association, cameras = associated(scene, calibration, data_fps, config, scene_config)
     chosen = chosen_people(association, people, scene)
-    if (skeleton is not None or progress is not None) and len(chosen) > 1:
-        raise PriortrackError(f"a skeleton or a progress report is one person's: choose one of the scene's "
-                              f"{len(chosen)} people")
+    if skeleton is not None and len(chosen) > 1:
+        raise PriortrackError(f"a skeleton is one person's body: choose one of the scene's {len(chosen)} people")
     if not chosen:
         raise PriortrackError(f"{scene.source}: nobody was seen by {min(scene_config.birth_views, len(cameras))} "
                               f"cameras for {scene_config.birth_s} s: no person to track")
@@ -260,7 +258,9 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     if pool.executor is not None and len(chosen) > 1:
         preset = fitted_once(preset, config.cache)
     person = replace(config, fps=data_fps, up=up)
-    runs = pool.track([(detections[p], calibration, preset, person, skeleton, progress) for p in chosen])
+    one = len(chosen) == 1
+    runs = pool.track([(detections[p], calibration, preset, person, skeleton, progress if one else None)
+                       for p in chosen], None if one else progress)
     results, kept, skipped = [], [], {}
     for p, (result, error) in zip(chosen, runs):
         if error is None:
@@ -359,19 +359,26 @@ class _Pool:
             for _ in range(workers):             # the executor starts its processes for waiting tasks
                 self.executor.submit(_ready)
 
-    def track(self, jobs: list) -> list:
-        """Each job's :func:`_track_person`, in the jobs' order; a worker's log records re-logged here."""
+    def track(self, jobs: list, progress: Callable[[int, int], None] | None = None) -> list:
+        """Each job's :func:`_track_person`, in the jobs' order, ``progress(done, total)`` after each; a worker's
+        log records re-logged here."""
+        results = []
         if self.executor is None or len(jobs) == 1:
-            return [_track_person(job) for job in jobs]
+            for job in jobs:
+                results.append(_track_person(job))
+                if progress is not None:
+                    progress(len(results), len(jobs))
+            return results
         from loky.process_executor import TerminatedWorkerError
 
         level = logging.getLogger().getEffectiveLevel()
-        results = []
         try:
             for result, records in self.executor.map(_in_worker, jobs, [level] * len(jobs)):
                 for record in records:
                     logging.getLogger(record.name).handle(record)
                 results.append(result)
+                if progress is not None:
+                    progress(len(results), len(jobs))
         except TerminatedWorkerError as exc:
             log.debug("loky: %s", exc)
             raise PriortrackError("a worker process tracking a person ended abruptly (killed out of memory, or a "
