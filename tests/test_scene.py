@@ -148,7 +148,8 @@ def test_a_worker_that_dies_is_a_clear_error():
 
 def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys):
     """``track --people``: the JSON summary per person, the files, and a recording with each person's
-    skeleton and label, their detections per camera and the unassigned ones (the false positive)."""
+    skeleton and label, their detections per camera and the unassigned ones (the false positive), the association
+    and each camera's reprojection error per tick."""
     rrd = tmp_path / "scene.rrd"
     assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps", "60",
                  "--filter", "ukf-diffusion-local", "--people", "id:1", "--frames", "40", "--out",
@@ -165,8 +166,14 @@ def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys)
     assert all(len(e["class_description"]["keypoint_connections"]) == 14 for e in contexts[0][0])
     assert {"/world/person1", "/world/person1/label", "/world/cam01_json/image/detections/person1",
             "/world/cam01_json/image/unassigned", "/world/cam01_json/image/estimate/person1",
-            "/world/cam01_json/image/association/person1"} <= entities
+            "/world/cam01_json/image/association/person1", "/metrics/reprojection_px/person1/cam01_json"} <= entities
     assert not any("person0" in e for e in entities)
+    # each camera's per-tick reprojection of the person: its median is the summary's, over every tick and joint
+    for camera, whole in summary["per_person"]["1"]["reprojection_px"].items():
+        ticks = [row[0] for c in chunks if str(c.entity_path) == f"/metrics/reprojection_px/person1/{camera}"
+                 for name in c.to_record_batch().schema.names if name.startswith("Scalars")
+                 for row in c.to_record_batch().column(name).to_pylist() if row]
+        assert len(ticks) > 15 and abs(np.median(ticks) - whole) < 0.2 * whole + 1.0, (camera, np.median(ticks), whole)
 
 
 def test_one_person_asked_of_a_scene_is_the_longest_seen_through_the_scene_tracker(tmp_path, capsys, caplog):

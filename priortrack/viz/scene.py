@@ -74,4 +74,7 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
                     if (pid, name) in estimates:
                         rec.links_2d(f"association/person{pid}", uv[n], estimates[pid, name], person_color(pid),
                                      camera=name, label=f"person {pid}")
+                        miss = np.linalg.norm(uv[n] - estimates[pid, name], axis=-1)
+                        if np.isfinite(miss).any():
+                            rec.scalar(f"reprojection_px/person{pid}/{name}", float(np.nanmedian(miss)))
     return Path(path)
