@@ -20,6 +20,7 @@ from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.people import chosen_people, parse_people, track_scene
 from priortrack.tracking.person import TrackConfig
 from priortrack.tracking.scene import SceneConfig, SceneTracker
+from priortrack.viz.scene import person_color
 
 from test_association import _pose2sims_association
 
@@ -168,6 +169,11 @@ def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys)
             "/world/cam01_json/image/unassigned", "/world/cam01_json/image/estimate/person1",
             "/world/cam01_json/image/association/person1", "/metrics/reprojection_px/person1/cam01_json"} <= entities
     assert not any("person0" in e for e in entities)
+    # the person's series in the person's colour (set once)
+    colors = [row for c in chunks if str(c.entity_path) == "/metrics/loglik/person1"
+              for name in c.to_record_batch().schema.names if name.startswith("SeriesLines:colors")
+              for row in c.to_record_batch().column(name).to_pylist() if row]
+    assert len(colors) == 1 and colors[0] == [int.from_bytes(bytes(person_color(1)) + b"\xff", "big")]
     # each camera's per-tick reprojection of the person: its median is the summary's, over every tick and joint
     for camera, whole in summary["per_person"]["1"]["reprojection_px"].items():
         ticks = [row[0] for c in chunks if str(c.entity_path) == f"/metrics/reprojection_px/person1/{camera}"

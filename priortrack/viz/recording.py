@@ -73,6 +73,7 @@ class Recording:
             self.stream.send_recording_name(name)
         #: What the layout is made of: the quantities and cameras logged, where the people and cameras are.
         self.quantities: dict[str, None] = {}
+        self.styled: set[str] = set()                  # the series whose colour was set
         self.cameras: dict[str, np.ndarray] = {}
         self.people: list[np.ndarray] = []
         axes = {"x": (1.0, 0, 0), "y": (0, 1.0, 0), "z": (0, 0, 1.0)}
@@ -191,11 +192,15 @@ class Recording:
                 np.stack([a[seen], b[seen]], axis=1), colors=[color], radii=1.0,
                 labels=None if label is None else [label], show_labels=False))
 
-    def scalar(self, name: str, value: float) -> None:
+    def scalar(self, name: str, value: float, color=None) -> None:
         """Log a per-frame scalar at ``metrics/<name>`` (NaN is skipped); ``name``'s first part is its
-        quantity (:data:`QUANTITIES`), which gets its own time-series view."""
+        quantity (:data:`QUANTITIES`), which gets its own time-series view; ``color`` (RGB), the line's (set
+        once, static: a person's series in the person's colour)."""
         if np.isfinite(value):
             self.quantities[name.split("/", 1)[0]] = None
+            if color is not None and name not in self.styled:
+                self.styled.add(name)
+                self.stream.log(f"metrics/{name}", rr.SeriesLines(colors=[color]), static=True)
             self.stream.log(f"metrics/{name}", rr.Scalars(float(value)))
 
     def event(self, text: str, level: str = "INFO") -> None:

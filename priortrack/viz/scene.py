@@ -55,8 +55,8 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
                     uv = camera.project(torch.as_tensor(joints))[0].numpy()
                     estimates[pid, name] = uv
                     rec.points_2d(f"estimate/person{pid}", uv, person_color(pid), camera=name, radius=2.0)
-                rec.scalar(f"loglik/person{pid}", scene.loglik[t, p])
-                rec.scalar(f"mismatch/person{pid}", float(scene.mismatch[t, p]))
+                rec.scalar(f"loglik/person{pid}", scene.loglik[t, p], person_color(pid))
+                rec.scalar(f"mismatch/person{pid}", float(scene.mismatch[t, p]), person_color(pid))
             f = scene.index[t]
             if f < 0:
                 continue
