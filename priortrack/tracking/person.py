@@ -598,7 +598,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                             None if smoothed is None else in_world(run.estimates, A), lag if smooth else None,
                             filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
                             gated=gated, pose_spread=pose, bones_unmeasured=unmeasured)
-    result.fit_check, implausible = tracked_fit_check(preset, prior, result)
+    result.fit_check, implausible = tracked_fit_check(preset, prior, result, config.cache)
     if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
         result.mismatch = result.mismatch & implausible
     unlikely = result.mismatch.copy()
@@ -642,7 +642,8 @@ def fitted_once(preset: Preset | str, cache=None) -> Preset:
     return preset
 
 
-def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[dict | None, np.ndarray | None]:
+def tracked_fit_check(preset: Preset, prior, result: DetectionTrack,
+                      cache=None) -> tuple[dict | None, np.ndarray | None]:
     """The fit-check (:mod:`priortrack.priors.support`) of the tracked body's motion (its joints fitted
     by inverse kinematics) under the prior, against the preset's held-out reference, and the ticks (T,)
     whose step it scores below the reference's 1st percentile; (None, None) (logged) for a
@@ -651,7 +652,8 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[di
     detector puts them), so every tracked walk scored "outside" (35_29 and 07_10 on real-format input);
     its runs rely on the likelihood's mismatch flag, which separates them (0 % on those walks, 100 % on
     a balance). The per-tick triangulation was tried as the motion judged instead (a prior-free
-    estimate): its detector noise made a held-out walk "outside"."""
+    estimate): its detector noise made a held-out walk "outside". The references are read from the run's
+    prior ``cache`` (None: the default), where :func:`fitted_once` puts them."""
     from priortrack.priors.support import frame_log_density, reference, verdict
 
     ticks = np.isfinite(result.body_joints).all(axis=(1, 2))
@@ -662,13 +664,13 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack) -> tuple[di
         return None, None
     motion = inverse_kinematics(result.body_joints if ticks.all() else result.body_joints[ticks], result.fps,
                                 skeleton=result.skeleton, name="tracked", pose=result.pose_spread)
-    ell, reference_values = frame_log_density(prior, motion), reference(preset)
+    ell, reference_values = frame_log_density(prior, motion), reference(preset, cache)
     found = verdict(ell, reference_values)
     implausible = np.zeros(len(ticks), dtype=bool)
     implausible[np.flatnonzero(ticks)[1:]] = ell < np.percentile(reference_values, 1)
     check = {key: found[key] for key in ("verdict", "below_p1_fraction", "median_percentile")}
     if found["verdict"] != "in support":
-        check["better_prior"] = better_fitting(motion, preset, found["below_p1_fraction"])
+        check["better_prior"] = better_fitting(motion, preset, found["below_p1_fraction"], cache)
     return check, implausible
 
 
