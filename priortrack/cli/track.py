@@ -127,11 +127,12 @@ def _track_detections(args: argparse.Namespace) -> None:
             result = track_scene(scene, calibration, args.filter, config, people=1, skeleton=skeleton,
                                  progress=progress).people[0]
         else:
-            # one person per frame: followed in what was read; else an npz or npy read a block of frames at a time
-            detections = (scene.followed() if scene is not None else
-                          open_detections(args.detections, keypoints=args.keypoints, person=args.person))
-            if args.frames is not None:
-                detections = detections.head(args.frames)
+            if scene is not None:                     # one person per frame: followed in what was read
+                detections = scene.followed()
+            else:                                     # an npz or npy is read a block of frames at a time
+                detections = open_detections(args.detections, keypoints=args.keypoints, person=args.person)
+                if args.frames is not None:
+                    detections = detections.head(args.frames)
             result = track_detections(detections, calibration, args.filter, config, skeleton=skeleton,
                                       progress=progress)
     finally:
@@ -173,13 +174,12 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     each tracked as ``config`` (:class:`~priortrack.tracking.person.TrackConfig`) says."""
     from priortrack.data.calibration import read_calibration
     from priortrack.data.scene_detections import read_scene_detections
-    from priortrack.tracking.people import parse_people, track_scene
+    from priortrack.tracking.people import parse_people, track_scene, worker_count
 
     for name in ("person", "skeleton"):
         if getattr(args, name) is not None:
             raise PriortrackError(f"--{name} follows one person; --people tracks the scene's (give one of them)")
-    if args.workers is not None and args.workers < 1:
-        raise PriortrackError(f"--workers must be a number of processes ≥ 1, got {args.workers}")
+    workers = worker_count(args.workers)                  # checked before the files are read
     people = parse_people(args.people)
     scene = read_scene_detections(args.detections, keypoints=args.keypoints)
     if args.frames is not None:
@@ -187,7 +187,7 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     calibration = read_calibration(args.cameras, units=args.units)
     progress = Progress(f"track {args.filter}", "{0} of {1}")          # people tracked (one person: ticks)
     try:
-        result = track_scene(scene, calibration, args.filter, config, people=people, workers=args.workers,
+        result = track_scene(scene, calibration, args.filter, config, people=people, workers=workers,
                              progress=progress)
     finally:
         progress.close()

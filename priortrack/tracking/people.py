@@ -230,7 +230,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     says (:class:`~priortrack.tracking.scene.SceneConfig`), each person as ``config`` says
     (:class:`~priortrack.tracking.person.TrackConfig`: its frame rate, up, camera map, confidence threshold
     and seed are the scene's too). ``workers``: processes that track people side by side (None: one per core
-    this process may use, at most one per person; 1: every person in this process; an ``interruptible`` run
+    this process may use; 1: every person in this process; an ``interruptible`` run
     is tracked here); a person's run in a worker is the one here, up to rounding where the worker's torch
     has fewer threads. ``progress(done, total)``: a scene of one's ticks as its filter goes, else the people
     tracked so far. A scene of one (``people=1``, or one id) may take their own body (``skeleton``)."""
@@ -239,7 +239,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     data_fps = config.fps if config.fps is not None else scene.fps
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
-    pool = _Pool(1 if config.interruptible or skeleton is not None else _workers(workers))   # workers start now
+    pool = _Pool(1 if config.interruptible or skeleton is not None else worker_count(workers))   # workers start now
     association, cameras = associated(scene, calibration, data_fps, config, scene_config)
     chosen = chosen_people(association, people, scene)
     if skeleton is not None and len(chosen) > 1:
@@ -287,7 +287,7 @@ def associated(scene: SceneDetections, calibration: Calibration, fps: float, con
     return SceneTracker(cameras, fps, scene_config).run(uv, confidence, scene.frames), cameras
 
 
-def _workers(workers: int | None) -> int:
+def worker_count(workers: int | None) -> int:
     """The processes to track people in: ``workers``, or one per core this process may use."""
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise PriortrackError(f"workers must be a number of processes ≥ 1, got {workers!r}")
@@ -360,30 +360,29 @@ class _Pool:
                 self.executor.submit(_ready)
 
     def track(self, jobs: list, progress: Callable[[int, int], None] | None = None) -> list:
-        """Each job's :func:`_track_person`, in the jobs' order, ``progress(done, total)`` after each; a worker's
-        log records re-logged here."""
+        """Each job's :func:`_track_person`, in the jobs' order, ``progress(done, total)`` after each."""
+        outcomes = map(_track_person, jobs) if self.executor is None or len(jobs) == 1 else self._in_workers(jobs)
         results = []
-        if self.executor is None or len(jobs) == 1:
-            for job in jobs:
-                results.append(_track_person(job))
-                if progress is not None:
-                    progress(len(results), len(jobs))
-            return results
+        for outcome in outcomes:
+            results.append(outcome)
+            if progress is not None:
+                progress(len(results), len(jobs))
+        return results
+
+    def _in_workers(self, jobs: list):
+        """The jobs' outcomes from the workers as they come, in order, each worker's log records re-logged here."""
         from loky.process_executor import TerminatedWorkerError
 
         level = logging.getLogger().getEffectiveLevel()
         try:
-            for result, records in self.executor.map(_in_worker, jobs, [level] * len(jobs)):
+            for outcome, records in self.executor.map(_in_worker, jobs, [level] * len(jobs)):
                 for record in records:
                     logging.getLogger(record.name).handle(record)
-                results.append(result)
-                if progress is not None:
-                    progress(len(results), len(jobs))
+                yield outcome
         except TerminatedWorkerError as exc:
             log.debug("loky: %s", exc)
             raise PriortrackError("a worker process tracking a person ended abruptly (killed out of memory, or a "
                                   "crash): track the people one at a time (workers=1, --workers 1)") from None
-        return results
 
 
 def _gathered(association: SceneAssociation, kept: list[int], results: list[DetectionTrack], index: np.ndarray,

@@ -479,29 +479,26 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     are let go unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
     start_time = time.perf_counter()
     config = config or TrackConfig()
-    fps, up, camera_map, min_confidence, seed, height = (config.fps, config.up, config.camera_map, config.min_confidence,
-                                                         config.seed, config.height)
-    smooth, lag, trajectories, memory = config.smooth, config.lag, config.trajectories, config.memory
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
-    data_fps = fps if fps is not None else detections.fps
+    data_fps = config.fps if config.fps is not None else detections.fps
     if data_fps is None:
         raise PriortrackError(f"{detections.source}: the detections do not say their frame rate; give it (--fps)")
     if not 0 < data_fps < 1e4:
         raise PriortrackError(f"fps must be a positive frame rate, got {data_fps}")
-    calibrated = match_cameras(detections, calibration, camera_map)
+    calibrated = match_cameras(detections, calibration, config.camera_map)
     world_cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
-    up = up if up is not None else calibration.up
+    up = config.up if config.up is not None else calibration.up
     if up is None:
-        up = up_from_detections(world_cameras, detections, min_confidence, calibration.source)
+        up = up_from_detections(world_cameras, detections, config.min_confidence, calibration.source)
     up = up if isinstance(up, str) and up in UP_AXES else up_vector(up)
     A = to_y_up(up)
     cameras = [in_working_frame(c, A) for c in world_cameras]
     prior = preset.prior(config.cache)
     index = schedule(detections.frames, data_fps, prior.fps)
-    z = TickObservations(detections, index, min_confidence)        # (T, C, 15, 3), read a block at a time
+    z = TickObservations(detections, index, config.min_confidence)     # (T, C, 15, 3), read a block at a time
     single = len(cameras) == 1
     X, seen, residual, z.left_out = _whole_trial(cameras, z, detections.camera_names, calibration.source,
-                                                 min_confidence)
+                                                 config.min_confidence)
     rejected = int(z.left_out.sum())
     counts = seen.sum(axis=-1)
     needed = start_joints(seen, single)
@@ -520,7 +517,7 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         window += 1
     unmeasured = ()
     if skeleton is None:                           # else the user's own body, as given (not scaled)
-        skeleton = (scaled_to_height(template, height) if single else
+        skeleton = (scaled_to_height(template, config.height) if single else
                     fitted_skeleton(template, X, M))
         unmeasured = () if single else tuple(unmeasured_measures(X))
     pose = pose_spread(preset, prior, skeleton)
@@ -536,15 +533,16 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                    **preset.observation}
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
-    filt = preset.filter_for(model, seed, config.device)
-    torch.manual_seed(seed)
+    filt = preset.filter_for(model, config.seed, config.device)
+    torch.manual_seed(config.seed)
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
     z, index = z.between(first), index[first:]         # from here on, tick 0 is the filter's first
     X = None if single else X[first:]
     spread = np.full((len(z), 15), np.nan)
-    whole = smooth and lag is None                 # the whole run's smoother: what it needs of every step
-    online = FixedLagSmoother(filt, lag, trajectories, seed) if smooth and lag is not None else None
-    for_smoother = StepStore(memory) if whole else None
+    whole = config.smooth and config.lag is None     # the whole run's smoother: what it needs of every step
+    online = (FixedLagSmoother(filt, config.lag, config.trajectories, config.seed)
+              if config.smooth and config.lag is not None else None)
+    for_smoother = StepStore(config.memory) if whole else None
 
     def on_step(snapshot) -> None:
         spread[snapshot.frame] = _spread(snapshot)
@@ -560,8 +558,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
         if for_smoother.spilled:
             log.info("smoothing %d ticks, %d of them read back from disk", len(for_smoother), for_smoother.spilled)
         try:
-            smoothed = smooth_run(filt, replace(run, snapshots=for_smoother), z[:len(run.estimates)], trajectories,
-                                  None, seed)
+            smoothed = smooth_run(filt, replace(run, snapshots=for_smoother), z[:len(run.estimates)],
+                                  config.trajectories, None, config.seed)
         finally:
             for_smoother.close()                    # the smoother has them; let them go
     else:
@@ -595,7 +593,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
                             detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
                             up, A, skeleton, estimates, world_cameras, z,
                             run.snapshots, run.steps, rejected,
-                            None if smoothed is None else in_world(run.estimates, A), lag if smooth else None,
+                            None if smoothed is None else in_world(run.estimates, A),
+                            config.lag if config.smooth else None,
                             filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
                             gated=gated, pose_spread=pose, bones_unmeasured=unmeasured)
     result.fit_check, implausible = tracked_fit_check(preset, prior, result, config.cache)

@@ -262,7 +262,6 @@ def _median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return np.where(k[..., 0] > 0, (low + high) / 2, np.inf)
 
 
-
 @dataclass
 class SceneAssociation:
     """What the scene tracker decided over a recording.

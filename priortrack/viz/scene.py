@@ -5,8 +5,8 @@ their own colour with a label (``person <id>``) at ``world/person<id>``; in each
 detections the scene tracker gave each person, in that person's colour, the detections it gave nobody
 in grey (``unassigned``: false positives, people seen by one camera), each person's estimate
 reprojected, and the association (``association/person<id>``: a segment from each joint of a detection to
-the same joint of the estimate of the person it was given to); per-frame scalars per person: each camera's median reprojection error, the log-likelihood
-and the mismatch flag. A mismatch tick draws the person's skeleton in the mismatch colour.
+the same joint of the estimate of the person it was given to); per-frame scalars per person: each camera's
+median reprojection error, the log-likelihood and the mismatch flag (these two in the person's colour). A mismatch tick draws the person's skeleton in the mismatch colour.
 """
 
 from __future__ import annotations
