@@ -149,11 +149,11 @@ def scene_people(detections: str, cameras: str, people, keypoints: str | None = 
 
 def scene_person(config: DetectionRunConfig, calibration):
     """The detections of ``config.person`` in files of several people (:class:`DetectionRunConfig`)."""
-    from priortrack.tracking.people import associated, chosen_people, person_detections
+    from priortrack.tracking.people import associated, chosen_people
 
     scene, rate = _scene(config.detections, config.keypoints, config.fps, config.frames)
     association, _ = associated(scene, calibration, rate)
-    return person_detections(scene, association, chosen_people(association, [config.person], scene)[0])
+    return association.detections_of(scene, chosen_people(association, [config.person], scene)[0])
 
 
 def _scene(detections: str, keypoints: str | None, fps: float | None, frames: int | None):

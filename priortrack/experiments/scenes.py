@@ -285,9 +285,10 @@ def score_scene(result, truth: np.ndarray, present: np.ndarray, alone_mm: list[f
 
 
 def run_scene(scene: str, preset, seed: int = 0, gap: float | None = None, away_s: float = 0.8,
-              alone: bool = True, cache=None) -> dict:
+              alone: bool = True, cache=None, scene_config=None) -> dict:
     """One scene (module docstring) tracked by ``preset`` (its prior learned without the scene's walkers)
-    with every person, scored; with ``alone``, each walker also tracked from their own detections."""
+    with every person (as ``scene_config`` says: :class:`~priortrack.tracking.scene.SceneConfig`), scored; with
+    ``alone``, each walker also tracked from their own detections."""
     from priortrack.experiments.people import fold_preset
     from priortrack.tracking.presets import load_preset
     from priortrack.tracking.person import TrackConfig, track_detections
@@ -311,7 +312,8 @@ def run_scene(scene: str, preset, seed: int = 0, gap: float | None = None, away_
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_scene_openpose(keypoints, Path(tmp) / "scene", rng)
         detections = read_scene_detections(folder, keypoints="body25b")
-        result = track_scene(detections, calibration, preset, TrackConfig(fps=DATA_FPS, seed=seed, cache=cache))
+        result = track_scene(detections, calibration, preset, TrackConfig(fps=DATA_FPS, seed=seed, cache=cache),
+                             scene_config)
         alone_mm = []
         for p in range(len(walkers)) if alone else ():
             own = write_openpose(keypoints[:, :, p], Path(tmp) / f"alone{p}")

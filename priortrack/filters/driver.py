@@ -3,7 +3,11 @@
 A filter (particle, annealed, unscented, MAP) keeps ``model`` (its ``prior.fps`` is the frame
 rate of the observations), ``initialise(motion)`` (start on the first two, known frames) and
 ``step(z) -> Snapshot``; :class:`SequentialFilter` turns those into ``run(observations, motion)
--> Track``, so a notebook can step frame by frame and a script can run the whole clip.
+-> Track``, so a notebook can step frame by frame and a script can run the whole clip. The particle and
+unscented filters also step in halves, ``advance()`` then ``correct(z)``, with ``predicted_measurement()``
+between (each observed point's predicted pixels and their spread): the scene tracker decides whose
+detection is whose from it (:mod:`priortrack.tracking.reassociation`), recording each step in the
+:class:`Run` that :meth:`SequentialFilter.started` gives.
 """
 
 from __future__ import annotations
@@ -56,35 +60,67 @@ class SequentialFilter:
         if observations.shape[1:] != shape or T < KNOWN_FRAMES + 1:
             raise PriortrackError(f"observations have shape {observations.shape}; expected (T ≥ 3, "
                                   f"{', '.join(map(str, shape))})")
+        run = self.started(motion, T, keep_snapshots, progress, snapshot_every, on_step, **initial)
+        try:
+            for t in range(KNOWN_FRAMES, T):
+                run.record(self.step(observations[t]))
+        except KeyboardInterrupt:
+            if not interruptible or run.done == KNOWN_FRAMES:
+                raise
+            log.warning("interrupted: %d of %d frames tracked; the run ends there", run.done, T)
+        return run.result()
+
+    def started(self, motion: Motion, T: int, keep_snapshots: bool = False,
+                progress: Callable[[int, int], None] | None = None, snapshot_every: int = 1,
+                on_step: Callable[[Snapshot], None] | None = None, **initial) -> "Run":
+        """The filter initialised on ``motion``'s first two frames, and a :class:`Run` of T frames to record its
+        steps in (:meth:`run`'s arguments): where something else feeds the filter frame by frame (the scene
+        tracker steps every person's filter together, :meth:`advance` and ``correct`` apart)."""
         if isinstance(snapshot_every, bool) or not isinstance(snapshot_every, int) or snapshot_every < 1:
             raise PriortrackError(f"snapshot_every must be a whole number ≥ 1, got {snapshot_every!r}")
         start = time.perf_counter()
         self.initialise(motion, **initial)
         fps = self.model.prior.fps
         known = motion if motion.fps == fps else motion.resample(fps)
-        given = joint_positions(known, "eval15")[:KNOWN_FRAMES]
-        estimates = np.full((T,) + given.shape[1:], np.nan)
-        estimates[:KNOWN_FRAMES] = given
-        ess = np.full(T, np.nan)
-        flags: list[list[str]] = [[] for _ in range(KNOWN_FRAMES)]
-        snapshots, steps = [], []
-        done = KNOWN_FRAMES                                   # frames whose estimate is in
-        try:
-            for t in range(KNOWN_FRAMES, T):
-                snap = self.step(observations[t])
-                estimates[t], ess[t] = snap.estimate, snap.ess
-                flags.append(snap.flags)
-                steps.append(StepRecord.of(snap))
-                done = t + 1
-                if on_step is not None:
-                    on_step(snap)
-                if keep_snapshots and (t - KNOWN_FRAMES) % snapshot_every == 0:
-                    snapshots.append(snap)
-                if progress:
-                    progress(t, T)
-        except KeyboardInterrupt:
-            if not interruptible or done == KNOWN_FRAMES:
-                raise
-            log.warning("interrupted: %d of %d frames tracked; the run ends there", done, T)
-        return Track(estimates[:done], ess[:done], flags[:done], time.perf_counter() - start,
-                     snapshots if keep_snapshots else None, steps[:done - KNOWN_FRAMES], interrupted=done < T)
+        return Run(joint_positions(known, "eval15")[:KNOWN_FRAMES], T, start, keep_snapshots, progress,
+                   snapshot_every, on_step)
+
+
+class Run:
+    """A filter's run in progress over T frames: the known frames' joints, then each step's estimate, ESS,
+    flags and :class:`StepRecord` as :meth:`record` is given its Snapshot; :meth:`result` the
+    :class:`Track` of the frames done (:meth:`SequentialFilter.run` says what the arguments do)."""
+
+    def __init__(self, given: np.ndarray, T: int, start: float, keep_snapshots: bool,
+                 progress: Callable[[int, int], None] | None, snapshot_every: int,
+                 on_step: Callable[[Snapshot], None] | None):
+        self.T, self.start, self.keep_snapshots, self.progress = T, start, keep_snapshots, progress
+        self.snapshot_every, self.on_step = snapshot_every, on_step
+        self.estimates = np.full((T,) + given.shape[1:], np.nan)
+        self.estimates[:KNOWN_FRAMES] = given
+        self.ess = np.full(T, np.nan)
+        self.flags: list[list[str]] = [[] for _ in range(KNOWN_FRAMES)]
+        self.snapshots: list[Snapshot] = []
+        self.steps: list[StepRecord] = []
+        #: frames whose estimate is in
+        self.done = KNOWN_FRAMES
+
+    def record(self, snap: Snapshot) -> None:
+        """Frame ``done``'s step."""
+        t = self.done
+        self.estimates[t], self.ess[t] = snap.estimate, snap.ess
+        self.flags.append(snap.flags)
+        self.steps.append(StepRecord.of(snap))
+        self.done = t + 1
+        if self.on_step is not None:
+            self.on_step(snap)
+        if self.keep_snapshots and (t - KNOWN_FRAMES) % self.snapshot_every == 0:
+            self.snapshots.append(snap)
+        if self.progress:
+            self.progress(t, self.T)
+
+    def result(self) -> Track:
+        done = self.done
+        return Track(self.estimates[:done], self.ess[:done], self.flags[:done], time.perf_counter() - self.start,
+                     self.snapshots if self.keep_snapshots else None, self.steps[:done - KNOWN_FRAMES],
+                     interrupted=done < self.T)

@@ -111,6 +111,11 @@ class ParticleFilter(SequentialFilter):
         self.states: torch.Tensor | None = None
         self.log_weights: torch.Tensor | None = None
         self.frame = 0
+        #: Between :meth:`advance` and :meth:`correct`: the particles' states and covariances before the
+        #: prediction; else None.
+        self._parents: tuple | None = None
+        self._observed: torch.Tensor | None = None
+        self._predict_seconds = 0.0
 
     def initialise(self, motion: Motion, start: int = 1, translation_std: float = 0.0) -> None:
         """Particles around frame ``start`` of a motion (its first two frames); ``translation_std``
@@ -138,31 +143,81 @@ class ParticleFilter(SequentialFilter):
         self.frame = frame
 
     def step(self, z) -> Snapshot:
-        """Consume the observation z of the next frame (``model.observation_shape``, NaN where missing)."""
+        """Consume the observation z of the next frame (``model.observation_shape``, NaN where missing):
+        :meth:`advance`, then :meth:`correct`."""
+        z = self._checked(z)
+        self.advance()
+        return self.correct(z)
+
+    def advance(self) -> None:
+        """The prediction half of a step: every particle through the transition (the scene tracker reads
+        :meth:`predicted_measurement` before :meth:`correct` weighs the particles with the frame)."""
+        if self.states is None:
+            raise PriortrackError("the filter is not initialised: call initialise(motion) first")
+        t0 = time.perf_counter()
+        self._parents = (self.states, self.covariance)
+        if self.marginal:       # t_t = t̂_t, its covariance predicted in update (or below)
+            self.states = self.model.predict(self.states, self.generator, translation=False)
+        else:                   # any model with predict(s, generator), not only a TrackingModel
+            self.states = self.model.predict(self.states, self.generator)
+        self._observed = None
+        self._predict_seconds = time.perf_counter() - t0
+
+    def predicted_measurement(self) -> tuple[np.ndarray, np.ndarray]:
+        """After :meth:`advance`: every observed point's predicted pixels (…, 2) and their covariance (…, 2, 2)
+        (``observation_shape[:-1]``: (C, 15) for C cameras), the weighted mean and covariance of the predicted
+        particles' projections, Σ_i w_i h_i and Σ_i w_i (h_i − h̄)(h_i − h̄)ᵀ (NaN where a particle's joint is
+        behind the camera). Needs a model with a likelihood that projects (``likelihood.pixels``)."""
+        if self._parents is None:
+            raise PriortrackError("no prediction to read: call advance() first")
+        pixels = getattr(getattr(self.model, "likelihood", None), "pixels", None)
+        if pixels is None:
+            raise PriortrackError(f"the {type(self.model).__name__} model's observations are not pixels: no "
+                                  f"predicted measurement")
+        h = pixels(self.predicted_joints()).to(torch.float64)                    # (P, m)
+        h = h.reshape(len(h), -1, 2)
+        w = torch.exp(self.log_weights)
+        mean = torch.einsum("i,ikc->kc", w, h)
+        r = h - mean
+        covariance = torch.einsum("i,ikc,ikd->kcd", w, r, r)
+        shape = tuple(self.model.observation_shape)[:-1]
+        return mean.cpu().numpy().reshape(shape + (2,)), covariance.cpu().numpy().reshape(shape + (2, 2))
+
+    def _checked(self, z) -> torch.Tensor:
         if self.states is None:
             raise PriortrackError("the filter is not initialised: call initialise(motion) first")
         z = torch.as_tensor(z, dtype=self.states.dtype, device=self.states.device)
         if z.shape != self.model.observation_shape:
             raise PriortrackError(f"observation has shape {tuple(z.shape)}; expected {self.model.observation_shape}")
+        return z
+
+    def predicted_joints(self) -> torch.Tensor:
+        """The predicted particles' observed joints (P, …), computed once a step."""
+        if self._observed is None:
+            self._observed = self.model.observe(self.states)
+        return self._observed
+
+    def correct(self, z) -> Snapshot:
+        """The update half of a step (after :meth:`advance`) with the frame's observation z: the weights,
+        the estimate, resampling (and moves)."""
+        z = self._checked(z)
+        if self._parents is None:
+            raise PriortrackError("no prediction to correct: call advance() first")
+        (parents, parent_covariance), self._parents = self._parents, None
         timings, flags = {}, []
         gated, count = self.model.gate(z)
         if count:
             flags.append("outlier-gated")
             z = gated.to(z)
-        t0 = time.perf_counter()
-        parents, parent_covariance = self.states, self.covariance
-        if self.marginal:       # t_t = t̂_t, its covariance predicted in update (or below)
-            self.states = self.model.predict(self.states, self.generator, translation=False)
-        else:                   # any model with predict(s, generator), not only a TrackingModel
-            self.states = self.model.predict(self.states, self.generator)
         t1 = time.perf_counter()
         predicted = self.states
         if torch.isfinite(z).any():
             joints = self.update(z, flags)
         else:
             flags.append("no-observation")
-            joints = self.model.observe(self.states)
+            joints = self.predicted_joints()
             self.skip_update()
+        self._observed = None
         weights = torch.exp(self.log_weights)
         ess = float(1.0 / (weights ** 2).sum())
         t2 = time.perf_counter()
@@ -180,7 +235,7 @@ class ParticleFilter(SequentialFilter):
                                  None if parent_covariance is None else parent_covariance[ancestors])
                 flags.append(f"moved:{rate:.2f}")
         t4 = time.perf_counter()
-        timings.update(predict=t1 - t0, weight=t2 - t1, estimate=t3 - t2, resample=t4 - t3)
+        timings.update(predict=self._predict_seconds, weight=t2 - t1, estimate=t3 - t2, resample=t4 - t3)
         self.frame += 1
         return Snapshot(self.frame, snapshot_states, weights, ess, ancestors, estimate.cpu().numpy(),
                         best.cpu().numpy(), joints, flags, timings, snapshot_covariance, mean=mean)
@@ -191,7 +246,7 @@ class ParticleFilter(SequentialFilter):
         Returns the particles' observed joints (P, ...); appends "weights-underflow" to
         ``flags`` (and resets the weights to uniform) if every likelihood is −inf.
         """
-        joints = self.model.observe(self.states)
+        joints = self.predicted_joints()
         log_likelihood, pending = self.weigh(joints, z)
         joints = self.keep_update(pending, joints)
         self.log_weights = self.normalised(self.log_weights + log_likelihood, flags)

@@ -501,6 +501,9 @@ class UnscentedFilter(SequentialFilter):
         self.threshold = gate_threshold(gate_probability, self.unscented.measurement_block)
         self.initialised = False
         self.frame, self.gated_frames = 0, 0
+        #: h of the predicted sigma points (2n + 1, m) between :meth:`advance` and :meth:`correct`, else None.
+        self._measured: np.ndarray | None = None
+        self._predict_seconds = 0.0
         #: (J,) per joint (an observation (…, J, coordinates); a flat one's points are J), the frames
         #: running in which every camera seeing it rejected it.
         shape = tuple(self.unscented.observation_shape)
@@ -543,7 +546,8 @@ class UnscentedFilter(SequentialFilter):
         self.lost_frames[:] = 0
 
     def step(self, z) -> Snapshot:
-        """Consume the observation z of the next frame (``observation_shape``, NaN where missing).
+        """Consume the observation z of the next frame (``observation_shape``, NaN where missing):
+        :meth:`advance`, then :meth:`correct`.
 
         Returns a Snapshot whose particles are the posterior's 2n + 1 sigma points, weights their
         mean weights Wm (which may be negative), ess their count (they are not a weighted
@@ -556,29 +560,67 @@ class UnscentedFilter(SequentialFilter):
         the other core busy, two BLAS threads made filterpy's inverse of S (150 × 150, 5 cameras) take
         130 ms instead of about 1.
         """
+        z = self._checked(z)
         with torch_threads(STEP_THREADS), blas_threads(STEP_THREADS):
-            return self._step(z)
+            self._advance()
+            return self._correct(z)
 
-    def _step(self, z) -> Snapshot:
+    def advance(self) -> None:
+        """The prediction half of a step: the sigma points through the transition, x̄⁻ and P⁻ (the
+        scene tracker reads :meth:`predicted_measurement` before :meth:`correct` consumes the frame)."""
+        with torch_threads(STEP_THREADS), blas_threads(STEP_THREADS):
+            self._advance()
+
+    def correct(self, z) -> Snapshot:
+        """The update half of a step (after :meth:`advance`), with the frame's observation z; returns
+        :meth:`step`'s Snapshot."""
+        z = self._checked(z)
+        with torch_threads(STEP_THREADS), blas_threads(STEP_THREADS):
+            return self._correct(z)
+
+    def predicted_measurement(self) -> tuple[np.ndarray, np.ndarray]:
+        """After :meth:`advance`: every observed point's predicted pixels ẑ (…, 2) and their covariance
+        P_zz (…, 2, 2) (``observation_shape[:-1]``: (C, 15) for C cameras; NaN where a sigma point is behind
+        the camera), the unscented transform of the predicted sigma points (:func:`predicted_points`)."""
+        if self._measured is None:
+            raise PriortrackError("no prediction to read: call advance() first")
+        z_hat, P = predicted_points(self._measured.reshape(len(self._measured), -1, 2), self.kf.Wm, self.kf.Wc)
+        shape = tuple(self.unscented.observation_shape)[:-1]
+        return z_hat.reshape(shape + (2,)), P.reshape(shape + (2, 2))
+
+    def _checked(self, z) -> np.ndarray:
         if not self.initialised:
             raise PriortrackError("the filter is not initialised: call initialise(motion) first")
         z = np.asarray(z, dtype=float)
         if z.shape != tuple(self.unscented.observation_shape):
             raise PriortrackError(f"observation has shape {z.shape}; expected {tuple(self.unscented.observation_shape)}")
-        kf, flags = self.kf, []
-        gated, count = self.unscented.gate(z)
-        if count:
-            flags.append("outlier-gated")
-            z = gated.numpy()
+        return z
+
+    def _advance(self) -> None:
+        if not self.initialised:
+            raise PriortrackError("the filter is not initialised: call initialise(motion) first")
+        kf = self.kf
         kf.repairs, self.held_out, self.swapped = 0, None, None
         t0 = time.perf_counter()
         kf.P, repaired = repaired_covariance(kf.P)
         kf.repairs += repaired
         kf.Q = self.unscented.process_covariance(torch.from_numpy(kf.x)).numpy()
         kf.predict(UT=kf.transform_states)
+        self._measured = kf.measure(kf.sigmas_f)           # h of each predicted sigma point (2n + 1, m)
+        self._predict_seconds = time.perf_counter() - t0
+
+    def _correct(self, z: np.ndarray) -> Snapshot:
+        if self._measured is None:
+            raise PriortrackError("no prediction to correct: call advance() first")
+        kf, flags = self.kf, []
+        gated, count = self.unscented.gate(z)
+        if count:
+            flags.append("outlier-gated")
+            z = gated.numpy()
         t1 = time.perf_counter()
         values, R = self.unscented.measurement(torch.as_tensor(z, dtype=torch.float64))
         self._update(values.numpy(), R.numpy(), flags)
+        self._measured = None
         t2 = time.perf_counter()
         if kf.repairs:
             flags.append("covariance-repaired")
@@ -589,7 +631,7 @@ class UnscentedFilter(SequentialFilter):
         self.frame += 1
         return Snapshot(self.frame, sigmas, torch.from_numpy(kf.Wm.copy()), float(len(sigmas)), None,
                         estimate.cpu().numpy(), estimate.cpu().numpy(), joints, flags,
-                        {"predict": t1 - t0, "weight": t2 - t1, "estimate": t3 - t2},
+                        {"predict": self._predict_seconds, "weight": t2 - t1, "estimate": t3 - t2},
                         mean=self.mean, covariance=self.covariance, held_out=self.held_out,
                         swapped=self.swapped)
 
@@ -602,7 +644,7 @@ class UnscentedFilter(SequentialFilter):
             flags.append("no-observation")
             kf.update(None)
             return
-        predicted = kf.measure(kf.sigmas_f)
+        predicted = self._measured
         usable = seen & np.isfinite(predicted).all(axis=0)
         if (seen & ~usable).any():
             flags.append("behind-camera")

@@ -27,29 +27,17 @@ from pathlib import Path
 import numpy as np
 
 from priortrack.data.calibration import Calibration
-from priortrack.data.detections import Detections
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
-from priortrack.tracking.person import (DetectionTrack, TrackConfig, fitted_once, match_cameras, output_path, schedule,
-                                         track_detections, up_from_detections)
+from priortrack.tracking.person import (DetectionTrack, TrackConfig, fitted_once, match_cameras, output_path, prepared,
+                                         schedule, track_detections, up_from_detections)
+from priortrack.tracking.reassociation import predicts, reassociated
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
 
 log = logging.getLogger(__name__)
-
-
-def person_detections(scene: SceneDetections, association: SceneAssociation, p: int) -> Detections:
-    """Person p's (index into ``association.person_ids``) detections: (C, T, K, 3), NaN where no
-    detection was theirs."""
-    slots = association.slots[:, :, p].T                                        # (C, T)
-    C, T = slots.shape
-    keypoints = np.full(scene.keypoints.shape[:2] + scene.keypoints.shape[3:], np.nan, dtype=np.float32)
-    c, t = np.nonzero(slots >= 0)
-    keypoints[c, t] = scene.keypoints[c, t, slots[c, t]]
-    return Detections(scene.layout, scene.camera_names, scene.frames, scene.fps,
-                      f"{scene.source} (person {association.person_ids[p]})", keypoints=keypoints)
 
 
 def parse_people(words: list[str] | str | None):
@@ -239,7 +227,8 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     data_fps = config.fps if config.fps is not None else scene.fps
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
-    pool = _Pool(1 if config.interruptible or skeleton is not None else worker_count(workers))   # workers start now
+    lockstep = scene_config.association == "filter"
+    pool = _Pool(1 if config.interruptible or skeleton is not None or lockstep else worker_count(workers))  # start now
     association, cameras = associated(scene, calibration, data_fps, config, scene_config)
     chosen = chosen_people(association, people, scene)
     if skeleton is not None and len(chosen) > 1:
@@ -250,7 +239,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
              ", ".join(map(str, association.person_ids.tolist())),
              ", ".join(str(association.person_ids[p]) for p in chosen))
-    detections = {p: person_detections(scene, association, p) for p in chosen}
+    detections = {p: association.detections_of(scene, p) for p in chosen}
     up = config.up
     if up is None and calibration.up is None:                # one up for every person: the longest-seen's
         longest = max(chosen, key=lambda p: int((association.slots[:, :, p] >= 0).sum()))
@@ -259,8 +248,13 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
         preset = fitted_once(preset, config.cache)
     person = replace(config, fps=data_fps, up=up)
     one = len(chosen) == 1
-    runs = pool.track([(detections[p], calibration, preset, person, skeleton, progress if one else None)
-                       for p in chosen], None if one else progress)
+    if lockstep:
+        association, runs = _in_lockstep(scene, association, chosen, [(detections[p], calibration, preset, person,
+                                                                        skeleton) for p in chosen],
+                                         scene_config.gate, progress)
+    else:
+        runs = pool.track([(detections[p], calibration, preset, person, skeleton, progress if one else None)
+                           for p in chosen], None if one else progress)
     results, kept, skipped = [], [], {}
     for p, (result, error) in zip(chosen, runs):
         if error is None:
@@ -292,6 +286,34 @@ def worker_count(workers: int | None) -> int:
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise PriortrackError(f"workers must be a number of processes ≥ 1, got {workers!r}")
     return workers if workers is not None else len(os.sched_getaffinity(0))
+
+
+def _in_lockstep(scene: SceneDetections, association: SceneAssociation, chosen: list[int], jobs: list,
+                 gate: float, progress: Callable[[int, int], None] | None) -> tuple[SceneAssociation, list]:
+    """The chosen people's runs prepared (``jobs``: :func:`~priortrack.tracking.person.prepared`'s arguments),
+    their filters run in lockstep, who is who decided again through them
+    (:func:`~priortrack.tracking.reassociation.reassociated`; a filter that cannot predict its detections, the
+    MAP tracker's: each run on the scene tracker's decisions); the association and, per chosen person, the
+    result or None and why they could not be tracked."""
+    runs, errors = {}, {}
+    for p, job in zip(chosen, jobs):
+        try:
+            runs[p] = prepared(*job)
+        except PriortrackError as exc:
+            errors[p] = str(exc)
+    if runs and all(predicts(run) for run in runs.values()):
+        run = next(iter(runs.values()))
+        config = run.config
+        index = schedule(scene.frames, config.fps, run.prior.fps)
+        association, tracks = reassociated(scene, association, runs, index, config.min_confidence, gate, progress,
+                                           config.interruptible)
+        results = {p: runs[p].finished(track) for p, track in tracks.items()}
+    else:
+        if runs:
+            log.info("the %s filter does not predict its detections: each person is tracked on the scene "
+                     "tracker's decisions", next(iter(runs.values())).preset.filter_kind)
+        results = {p: run.tracked() for p, run in runs.items()}
+    return association, [(results.get(p), errors.get(p)) for p in chosen]
 
 
 def _track_person(job) -> tuple[DetectionTrack | None, str | None]:

@@ -348,20 +348,17 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
     seen, left_out = np.zeros((T, 15), dtype=bool), np.zeros((T, C), dtype=bool)
     shown, behind = np.zeros(C, dtype=bool), np.zeros((C, 2), dtype=int)
 
-    def triangulated(block: np.ndarray) -> np.ndarray:
-        return triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(block[..., 2]).transpose(1, 0, 2))
-
     for start, block in z.blocks(raw=True):
         ticks = slice(start, start + len(block))
         shown |= (np.nan_to_num(block[..., 2]) > 0).any(axis=(0, 2))
-        every = None if single else triangulated(block)                         # by every camera
+        every = None if single else triangulated(cameras, block)                         # by every camera
         behind += _behind(cameras, block, every)
         left_out[ticks] = cross_view_check(cameras, block)
         if single:
             seen[ticks] = (np.nan_to_num(block[:, 0, :, 2]) > 0) & np.isfinite(block[:, 0, :, 0])
             continue
         again = left_out[ticks].any(axis=1)                  # the ticks a camera was left out of, by the others
-        every[again] = triangulated(block[again])
+        every[again] = triangulated(cameras, block[again])
         X[ticks] = every
         seen[ticks] = np.isfinite(X[ticks]).all(axis=-1)
         residual[ticks] = np.stack([np.nan_to_num(median_reprojection(camera, X[ticks], block[:, c]), nan=-np.inf)
@@ -378,6 +375,11 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
         log.warning("camera %s: at %d ticks its person is not the one the other cameras see; those detections "
                     "are left out", names[c], int(left_out[:, c].sum()))
     return X, seen, residual, left_out
+
+
+def triangulated(cameras: list[PinholeCamera], block: np.ndarray) -> np.ndarray:
+    """(T, 15, 3) each tick's confidence-weighted triangulation of observations block (T, C, 15, 3)."""
+    return triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(block[..., 2]).transpose(1, 0, 2))
 
 
 def _behind(cameras: list[PinholeCamera], z: np.ndarray, X: np.ndarray | None) -> np.ndarray:
@@ -469,7 +471,8 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     """Track the person of ``detections`` seen by the ``calibration``'s cameras with a filter preset
     (module docstring), as ``config`` says (:class:`TrackConfig`; None: its defaults); ``skeleton``: the
     person's own body (an ASF or BVH skeleton) instead of the template scaled to the detections;
-    ``progress(tick, ticks)``: called as the filter goes.
+    ``progress(tick, ticks)``: called as the filter goes. :func:`prepared`, the filter's run, then
+    :meth:`PersonRun.finished`.
 
     Memory: the detections' observations are read a block of ticks at a time
     (:class:`~priortrack.observation.ticks.TickObservations`; from a file too, given a
@@ -477,6 +480,13 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     (each tick's triangulation is kept, (T, 15, 3)), as the filter goes, and for the result's
     reprojection errors; each tick's spread and step record are taken as the filter goes; its point sets
     are let go unless kept, or needed by the smoother (the whole run's; a fixed lag keeps the last L + 1)."""
+    return prepared(detections, calibration, preset, config, skeleton).tracked(progress)
+
+
+def prepared(detections: Detections, calibration: Calibration, preset: Preset | str, config: TrackConfig | None = None,
+             skeleton: Skeleton | None = None) -> "PersonRun":
+    """Everything of :func:`track_detections` before the filter runs (module docstring, 1–4): the cameras in
+    the working frame, the tick schedule, the observations, the body, the start and the filter."""
     start_time = time.perf_counter()
     config = config or TrackConfig()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
@@ -537,87 +547,141 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     torch.manual_seed(config.seed)
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
     z, index = z.between(first), index[first:]         # from here on, tick 0 is the filter's first
-    X = None if single else X[first:]
-    spread = np.full((len(z), 15), np.nan)
-    whole = config.smooth and config.lag is None     # the whole run's smoother: what it needs of every step
-    online = (FixedLagSmoother(filt, config.lag, config.trajectories, config.seed)
-              if config.smooth and config.lag is not None else None)
-    for_smoother = StepStore(config.memory) if whole else None
+    return PersonRun(detections, config, preset, prior, model, filt, z, index, None if single else X[first:], A, up,
+                     cameras, world_cameras, M, skeleton, pose, unmeasured, rejected, known, initial, start_time)
 
-    def on_step(snapshot) -> None:
-        spread[snapshot.frame] = _spread(snapshot)
-        if online is not None:
-            online.push(snapshot, z[snapshot.frame])
-        if whole:
-            for_smoother.append(snapshot)
 
-    run = filt.run(z, known, keep_snapshots=config.keep_snapshots, progress=progress,
-                   snapshot_every=config.snapshot_every, on_step=on_step, interruptible=config.interruptible, **initial)
-    if whole:
-        for_smoother.truncate(len(run.estimates) - KNOWN_FRAMES)          # an interrupted run's steps
-        if for_smoother.spilled:
-            log.info("smoothing %d ticks, %d of them read back from disk", len(for_smoother), for_smoother.spilled)
-        try:
-            smoothed = smooth_run(filt, replace(run, snapshots=for_smoother), z[:len(run.estimates)],
-                                  config.trajectories, None, config.seed)
-        finally:
-            for_smoother.close()                    # the smoother has them; let them go
-    else:
-        smoothed = online.result(run.estimates[:KNOWN_FRAMES]) if online is not None else None
-    T = len(run.estimates) if smoothed is None else min(len(run.estimates), len(smoothed.estimates))
-    if T < len(z):                                 # interrupted: what was tracked until then
-        z, index, spread, X = z.between(0, T), index[:T], spread[:T], None if X is None else X[:T]
-        run = replace(run, estimates=run.estimates[:T], ess=run.ess[:T], steps=run.steps[:T - KNOWN_FRAMES])
-        smoothed = None if smoothed is None else replace(smoothed, estimates=smoothed.estimates[:T],
-                                                         spread=smoothed.spread[:T])
-    filtered_spread = None if smoothed is None else spread.copy()
-    if smoothed is not None:
-        spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
-    estimates = run.estimates if smoothed is None else smoothed.estimates
-    loglik = frame_log_likelihoods(model.likelihood, run.estimates, z)
-    joints = in_world(estimates, A)
-    errors, weight = _reprojection_errors(world_cameras, joints, z)
-    mismatch = mismatch_flags(loglik, weight, model.likelihood)
-    lost = None if single else lost_flags(np.einsum("ij,tjk->tik", M, run.estimates), X)
-    # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
-    ess = np.asarray(run.ess, dtype=float) if preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
-    reprojection = np.array([_median_of_seen(e) for e in errors])                # over every tick and joint
-    by_tick = np.stack([_tick_medians(e) for e in errors], axis=1)               # (T, C)
-    del errors, X                      # (T, ·) arrays the fit-check's peak need not hold (a long run's memory)
-    gated = np.zeros(z.shape[:3], dtype=bool)                                      # (T, C, 15)
-    for step in run.steps:
-        if step.held_out is not None and step.frame < T:
-            gated[step.frame] = step.held_out.reshape(z.shape[1:3])
-    result = DetectionTrack(joints, np.where(index >= 0, detections.frames[np.maximum(index, 0)], -1),
-                            float(prior.fps), spread, ess, loglik, mismatch,
-                            detections.camera_names, reprojection, preset.name, time.perf_counter() - start_time,
-                            up, A, skeleton, estimates, world_cameras, z,
-                            run.snapshots, run.steps, rejected,
-                            None if smoothed is None else in_world(run.estimates, A),
-                            config.lag if config.smooth else None,
-                            filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
-                            gated=gated, pose_spread=pose, bones_unmeasured=unmeasured)
-    result.fit_check, implausible = tracked_fit_check(preset, prior, result, config.cache)
-    if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
-        result.mismatch = result.mismatch & implausible
-    unlikely = result.mismatch.copy()
-    if lost is not None:                 # … or one where the estimate has left the data's own triangulation
-        result.mismatch = result.mismatch | lost
-    if result.fit_check is not None and result.fit_check["verdict"] != "in support":
-        from priortrack.priors.support import verdict_rule
+@dataclass(eq=False)
+class PersonRun:
+    """One person's run as :func:`prepared` leaves it: the observations z (T, C, 15, 3) from the start tick
+    (``index`` (T,) their detection frames), the per-tick triangulation X (T, 15, 3) (None from one camera),
+    the working frame's A (world → Y-up) and up, the cameras in the calibration's world, the detector map M,
+    the body, the known start motion and the filter's further ``initial`` arguments; :meth:`on_step` takes
+    each step's spread (and feeds a smoother) as the filter runs; :meth:`finished` makes the result of the
+    filter's run (module docstring, 5)."""
 
-        better = result.fit_check.get("better_prior")
-        log.warning("fit-check: the tracked motion is %s the %s prior's support (%.0f%% of its frames below the "
-                    "1st percentile of held-out training frames; %s); its estimate leans on a prior that does not "
-                    "know the motion: %s", "outside" if result.fit_check["verdict"] == "outside" else "partly in",
-                    preset.prior_kind, 100 * result.fit_check["below_p1_fraction"], verdict_rule(),
-                    "no shipped prior fits it better; fit one on motion like it (priortrack fit)" if better is None else
-                    f"the {better['preset']} preset's prior fits it better ({better['verdict']}, "
-                    f"{100 * better['below_p1_fraction']:.0f}% of its frames below): track with --filter {better['preset']}")
-    if result.mismatch_fraction > 0:
-        log.warning(mismatch_message(result.mismatch, unlikely, lost, preset.prior_kind,
-                                     implausible is not None))
-    return result
+    detections: Detections
+    config: TrackConfig
+    preset: Preset
+    prior: object
+    model: TrackingModel
+    filt: object
+    z: TickObservations
+    index: np.ndarray
+    X: np.ndarray | None
+    A: np.ndarray
+    up: object
+    cameras: list[PinholeCamera]
+    world_cameras: list[PinholeCamera]
+    M: np.ndarray
+    skeleton: Skeleton
+    pose: PoseSpread | None
+    unmeasured: tuple
+    rejected: int
+    known: Motion
+    initial: dict
+    start_time: float
+
+    def __post_init__(self):
+        config = self.config
+        self.spread = np.full((len(self.z), 15), np.nan)
+        self.whole = config.smooth and config.lag is None     # the whole run's smoother: what it needs of every step
+        self.online = (FixedLagSmoother(self.filt, config.lag, config.trajectories, config.seed)
+                       if config.smooth and config.lag is not None else None)
+        self.for_smoother = StepStore(config.memory) if self.whole else None
+
+    def on_step(self, snapshot) -> None:
+        self.spread[snapshot.frame] = _spread(snapshot)
+        if self.online is not None:
+            self.online.push(snapshot, self.z[snapshot.frame])
+        if self.whole:
+            self.for_smoother.append(snapshot)
+
+    def tracked(self, progress: Callable[[int, int], None] | None = None) -> DetectionTrack:
+        """The filter run over the whole of z, and its result (:meth:`finished`)."""
+        config = self.config
+        return self.finished(self.filt.run(self.z, self.known, keep_snapshots=config.keep_snapshots, progress=progress,
+                                           snapshot_every=config.snapshot_every, on_step=self.on_step,
+                                           interruptible=config.interruptible, **self.initial))
+
+    def observe(self, detections: Detections) -> None:
+        """Take ``detections`` (the same frames and cameras) as the person's, who is who decided again
+        (:mod:`~priortrack.tracking.reassociation`): z read from them (no camera-tick left out) and X
+        triangulated again."""
+        self.detections = detections
+        self.z = TickObservations(detections, self.index, self.config.min_confidence)
+        if self.X is not None:
+            self.X = np.concatenate([triangulated(self.cameras, block) for _, block in self.z.blocks()])
+
+    def finished(self, run) -> DetectionTrack:
+        """The result (:class:`DetectionTrack`) of the filter's run (a :class:`~priortrack.filters.snapshot.Track`):
+        smoothed as the config says, its log-likelihoods, reprojection errors, mismatch flags and fit-check."""
+        z, index, spread, X = self.z, self.index, self.spread, self.X
+        if self.whole:
+            self.for_smoother.truncate(len(run.estimates) - KNOWN_FRAMES)          # an interrupted run's steps
+            if self.for_smoother.spilled:
+                log.info("smoothing %d ticks, %d of them read back from disk", len(self.for_smoother), self.for_smoother.spilled)
+            try:
+                smoothed = smooth_run(self.filt, replace(run, snapshots=self.for_smoother), z[:len(run.estimates)],
+                                      self.config.trajectories, None, self.config.seed)
+            finally:
+                self.for_smoother.close()                    # the smoother has them; let them go
+        else:
+            smoothed = self.online.result(run.estimates[:KNOWN_FRAMES]) if self.online is not None else None
+        T = len(run.estimates) if smoothed is None else min(len(run.estimates), len(smoothed.estimates))
+        if T < len(z):                                 # interrupted: what was tracked until then
+            z, index, spread, X = z.between(0, T), index[:T], spread[:T], None if X is None else X[:T]
+            run = replace(run, estimates=run.estimates[:T], ess=run.ess[:T], steps=run.steps[:T - KNOWN_FRAMES])
+            smoothed = None if smoothed is None else replace(smoothed, estimates=smoothed.estimates[:T],
+                                                             spread=smoothed.spread[:T])
+        filtered_spread = None if smoothed is None else spread.copy()
+        if smoothed is not None:
+            spread[KNOWN_FRAMES:] = smoothed.spread[KNOWN_FRAMES:]
+        estimates = run.estimates if smoothed is None else smoothed.estimates
+        loglik = frame_log_likelihoods(self.model.likelihood, run.estimates, z)
+        joints = in_world(estimates, self.A)
+        errors, weight = _reprojection_errors(self.world_cameras, joints, z)
+        mismatch = mismatch_flags(loglik, weight, self.model.likelihood)
+        lost = None if X is None else lost_flags(np.einsum("ij,tjk->tik", self.M, run.estimates), X)
+        # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
+        ess = np.asarray(run.ess, dtype=float) if self.preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
+        reprojection = np.array([_median_of_seen(e) for e in errors])                # over every tick and joint
+        by_tick = np.stack([_tick_medians(e) for e in errors], axis=1)               # (T, C)
+        del errors, X                      # (T, ·) arrays the fit-check's peak need not hold (a long run's memory)
+        gated = np.zeros(z.shape[:3], dtype=bool)                                      # (T, C, 15)
+        for step in run.steps:
+            if step.held_out is not None and step.frame < T:
+                gated[step.frame] = step.held_out.reshape(z.shape[1:3])
+        result = DetectionTrack(joints, np.where(index >= 0, self.detections.frames[np.maximum(index, 0)], -1),
+                                float(self.prior.fps), spread, ess, loglik, mismatch,
+                                self.detections.camera_names, reprojection, self.preset.name, time.perf_counter() - self.start_time,
+                                self.up, self.A, self.skeleton, estimates, self.world_cameras, z,
+                                run.snapshots, run.steps, self.rejected,
+                                None if smoothed is None else in_world(run.estimates, self.A),
+                                self.config.lag if self.config.smooth else None,
+                                filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
+                                gated=gated, pose_spread=self.pose, bones_unmeasured=self.unmeasured)
+        result.fit_check, implausible = tracked_fit_check(self.preset, self.prior, result, self.config.cache)
+        if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
+            result.mismatch = result.mismatch & implausible
+        unlikely = result.mismatch.copy()
+        if lost is not None:                 # … or one where the estimate has left the data's own triangulation
+            result.mismatch = result.mismatch | lost
+        if result.fit_check is not None and result.fit_check["verdict"] != "in support":
+            from priortrack.priors.support import verdict_rule
+
+            better = result.fit_check.get("better_prior")
+            log.warning("fit-check: the tracked motion is %s the %s prior's support (%.0f%% of its frames below the "
+                        "1st percentile of held-out training frames; %s); its estimate leans on a prior that does not "
+                        "know the motion: %s", "outside" if result.fit_check["verdict"] == "outside" else "partly in",
+                        self.preset.prior_kind, 100 * result.fit_check["below_p1_fraction"], verdict_rule(),
+                        "no shipped prior fits it better; fit one on motion like it (priortrack fit)" if better is None else
+                        f"the {better['preset']} preset's prior fits it better ({better['verdict']}, "
+                        f"{100 * better['below_p1_fraction']:.0f}% of its frames below): track with --filter {better['preset']}")
+        if result.mismatch_fraction > 0:
+            log.warning(mismatch_message(result.mismatch, unlikely, lost, self.preset.prior_kind,
+                                         implausible is not None))
+        return result
 
 
 def no_fit_check(preset: Preset) -> str | None:

@@ -38,7 +38,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from priortrack.data.detections import Detections
 from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS, EVAL15_PARENTS
+from priortrack.data.scene_detections import SceneDetections
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.association import PAIR_GATE_M, associate, median_distance, normalised
@@ -48,6 +50,8 @@ log = logging.getLogger(__name__)
 
 #: The χ² quantile (2 degrees of freedom, 99.9 %) a detection's median joint distance must be under.
 GATE = 13.8
+#: How each tick's detections are finally decided (:class:`SceneConfig`).
+ASSOCIATIONS = ("filter", "joints")
 #: A tentative person's next proposal lies within this median joint distance (metres) of the last.
 FOLLOW_M = 0.3
 #: A returning person's bone lengths within this relative RMS difference of an ended person's are theirs.
@@ -72,6 +76,10 @@ class SceneConfig:
         birth_s: seconds of proposals that confirm a new person.
         birth_views: cameras a proposal needs to start a person (capped at the rig's camera count).
         death_s: seconds unseen after which a person's track ends.
+        association: "filter": each tick's detections are decided again through every person's own filter
+            (:mod:`~priortrack.tracking.reassociation`), the people tracked in lockstep in one process;
+            "joints": the scene tracker's decisions are kept and each person's filter runs on their own (in
+            worker processes, side by side).
     """
 
     pair_gate_m: float = PAIR_GATE_M
@@ -79,6 +87,7 @@ class SceneConfig:
     birth_s: float = 0.1
     birth_views: int = 3
     death_s: float = 0.5
+    association: str = "filter"
 
     def __post_init__(self):
         for name in ("pair_gate_m", "gate", "birth_s", "death_s"):
@@ -87,6 +96,9 @@ class SceneConfig:
                 raise PriortrackError(f"scene setting {name} must be a number ≥ 0, got {value!r}")
         if isinstance(self.birth_views, bool) or not isinstance(self.birth_views, int) or self.birth_views < 2:
             raise PriortrackError(f"scene setting birth_views must be a whole number ≥ 2, got {self.birth_views!r}")
+        if self.association not in ASSOCIATIONS:
+            raise PriortrackError(f"scene setting association must be one of {', '.join(ASSOCIATIONS)}, "
+                                  f"got {self.association!r}")
 
 
 @dataclass
@@ -133,26 +145,11 @@ class PredictionAssociator:
     @staticmethod
     def costs(tracks: list[Track], view: View, xy: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tracks, N) costs (class docstring) and whether the mirror gave each, from xy (N, J, 2) normalised
-        points and confidence (N, J); inf where a detection shares no joint with a track's prediction.
-        Every track, detection and order at once: S (2, K, N, J, 2, 2) = H P Hᵀ + R, its 2 × 2 inverse in
-        closed form."""
+        points and confidence (N, J) (:func:`prediction_costs` of the tracks' predictions in ``view``)."""
         predictions = [track.motion.predicted(view) for track in tracks]
-        h = np.stack([q[0] for q in predictions])[None, :, None]                         # (1, K, 1, J, 2)
-        HPH = np.stack([q[2] for q in predictions])[None, :, None]                       # (1, K, 1, J, 2, 2)
-        sigma_px = np.array([track.motion.sigma_px for track in tracks])[None, :, None, None]
-        points = np.stack([xy, xy[:, MIRRORED]])[:, None]                                # (2, 1, N, J, 2)
-        c = np.stack([confidence, confidence[:, MIRRORED]])[:, None]                     # (2, 1, N, J)
-        seen = np.isfinite(points).all(-1) & (c > 0) & np.isfinite(h).all(-1)            # (2, K, N, J)
-        r2 = (sigma_px / (view.f * np.where(seen, c, 1.0))) ** 2
-        with np.errstate(invalid="ignore", divide="ignore"):
-            a, b = HPH[..., 0, 0] + r2, HPH[..., 0, 1]
-            d = HPH[..., 1, 1] + r2
-            det = a * d - b * b
-            e = points - h
-            m = (d * e[..., 0] ** 2 - 2 * b * e[..., 0] * e[..., 1] + a * e[..., 1] ** 2) / det
-            spread = np.log(det / r2 ** 2)
-        both = _median_of_seen(m, seen) + _median_of_seen(spread, seen)                 # (2, K, N)
-        return np.minimum(both[0], both[1]), both[1] < both[0]
+        sigma = np.array([track.motion.sigma_px for track in tracks]) / view.f
+        return prediction_costs(np.stack([q[0] for q in predictions]), np.stack([q[2] for q in predictions]), sigma,
+                                xy, confidence)
 
     def __call__(self, tracks: list[Track], views: list[View], xy: list[np.ndarray],
                  confidence: list[np.ndarray]) -> dict[int, dict[int, tuple[int, bool]]]:
@@ -164,14 +161,44 @@ class PredictionAssociator:
             if not len(xy[c]):
                 continue
             cost, mirror = self.costs(tracks, view, xy[c], confidence[c])
-            padded = np.concatenate([np.where(cost < self.gate, cost, np.inf),
-                                     np.full((len(tracks), len(tracks)), np.inf)], axis=1)
-            padded[:, len(xy[c]):][np.diag_indices(len(tracks))] = self.gate           # "not this track"
-            rows, cols = linear_sum_assignment(np.where(np.isfinite(padded), padded, 1e12))
-            for k, n in zip(rows, cols):
-                if n < len(xy[c]) and np.isfinite(padded[k, n]):
-                    assigned[tracks[k].id][c] = (int(n), bool(mirror[k, n]))
+            for k, n in gated_assignment(cost, self.gate):
+                assigned[tracks[k].id][c] = (n, bool(mirror[k, n]))
         return assigned
+
+
+def prediction_costs(h: np.ndarray, HPH: np.ndarray, sigma: np.ndarray, xy: np.ndarray,
+                     confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, N) costs of N detections for K predictions (:class:`PredictionAssociator`) and whether the mirror
+    gave each: predicted points h (K, J, 2) with their spread HPH (K, J, 2, 2), each prediction's noise σ (K,)
+    at confidence 1 (R = (σ / confidence)² I, in the units of h), detections xy (N, J, 2) and confidence (N, J);
+    inf where a detection shares no joint with a prediction. Every prediction, detection and order at once:
+    S (2, K, N, J, 2, 2) = HPH + R, its 2 × 2 inverse in closed form."""
+    h, HPH = h[None, :, None], HPH[None, :, None]                                          # (1, K, 1, J, ·)
+    sigma = np.asarray(sigma, dtype=float)[None, :, None, None]
+    points = np.stack([xy, xy[:, MIRRORED]])[:, None]                                      # (2, 1, N, J, 2)
+    c = np.stack([confidence, confidence[:, MIRRORED]])[:, None]                           # (2, 1, N, J)
+    seen = np.isfinite(points).all(-1) & (c > 0) & np.isfinite(h).all(-1) & np.isfinite(HPH).all((-1, -2))
+    r2 = (sigma / np.where(seen, c, 1.0)) ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a, b = HPH[..., 0, 0] + r2, HPH[..., 0, 1]
+        d = HPH[..., 1, 1] + r2
+        det = a * d - b * b
+        e = points - h
+        m = (d * e[..., 0] ** 2 - 2 * b * e[..., 0] * e[..., 1] + a * e[..., 1] ** 2) / det
+        spread = np.log(det / r2 ** 2)
+    both = _median_of_seen(m, seen) + _median_of_seen(spread, seen)                     # (2, K, N)
+    return np.minimum(both[0], both[1]), both[1] < both[0]
+
+
+def gated_assignment(cost: np.ndarray, gate: float) -> list[tuple[int, int]]:
+    """The optimal assignment (Hungarian, :func:`scipy.optimize.linear_sum_assignment`) of K predictions to N
+    detections by cost (K, N), each prediction with a "not this one" option at the ``gate``'s cost (no
+    detection forced onto it): the (k, n) pairs assigned."""
+    K, N = cost.shape
+    padded = np.concatenate([np.where(cost < gate, cost, np.inf), np.full((K, K), np.inf)], axis=1)
+    padded[:, N:][np.diag_indices(K)] = gate
+    rows, cols = linear_sum_assignment(np.where(np.isfinite(padded), padded, 1e12))
+    return [(int(k), int(n)) for k, n in zip(rows, cols) if n < N and np.isfinite(padded[k, n])]
 
 
 class MissedFramesDeleter:
@@ -282,6 +309,16 @@ class SceneAssociation:
     joints: np.ndarray
     frames: np.ndarray
     gap: int = 0
+
+    def detections_of(self, scene: SceneDetections, p: int) -> Detections:
+        """Person p's (index into ``person_ids``) detections in ``scene``: (C, T, K, 3), NaN where no detection
+        was theirs."""
+        slots = self.slots[:, :, p].T                                               # (C, T)
+        keypoints = np.full(scene.keypoints.shape[:2] + scene.keypoints.shape[3:], np.nan, dtype=np.float32)
+        c, t = np.nonzero(slots >= 0)
+        keypoints[c, t] = scene.keypoints[c, t, slots[c, t]]
+        return Detections(scene.layout, scene.camera_names, scene.frames, scene.fps,
+                          f"{scene.source} (person {self.person_ids[p]})", keypoints=keypoints)
 
     @property
     def present(self) -> np.ndarray:

@@ -1,0 +1,125 @@
+"""Who is who, decided again through each person's own filter: every person's filter preset steps in lockstep
+with the others, and each tick's detections go to the people whose filter predicts them.
+
+The scene tracker (:mod:`priortrack.tracking.scene`) finds the people: who is born where, who ends, who
+comes back, with a constant-velocity model of each joint. Each person's filter is then prepared from the
+detections it gave them (:func:`~priortrack.tracking.person.prepared`: their body, their start), and every
+person's filter runs together, tick by tick (the prior's ticks, :func:`~priortrack.tracking.person.schedule`):
+
+1. **predict**: every running filter advances (its prior's transition; ``advance``);
+2. **its prediction of the detections**: each observed point's predicted pixels ẑ (C, 15, 2) and their
+   spread P_zz (C, 15, 2, 2) (``predicted_measurement``: the unscented transform of the sigma points, or
+   the particle cloud's weighted moments), through the lens, as the filter's own likelihood projects;
+3. **associate**: in each camera, the detections of the tick's frame to the people the scene tracker has
+   in the scene there and whose filter runs, by the scene tracker's cost (the median over joints of the
+   Mahalanobis distance with S = P_zz + R, R = (σ_px / confidence)² I in pixels, plus the spread penalty,
+   the mirror's where smaller: :func:`~priortrack.tracking.scene.prediction_costs`) and its optimal
+   assignment with a "not this person" option at the gate (:func:`~priortrack.tracking.scene.gated_assignment`);
+4. **update**: each filter corrects with the detections it was given (``correct``; as detected: a swap is
+   the filter's own to undo).
+
+The detections of a person whose filter has not started yet (their start ticks), or who is not among the
+people tracked, stay theirs and are offered to nobody else. Frames the prior's ticks skip (60 fps data, a
+30 fps prior) keep the scene tracker's decisions; their detections are not the filters' anyway.
+
+A filter that cannot predict its detections (the MAP tracker) leaves the scene tracker's decisions as they are.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+
+from priortrack.data.scene_detections import SceneDetections
+from priortrack.filters.snapshot import KNOWN_FRAMES
+from priortrack.tracking.person import PersonRun
+from priortrack.tracking.scene import GATE, SceneAssociation, gated_assignment, prediction_costs
+
+log = logging.getLogger(__name__)
+
+
+def predicts(person: PersonRun) -> bool:
+    """Whether the person's filter steps in halves with a prediction of its detections in between."""
+    return all(hasattr(person.filt, name) for name in ("advance", "predicted_measurement", "correct"))
+
+
+def reassociated(scene: SceneDetections, association: SceneAssociation, people: dict[int, PersonRun],
+                 index: np.ndarray, min_confidence: float, gate: float = GATE,
+                 progress: Callable[[int, int], None] | None = None,
+                 interruptible: bool = False) -> tuple[SceneAssociation, dict]:
+    """Every person's filter run in lockstep (module docstring).
+
+    Args:
+        scene: the detections, every person in every file.
+        association: the scene tracker's decisions (which slot is whose, who is in the scene when).
+        people: {p (index into ``association.person_ids``): the person's prepared run}; each run's ticks are
+            the last of ``index``'s (it starts at its own first tick).
+        index: (K,) the detection frame of each of the prior's ticks (−1: none).
+        min_confidence: keypoints below it are missing (as the runs' observations read them).
+        gate: the assignment's gate (the scene tracker's).
+        progress: called as progress(tick, ticks).
+        interruptible: Ctrl-C ends every run at the tick reached (as
+            :meth:`~priortrack.filters.driver.SequentialFilter.run` does one).
+
+    Returns the association with the ticked frames' slots decided again, and {p: the filter's run
+    (:class:`~priortrack.filters.snapshot.Track`)}; each person's run has its observations (``z``) and
+    detections replaced by those its filter consumed.
+    """
+    uv, confidence = scene.eval15(min_confidence)                          # (C, T, N, 15, 2), (C, T, N, 15)
+    C, K = uv.shape[0], len(index)
+    slots = association.slots.copy()                                        # (T, C, P)
+    present = association.present
+    first = {p: K - len(run.index) for p, run in people.items()}
+    runs = {p: run.filt.started(run.known, len(run.z), run.config.keep_snapshots, None, run.config.snapshot_every,
+                                run.on_step, **run.initial) for p, run in people.items()}
+    sigma = {p: float(run.model.likelihood.sigma_px) for p, run in people.items()}
+    changed = 0
+    try:
+        for k in range(K):
+            running = [p for p in people if k >= first[p] + KNOWN_FRAMES]
+            f = int(index[k])
+            if f < 0:
+                for p in running:
+                    runs[p].record(people[p].filt.step(np.full((C, 15, 3), np.nan)))
+                continue
+            for p in running:
+                people[p].filt.advance()
+            deciding = [p for p in running if present[f, p]]
+            if deciding:
+                before = slots[f, :, deciding].copy()
+                predictions = [people[p].filt.predicted_measurement() for p in deciding]
+                for c in range(C):
+                    held = {int(n) for q, n in enumerate(slots[f, c]) if n >= 0 and q not in deciding}
+                    offered = np.array([n for n in np.flatnonzero(np.isfinite(uv[c, f]).any(axis=(-1, -2)))
+                                        if n not in held], dtype=int)
+                    slots[f, c, deciding] = -1
+                    if not len(offered):
+                        continue
+                    cost, _ = prediction_costs(np.stack([h[c] for h, _ in predictions]),
+                                               np.stack([P[c] for _, P in predictions]),
+                                               np.array([sigma[p] for p in deciding]), uv[c, f, offered],
+                                               confidence[c, f, offered])
+                    for i, n in gated_assignment(cost, gate):
+                        slots[f, c, deciding[i]] = offered[n]
+                changed += int((slots[f, :, deciding] != before).any(axis=1).sum())
+            for p in running:
+                z = np.full((C, 15, 3), np.nan)
+                z[..., 2] = 0.0                                     # as TickObservations reads a frame
+                for c in range(C):
+                    n = slots[f, c, p]
+                    if n >= 0:
+                        z[c, :, :2], z[c, :, 2] = uv[c, f, n], confidence[c, f, n]
+                runs[p].record(people[p].filt.correct(z))
+            if progress:
+                progress(k, K)
+    except KeyboardInterrupt:
+        if not interruptible or not any(run.done > KNOWN_FRAMES for run in runs.values()):
+            raise
+        log.warning("interrupted: %d of %d ticks tracked; the runs end there", k, K)
+    log.info("the filters' association: %d person-frames decided otherwise than the scene tracker's", changed)
+    out = SceneAssociation(association.person_ids, slots, association.joints, association.frames, association.gap)
+    for p, run in people.items():
+        run.observe(out.detections_of(scene, p))
+    return out, {p: run.result() for p, run in runs.items()}
