@@ -12,7 +12,10 @@ person's filter runs together, tick by tick (the prior's ticks, :func:`~priortra
    the particle cloud's weighted moments), through the lens, as the filter's own likelihood projects;
 3. **associate**: in each camera, the detections of the tick's frame to the people the scene tracker has
    in the scene there and whose filter runs, by the scene tracker's cost (the median over joints of the
-   Mahalanobis distance with S = P_zz + R, R = (σ_px / confidence)² I in pixels, plus the spread penalty,
+   Mahalanobis distance with S = P_zz + R, R = (σ_px / confidence)² I in pixels (the detections' noise as the
+   scene tracker has it, :data:`~priortrack.tracking.motion.SIGMA_PX`, not the filter's own σ: the same
+   detections, the same noise; ukf-real's σ = 5 px left a camera 20–30 px off the others' consensus, one of
+   Pose2Sim's demo, out of the synthetic person's association from the first tick on), plus the spread penalty,
    the mirror's where smaller: :func:`~priortrack.tracking.scene.prediction_costs`) and its optimal
    assignment with a "not this person" option at the gate (:func:`~priortrack.tracking.scene.gated_assignment`);
 4. **update**: each filter corrects with the detections it was given (``correct``; as detected: a swap is
@@ -23,6 +26,13 @@ people tracked, stay theirs and are offered to nobody else. Frames the prior's t
 30 fps prior) keep the scene tracker's decisions; their detections are not the filters' anyway.
 
 A filter that cannot predict its detections (the MAP tracker) leaves the scene tracker's decisions as they are.
+
+Two ways to the same decisions: :func:`reassociated` steps every filter in this process, tick by tick; with
+worker processes, each person's run :func:`follows` the current decisions on their own, noting what its filter
+makes of every detection of every ticked frame (its costs, which depend on its own past alone), and
+:func:`first_disagreement` replays the assignment from those costs: where it first decides otherwise, that
+tick's decisions are taken and the people whose detections changed run again (each round fixes at least one
+tick; most scenes need one round). The decisions, and each run, are the lockstep's.
 """
 
 from __future__ import annotations
@@ -34,8 +44,9 @@ import numpy as np
 
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.filters.snapshot import KNOWN_FRAMES
-from priortrack.tracking.person import PersonRun
-from priortrack.tracking.scene import GATE, SceneAssociation, gated_assignment, prediction_costs
+from priortrack.tracking.motion import SIGMA_PX
+from priortrack.tracking.person import DetectionTrack, PersonRun
+from priortrack.tracking.scene import GATE, SceneAssociation, gated_assignment, prediction_costs, slot_detections
 
 log = logging.getLogger(__name__)
 
@@ -45,11 +56,47 @@ def predicts(person: PersonRun) -> bool:
     return all(hasattr(person.filt, name) for name in ("advance", "predicted_measurement", "correct"))
 
 
+def detection_costs(person: PersonRun, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """(C, N) the cost of each of a frame's detections, uv (C, N, 15, 2) and confidence (C, N, 15), for the
+    person, from their filter's prediction (after ``advance``; module docstring, 3); inf where a slot holds
+    no detection."""
+    mean, covariance = person.filt.predicted_measurement()
+    return np.stack([prediction_costs(mean[c][None], covariance[c][None], np.array([SIGMA_PX]), uv[c],
+                                      confidence[c])[0][0] for c in range(len(uv))])
+
+
+def assigned(costs: dict[int, np.ndarray], slots: np.ndarray, gate: float) -> np.ndarray:
+    """A frame's slots (C, P) with those of the people deciding (``costs``' keys, each with (C, N) costs of the
+    frame's N slots) decided by the optimal assignment; the slots the others hold are offered to nobody."""
+    deciding = list(costs)
+    out = slots.copy()
+    out[:, deciding] = -1
+    for c in range(len(slots)):
+        held = {int(n) for q, n in enumerate(slots[c]) if n >= 0 and q not in costs}
+        cost = np.stack([costs[p][c] for p in deciding])
+        offered = np.array([n for n in np.flatnonzero(np.isfinite(cost).any(axis=0)) if n not in held], dtype=int)
+        if len(offered):
+            for i, n in gated_assignment(cost[:, offered], gate):
+                out[c, deciding[i]] = offered[n]
+    return out
+
+
+def observation(uv: np.ndarray, confidence: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """z (C, 15, 3) of a frame's detections uv (C, N, 15, 2), confidence (C, N, 15) given slots (C,) (−1:
+    none), as :class:`~priortrack.observation.ticks.TickObservations` reads a person's frame."""
+    z = np.full((len(slots), 15, 3), np.nan)
+    z[..., 2] = 0.0
+    for c, n in enumerate(slots):
+        if n >= 0:
+            z[c, :, :2], z[c, :, 2] = uv[c, n], confidence[c, n]
+    return z
+
+
 def reassociated(scene: SceneDetections, association: SceneAssociation, people: dict[int, PersonRun],
                  index: np.ndarray, min_confidence: float, gate: float = GATE,
                  progress: Callable[[int, int], None] | None = None,
                  interruptible: bool = False) -> tuple[SceneAssociation, dict]:
-    """Every person's filter run in lockstep (module docstring).
+    """Every person's filter run in lockstep in this process (module docstring).
 
     Args:
         scene: the detections, every person in every file.
@@ -65,16 +112,15 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
 
     Returns the association with the ticked frames' slots decided again, and {p: the filter's run
     (:class:`~priortrack.filters.snapshot.Track`)}; each person's run has its observations (``z``) and
-    detections replaced by those its filter consumed.
+    detections replaced by those its filter consumed (:meth:`~priortrack.tracking.person.PersonRun.observe`).
     """
     uv, confidence = scene.eval15(min_confidence)                          # (C, T, N, 15, 2), (C, T, N, 15)
-    C, K = uv.shape[0], len(index)
+    K = len(index)
     slots = association.slots.copy()                                        # (T, C, P)
     present = association.present
     first = {p: K - len(run.index) for p, run in people.items()}
     runs = {p: run.filt.started(run.known, len(run.z), run.config.keep_snapshots, None, run.config.snapshot_every,
                                 run.on_step, **run.initial) for p, run in people.items()}
-    sigma = {p: float(run.model.likelihood.sigma_px) for p, run in people.items()}
     changed = 0
     try:
         for k in range(K):
@@ -82,36 +128,17 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
             f = int(index[k])
             if f < 0:
                 for p in running:
-                    runs[p].record(people[p].filt.step(np.full((C, 15, 3), np.nan)))
+                    runs[p].record(people[p].filt.step(np.full((len(uv), 15, 3), np.nan)))   # no frame
                 continue
             for p in running:
                 people[p].filt.advance()
-            deciding = [p for p in running if present[f, p]]
-            if deciding:
-                before = slots[f, :, deciding].copy()
-                predictions = [people[p].filt.predicted_measurement() for p in deciding]
-                for c in range(C):
-                    held = {int(n) for q, n in enumerate(slots[f, c]) if n >= 0 and q not in deciding}
-                    offered = np.array([n for n in np.flatnonzero(np.isfinite(uv[c, f]).any(axis=(-1, -2)))
-                                        if n not in held], dtype=int)
-                    slots[f, c, deciding] = -1
-                    if not len(offered):
-                        continue
-                    cost, _ = prediction_costs(np.stack([h[c] for h, _ in predictions]),
-                                               np.stack([P[c] for _, P in predictions]),
-                                               np.array([sigma[p] for p in deciding]), uv[c, f, offered],
-                                               confidence[c, f, offered])
-                    for i, n in gated_assignment(cost, gate):
-                        slots[f, c, deciding[i]] = offered[n]
-                changed += int((slots[f, :, deciding] != before).any(axis=1).sum())
+            costs = {p: detection_costs(people[p], uv[:, f], confidence[:, f]) for p in running if present[f, p]}
+            if costs:
+                decided = assigned(costs, slots[f], gate)
+                changed += int((decided != slots[f]).any(axis=0).sum())
+                slots[f] = decided
             for p in running:
-                z = np.full((C, 15, 3), np.nan)
-                z[..., 2] = 0.0                                     # as TickObservations reads a frame
-                for c in range(C):
-                    n = slots[f, c, p]
-                    if n >= 0:
-                        z[c, :, :2], z[c, :, 2] = uv[c, f, n], confidence[c, f, n]
-                runs[p].record(people[p].filt.correct(z))
+                runs[p].record(people[p].filt.correct(observation(uv[:, f], confidence[:, f], slots[f, :, p])))
             if progress:
                 progress(k, K)
     except KeyboardInterrupt:
@@ -123,3 +150,43 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
     for p, run in people.items():
         run.observe(out.detections_of(scene, p))
     return out, {p: run.result() for p, run in runs.items()}
+
+
+def follows(person: PersonRun, scene: SceneDetections, slots: np.ndarray) -> tuple[DetectionTrack, np.ndarray]:
+    """The person's run on the detections ``slots`` (T, C) gives them (−1: none), and what their filter makes of
+    every detection of each frame it ticks: costs (ticks, C, N) (:func:`detection_costs`; inf at the ticks it
+    does not filter). Runs in a worker."""
+    uv, confidence = scene.eval15(person.config.min_confidence)
+    person.observe(slot_detections(scene, slots, person.detections.source))
+    filt, config = person.filt, person.config
+    run = filt.started(person.known, len(person.z), config.keep_snapshots, None, config.snapshot_every,
+                       person.on_step, **person.initial)
+    costs = np.full((len(person.z), uv.shape[0], uv.shape[2]), np.inf)
+    for t in range(KNOWN_FRAMES, len(person.z)):
+        f = int(person.index[t])
+        if f < 0:
+            run.record(filt.step(np.full((len(uv), 15, 3), np.nan)))                 # no frame
+            continue
+        filt.advance()
+        costs[t] = detection_costs(person, uv[:, f], confidence[:, f])
+        run.record(filt.correct(observation(uv[:, f], confidence[:, f], slots[f])))
+    return person.finished(run.result()), costs
+
+
+def first_disagreement(slots: np.ndarray, costs: dict[int, np.ndarray], present: np.ndarray, index: np.ndarray,
+                       gate: float = GATE) -> tuple[int, np.ndarray] | None:
+    """The first tick at which the assignment from the runs' costs ({p: (ticks_p, C, N)}, each run's ticks the
+    last of ``index``'s, :func:`follows`) decides otherwise than ``slots`` (T, C, P), and that frame's
+    decided slots (C, P); None where it agrees everywhere."""
+    K = len(index)
+    first = {p: K - len(c) for p, c in costs.items()}
+    for k in range(K):
+        f = int(index[k])
+        deciding = {p: c[k - first[p]] for p, c in costs.items() if f >= 0 and k >= first[p] + KNOWN_FRAMES
+                    and present[f, p]}
+        if deciding:
+            decided = assigned(deciding, slots[f], gate)
+            if (decided != slots[f]).any():
+                return k, decided
+    return None
+

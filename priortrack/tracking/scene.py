@@ -289,6 +289,15 @@ def _median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return np.where(k[..., 0] > 0, (low + high) / 2, np.inf)
 
 
+def slot_detections(scene: SceneDetections, slots: np.ndarray, source: str) -> Detections:
+    """One person's detections, (C, T, K, 3) keypoints, from the scene's: in each frame and camera the slot
+    ``slots`` (T, C) names, NaN where it is −1."""
+    keypoints = np.full(scene.keypoints.shape[:2] + scene.keypoints.shape[3:], np.nan, dtype=np.float32)
+    t, c = np.nonzero(slots >= 0)
+    keypoints[c, t] = scene.keypoints[c, t, slots[t, c]]
+    return Detections(scene.layout, scene.camera_names, scene.frames, scene.fps, source, keypoints=keypoints)
+
+
 @dataclass
 class SceneAssociation:
     """What the scene tracker decided over a recording.
@@ -311,14 +320,8 @@ class SceneAssociation:
     gap: int = 0
 
     def detections_of(self, scene: SceneDetections, p: int) -> Detections:
-        """Person p's (index into ``person_ids``) detections in ``scene``: (C, T, K, 3), NaN where no detection
-        was theirs."""
-        slots = self.slots[:, :, p].T                                               # (C, T)
-        keypoints = np.full(scene.keypoints.shape[:2] + scene.keypoints.shape[3:], np.nan, dtype=np.float32)
-        c, t = np.nonzero(slots >= 0)
-        keypoints[c, t] = scene.keypoints[c, t, slots[c, t]]
-        return Detections(scene.layout, scene.camera_names, scene.frames, scene.fps,
-                          f"{scene.source} (person {self.person_ids[p]})", keypoints=keypoints)
+        """Person p's (index into ``person_ids``) detections in ``scene`` (:func:`slot_detections`)."""
+        return slot_detections(scene, self.slots[:, :, p], f"{scene.source} (person {self.person_ids[p]})")
 
     @property
     def present(self) -> np.ndarray:

@@ -1,0 +1,153 @@
+"""Who is who, decided through each person's own filter (priortrack.tracking.reassociation): the filters
+stepped in halves (advance, predicted_measurement, correct) against their whole step and an independent
+computation of the prediction, and the lockstep association on Pose2Sim's multi-person demo, where it undoes
+an identity swap injected into the scene tracker's decisions."""
+
+import numpy as np
+import pytest
+import torch
+
+from priortrack.filters.snapshot import KNOWN_FRAMES
+from priortrack.tracking.people import track_scene
+from priortrack.tracking.person import TrackConfig, prepared, schedule
+from priortrack.tracking.reassociation import predicts, reassociated
+from priortrack.tracking.scene import SceneConfig, SceneTracker
+from priortrack.geometry.camera import PinholeCamera
+
+from test_scene import demo  # noqa: F401  (the fixture)
+
+
+def _association(scene, calibration):
+    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    uv, confidence = scene.eval15(0.3)
+    return SceneTracker(cameras, 60.0).run(uv, confidence, scene.frames)
+
+
+@pytest.mark.parametrize("preset", ["ukf-real", "pf-diffusion-local"])
+def test_advance_then_correct_is_the_step_bit_for_bit(demo, preset):  # noqa: F811
+    """Two runs prepared alike: one stepped whole, one in halves with its prediction read between; the same
+    estimates and weights to the last bit."""
+    scene, calibration = demo
+    association = _association(scene, calibration)
+    detections = association.detections_of(scene, 1)
+    whole, halves = (prepared(detections, calibration, preset, TrackConfig(fps=60, seed=3)) for _ in range(2))
+    runs = [person.filt.started(person.known, len(person.z), **person.initial) for person in (whole, halves)]
+    for t in range(KNOWN_FRAMES, 30):
+        a = whole.filt.step(whole.z[t])
+        halves.filt.advance()
+        mean, covariance = halves.filt.predicted_measurement()
+        assert mean.shape == (4, 15, 2) and covariance.shape == (4, 15, 2, 2)
+        b = halves.filt.correct(halves.z[t])
+        np.testing.assert_array_equal(a.estimate, b.estimate)
+        np.testing.assert_array_equal(np.asarray(a.weights), np.asarray(b.weights))
+        for run, snap in zip(runs, (a, b)):
+            run.record(snap)
+    np.testing.assert_array_equal(runs[0].result().estimates, runs[1].result().estimates)
+
+
+def test_the_unscented_prediction_is_filterpys_innovation_covariance_less_R(demo):  # noqa: F811
+    """ukf-real: every point's predicted pixels' covariance P_zz (2 × 2) equals the diagonal block of filterpy's
+    own innovation covariance S = P_zz + R (its unscented transform of the same sigma points) less R = σ² I,
+    with every point detected at confidence 1, at the predicted pixels (none gated)."""
+    scene, calibration = demo
+    person = prepared(_association(scene, calibration).detections_of(scene, 0), calibration, "ukf-real",
+                      TrackConfig(fps=60))
+    person.filt.started(person.known, len(person.z))
+    for t in range(KNOWN_FRAMES, 12):
+        person.filt.step(person.z[t])
+    person.filt.advance()
+    mean, covariance = person.filt.predicted_measurement()
+    z = np.concatenate([mean, np.ones(mean.shape[:-1] + (1,))], axis=-1)
+    person.filt.correct(z)
+    S = person.filt.kf.S
+    assert S.shape == (4 * 15 * 2,) * 2
+    blocks = np.stack([S[2 * k:2 * k + 2, 2 * k:2 * k + 2] for k in range(60)])
+    sigma = person.model.likelihood.sigma_px
+    np.testing.assert_allclose(blocks - sigma ** 2 * np.eye(2), covariance.reshape(60, 2, 2), rtol=1e-9, atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(covariance.reshape(60, 2, 2)) > 0)
+
+
+def test_the_particle_prediction_is_the_clouds_weighted_moments_through_each_camera(demo):  # noqa: F811
+    """pf-diffusion-local: the predicted pixels and their covariance are the weighted mean and covariance of
+    every predicted particle's joints projected by each camera's own model (PinholeCamera.project, the lens
+    included), computed here apart in float64."""
+    scene, calibration = demo
+    person = prepared(_association(scene, calibration).detections_of(scene, 0), calibration, "pf-diffusion-local",
+                      TrackConfig(fps=60))
+    person.filt.started(person.known, len(person.z), **person.initial)
+    for t in range(KNOWN_FRAMES, 8):
+        person.filt.step(person.z[t])
+    person.filt.advance()
+    mean, covariance = person.filt.predicted_measurement()
+    joints = torch.einsum("ij,pjk->pik", torch.as_tensor(person.M, dtype=torch.float64),
+                          person.filt.model.observe(person.filt.states).double())
+    w = torch.exp(person.filt.log_weights).numpy()
+    for c, camera in enumerate(person.cameras):
+        uv = camera.project(joints)[0].numpy()                                    # (P, 15, 2)
+        m = np.einsum("i,ijc->jc", w, uv)
+        r = uv - m
+        np.testing.assert_allclose(mean[c], m, rtol=1e-6, atol=1e-3)             # the particles are float32
+        np.testing.assert_allclose(covariance[c], np.einsum("i,ijc,ijd->jcd", w, r, r), rtol=1e-4, atol=1e-2)
+        assert np.all(np.linalg.eigvalsh(covariance[c]) > 0)
+
+
+def test_the_filters_undo_an_identity_swap_the_scene_tracker_made(demo):  # noqa: F811
+    """The scene tracker's decisions with the two people's detections exchanged in camera 2 over frames
+    40–70 (a swap, as a joint model makes at a crossing): every person's ukf-real filter, in lockstep, gives
+    each tick's detections back to their owner, in every ticked frame; what each filter consumed is the
+    run's observations afterwards."""
+    scene, calibration = demo
+    truth = _association(scene, calibration)
+    swapped = _association(scene, calibration)
+    swapped.slots[40:71, 2] = swapped.slots[40:71, 2, ::-1].copy()
+    config = TrackConfig(fps=60)
+    people = {p: prepared(swapped.detections_of(scene, p), calibration, "ukf-real", config) for p in range(2)}
+    assert all(predicts(run) for run in people.values())
+    consumed = {p: [] for p in people}
+    for p, run in people.items():
+        correct = run.filt.correct
+        run.filt.correct = lambda z, correct=correct, p=p: consumed[p].append(np.array(z)) or correct(z)
+    index = schedule(scene.frames, 60.0, 30.0)
+    fixed, tracks = reassociated(scene, swapped, people, index, 0.3)
+    ticked = np.unique(index[index >= 0])
+    swap = ticked[(ticked >= 40) & (ticked <= 70)]
+    assert len(swap) >= 15
+    np.testing.assert_array_equal(fixed.slots[swap], truth.slots[swap])
+    started = max(len(index) - len(run.index) + KNOWN_FRAMES for run in people.values())
+    later = ticked[ticked >= index[started]]
+    np.testing.assert_array_equal(fixed.slots[later], truth.slots[later])
+    for p, run in people.items():
+        first = len(run.z) - len(consumed[p])
+        np.testing.assert_array_equal(np.stack(consumed[p]), run.z[first:])
+        assert tracks[p].estimates.shape == (len(run.z), 15, 3)
+
+
+def test_the_scene_of_the_filters_and_of_the_joint_model_agree_where_nothing_is_decided_otherwise(demo):  # noqa: F811
+    """track_scene with association "filter" (the default: lockstep, in this process) and "joints" (workers):
+    on the demo the filters decide no detection otherwise, and each person's joints are the same run's."""
+    scene, calibration = demo
+    by = {a: track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), SceneConfig(association=a), workers=1)
+          for a in ("filter", "joints")}
+    np.testing.assert_array_equal(by["filter"].association.slots, by["joints"].association.slots)
+    np.testing.assert_allclose(by["filter"].joints, by["joints"].joints, atol=1e-9)
+
+
+def test_runs_in_workers_that_follow_and_replay_decide_as_the_lockstep(demo, caplog):  # noqa: F811
+    """The swap above undone by runs in two worker processes, each following the current decisions, the
+    assignment replayed from their costs, the people whose detections change run again: the lockstep's
+    decisions in every frame and each person's joints (up to the workers' rounding), in more than one round."""
+    import logging
+
+    from priortrack.tracking.people import _in_lockstep, _Pool, _speculated
+
+    scene, calibration = demo
+    swapped = _association(scene, calibration)
+    swapped.slots[40:71, 2] = swapped.slots[40:71, 2, ::-1].copy()
+    jobs = [(swapped.detections_of(scene, p), calibration, "ukf-real", TrackConfig(fps=60), None) for p in range(2)]
+    lockstep, here = _in_lockstep(scene, swapped, [0, 1], jobs, 13.8, None)
+    with caplog.at_level(logging.INFO, logger="priortrack.tracking.people"):
+        speculated, there = _speculated(_Pool(2), scene, swapped, [0, 1], jobs, 13.8, None)
+    np.testing.assert_array_equal(speculated.slots, lockstep.slots)
+    for (a, _), (b, _) in zip(here, there):
+        np.testing.assert_allclose(a.joints, b.joints, atol=1e-6)
+    assert any("round 1: the filters decide frame" in r.getMessage() for r in caplog.records)
