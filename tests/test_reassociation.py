@@ -7,14 +7,21 @@ import numpy as np
 import pytest
 import torch
 
+from priortrack.data.calibration import read_calibration
+from priortrack.data.scene_detections import read_scene_detections
 from priortrack.filters.snapshot import KNOWN_FRAMES
+from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.people import track_scene
 from priortrack.tracking.person import TrackConfig, prepared, schedule
 from priortrack.tracking.reassociation import predicts, reassociated
 from priortrack.tracking.scene import SceneConfig, SceneTracker
-from priortrack.geometry.camera import PinholeCamera
 
-from test_scene import demo  # noqa: F401  (the fixture)
+from test_scene import POSE, QCA
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return read_scene_detections(POSE, keypoints="body25b"), read_calibration(QCA)
 
 
 def _association(scene, calibration):
@@ -24,7 +31,7 @@ def _association(scene, calibration):
 
 
 @pytest.mark.parametrize("preset", ["ukf-real", "pf-diffusion-local"])
-def test_advance_then_correct_is_the_step_bit_for_bit(demo, preset):  # noqa: F811
+def test_advance_then_correct_is_the_step_bit_for_bit(demo, preset):
     """Two runs prepared alike: one stepped whole, one in halves with its prediction read between; the same
     estimates and weights to the last bit."""
     scene, calibration = demo
@@ -45,7 +52,7 @@ def test_advance_then_correct_is_the_step_bit_for_bit(demo, preset):  # noqa: F8
     np.testing.assert_array_equal(runs[0].result().estimates, runs[1].result().estimates)
 
 
-def test_the_unscented_prediction_is_filterpys_innovation_covariance_less_R(demo):  # noqa: F811
+def test_the_unscented_prediction_is_filterpys_innovation_covariance_less_R(demo):
     """ukf-real: every point's predicted pixels' covariance P_zz (2 × 2) equals the diagonal block of filterpy's
     own innovation covariance S = P_zz + R (its unscented transform of the same sigma points) less R = σ² I,
     with every point detected at confidence 1, at the predicted pixels (none gated)."""
@@ -67,7 +74,7 @@ def test_the_unscented_prediction_is_filterpys_innovation_covariance_less_R(demo
     assert np.all(np.linalg.eigvalsh(covariance.reshape(60, 2, 2)) > 0)
 
 
-def test_the_particle_prediction_is_the_clouds_weighted_moments_through_each_camera(demo):  # noqa: F811
+def test_the_particle_prediction_is_the_clouds_weighted_moments_through_each_camera(demo):
     """pf-diffusion-local: the predicted pixels and their covariance are the weighted mean and covariance of
     every predicted particle's joints projected by each camera's own model (PinholeCamera.project, the lens
     included), computed here apart in float64."""
@@ -91,7 +98,7 @@ def test_the_particle_prediction_is_the_clouds_weighted_moments_through_each_cam
         assert np.all(np.linalg.eigvalsh(covariance[c]) > 0)
 
 
-def test_the_filters_undo_an_identity_swap_the_scene_tracker_made(demo):  # noqa: F811
+def test_the_filters_undo_an_identity_swap_the_scene_tracker_made(demo):
     """The scene tracker's decisions with the two people's detections exchanged in camera 2 over frames
     40–70 (a swap, as a joint model makes at a crossing): every person's ukf-real filter, in lockstep, gives
     each tick's detections back to their owner, in every ticked frame; what each filter consumed is the
@@ -122,8 +129,9 @@ def test_the_filters_undo_an_identity_swap_the_scene_tracker_made(demo):  # noqa
         assert tracks[p].estimates.shape == (len(run.z), 15, 3)
 
 
-def test_the_scene_of_the_filters_and_of_the_joint_model_agree_where_nothing_is_decided_otherwise(demo):  # noqa: F811
-    """track_scene with association "filter" (the default: lockstep, in this process) and "joints" (workers):
+def test_the_scene_of_the_filters_and_of_the_joint_model_agree_where_nothing_is_decided_otherwise(demo):
+    """track_scene with association "filter" (the filters in lockstep, in this process) and "joints" (each
+    person's run on its own):
     on the demo the filters decide no detection otherwise, and each person's joints are the same run's."""
     scene, calibration = demo
     by = {a: track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), SceneConfig(association=a), workers=1)
@@ -131,23 +139,3 @@ def test_the_scene_of_the_filters_and_of_the_joint_model_agree_where_nothing_is_
     np.testing.assert_array_equal(by["filter"].association.slots, by["joints"].association.slots)
     np.testing.assert_allclose(by["filter"].joints, by["joints"].joints, atol=1e-9)
 
-
-def test_runs_in_workers_that_follow_and_replay_decide_as_the_lockstep(demo, caplog):  # noqa: F811
-    """The swap above undone by runs in two worker processes, each following the current decisions, the
-    assignment replayed from their costs, the people whose detections change run again: the lockstep's
-    decisions in every frame and each person's joints (up to the workers' rounding), in more than one round."""
-    import logging
-
-    from priortrack.tracking.people import _in_lockstep, _Pool, _speculated
-
-    scene, calibration = demo
-    swapped = _association(scene, calibration)
-    swapped.slots[40:71, 2] = swapped.slots[40:71, 2, ::-1].copy()
-    jobs = [(swapped.detections_of(scene, p), calibration, "ukf-real", TrackConfig(fps=60), None) for p in range(2)]
-    lockstep, here = _in_lockstep(scene, swapped, [0, 1], jobs, 13.8, None)
-    with caplog.at_level(logging.INFO, logger="priortrack.tracking.people"):
-        speculated, there = _speculated(_Pool(2), scene, swapped, [0, 1], jobs, 13.8, None)
-    np.testing.assert_array_equal(speculated.slots, lockstep.slots)
-    for (a, _), (b, _) in zip(here, there):
-        np.testing.assert_allclose(a.joints, b.joints, atol=1e-6)
-    assert any("round 1: the filters decide frame" in r.getMessage() for r in caplog.records)

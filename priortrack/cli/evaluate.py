@@ -139,7 +139,7 @@ def _eval_people(args: argparse.Namespace) -> None:
 def _eval_scenes(args: argparse.Namespace) -> None:
     from priortrack.experiments.scenes import eval_scenes
 
-    result = eval_scenes(args.scenes, args.presets, args.seeds, args.gaps)
+    result = eval_scenes(args.scenes, args.presets, args.seeds, args.gaps, args.association)
     if args.json:
         print_json(result)
         return
@@ -264,6 +264,9 @@ def add_parsers(verbs) -> None:
     scenes.add_argument("--seeds", type=int, default=3, help="runs of each scene, each with its own detector errors (3)")
     scenes.add_argument("--gaps", nargs="+", type=float, default=[0.3, 1.0],
                         help="passing: the distances the two pass apart, metres (default 0.3 1.0)")
+    scenes.add_argument("--association", default="joints", metavar="joints|filter",
+                        help="who is who finally decided by the scene tracker's joint model or through every "
+                             "person's own filter (track --association; default %(default)s)")
     scenes.add_argument("--json", action="store_true", help="print every run's scores and the table as JSON")
     scenes.set_defaults(run=_eval_scenes)
     smoothing = evaluate.add_parser("smoothing", help="smoothed vs filtered through a blackout on held-out walks")

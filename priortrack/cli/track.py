@@ -22,7 +22,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.viz.replay import replay
 
     for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory",
-                 "workers"):                                                                  # (--height has a default)
+                 "workers", "association"):                                                   # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -114,6 +114,8 @@ def _track_detections(args: argparse.Namespace) -> None:
         return
     if args.workers is not None:
         raise PriortrackError("--workers tracks several people side by side: give --people")
+    if args.association is not None:
+        raise PriortrackError("--association decides who is who among several people: give --people")
     calibration = read_calibration(args.cameras, units=args.units)
     config = replace(config, keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True)
     scene = _every_person(args, calibration)
@@ -175,19 +177,21 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     from priortrack.data.calibration import read_calibration
     from priortrack.data.scene_detections import read_scene_detections
     from priortrack.tracking.people import parse_people, track_scene, worker_count
+    from priortrack.tracking.scene import SceneConfig
 
     for name in ("person", "skeleton"):
         if getattr(args, name) is not None:
             raise PriortrackError(f"--{name} follows one person; --people tracks the scene's (give one of them)")
     workers = worker_count(args.workers)                  # checked before the files are read
     people = parse_people(args.people)
+    scene_config = SceneConfig(association=args.association or SceneConfig.association)
     scene = read_scene_detections(args.detections, keypoints=args.keypoints)
     if args.frames is not None:
         scene = scene.head(args.frames)
     calibration = read_calibration(args.cameras, units=args.units)
     progress = Progress(f"track {args.filter}", "{0} of {1}")          # people tracked (one person: ticks)
     try:
-        result = track_scene(scene, calibration, args.filter, config, people=people, workers=workers,
+        result = track_scene(scene, calibration, args.filter, config, scene_config, people=people, workers=workers,
                              progress=progress)
     finally:
         progress.close()
@@ -234,6 +238,10 @@ def add_parsers(verbs) -> None:
                             "column, a .trc/.bvh per person; the recording colours and labels each")
     track.add_argument("--workers", type=int, metavar="N",
                        help="--people: processes tracking people side by side (default: one per core)")
+    track.add_argument("--association", metavar="joints|filter",
+                       help="--people: who is who finally decided by the scene tracker's joint model (joints, the "
+                            "default: each person then tracked on their own, side by side) or through every "
+                            "person's own filter, all stepped together in one process (filter)")
     track.add_argument("--skeleton", help="the person's own body (.asf, or a .bvh's hierarchy) instead of the "
                                          "template scaled to the detections")
     track.add_argument("--height", type=float, default=1.7,

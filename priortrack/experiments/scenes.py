@@ -330,10 +330,14 @@ def run_scene(scene: str, preset, seed: int = 0, gap: float | None = None, away_
 
 
 def eval_scenes(scenes=tuple(SCENES), presets=("ukf-real", "pf-lie"), seeds: int = 3,
-                gaps=(0.3, 1.0), cache=None) -> dict:
-    """Every scene × preset × seed (``passing`` once per gap), each :func:`run_scene`; the rows and a
-    summary per scene and preset: mean MOTA and IDF1, identity switches and false tracks summed, the
-    lowest PCP and the highest MPJPE ratio to the person tracked alone."""
+                gaps=(0.3, 1.0), association: str = "joints", cache=None) -> dict:
+    """Every scene × preset × seed (``passing`` once per gap), each :func:`run_scene` with who is who decided
+    as ``association`` says (:class:`~priortrack.tracking.scene.SceneConfig`); the rows and a summary per scene
+    and preset: mean MOTA and IDF1, identity switches and false tracks summed, the lowest PCP and the highest
+    MPJPE ratio to the person tracked alone."""
+    from priortrack.tracking.scene import SceneConfig
+
+    scene_config = SceneConfig(association=association)
     unknown = [s for s in scenes if s not in SCENES]
     if unknown:
         raise PriortrackError(f"unknown scene {unknown[0]!r}; scenes: {', '.join(SCENES)}")
@@ -344,7 +348,7 @@ def eval_scenes(scenes=tuple(SCENES), presets=("ukf-real", "pf-lie"), seeds: int
         for gap in (gaps if scene == "passing" else (None,)):
             for preset in presets:
                 for seed in range(seeds):
-                    rows.append(run_scene(scene, preset, seed, gap, cache=cache))
+                    rows.append(run_scene(scene, preset, seed, gap, cache=cache, scene_config=scene_config))
                     log.info("%s%s %s seed %d: IDF1 %.3f, %d switches, %d false tracks", scene,
                              "" if gap is None else f" {gap} m", preset, seed, rows[-1]["idf1"],
                              rows[-1]["num_switches"], rows[-1]["false_tracks"])

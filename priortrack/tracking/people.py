@@ -33,15 +33,12 @@ from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
 from priortrack.tracking.person import (DetectionTrack, TrackConfig, fitted_once, match_cameras, output_path, prepared,
                                          schedule, track_detections, up_from_detections)
-from priortrack.tracking.reassociation import first_disagreement, follows, predicts, reassociated
+from priortrack.tracking.reassociation import predicts, reassociated
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
 
 log = logging.getLogger(__name__)
 
-#: Rounds of runs in worker processes (each about one person's run) before the people whose detections the
-#: filters decide otherwise are tracked in lockstep in this process instead (:func:`_speculated`).
-ROUNDS = 3
 
 
 def parse_people(words: list[str] | str | None):
@@ -231,7 +228,8 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     data_fps = config.fps if config.fps is not None else scene.fps
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
-    pool = _Pool(1 if config.interruptible or skeleton is not None else worker_count(workers))   # workers start now
+    in_lockstep = scene_config.association == "filter"              # in this process
+    pool = _Pool(1 if config.interruptible or skeleton is not None or in_lockstep else worker_count(workers))  # now
     association, cameras = associated(scene, calibration, data_fps, config, scene_config)
     chosen = chosen_people(association, people, scene)
     if skeleton is not None and len(chosen) > 1:
@@ -252,10 +250,8 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     person = replace(config, fps=data_fps, up=up)
     one = len(chosen) == 1
     jobs = [(detections[p], calibration, preset, person, skeleton) for p in chosen]
-    if scene_config.association == "filter" and pool.executor is None:
+    if in_lockstep:
         association, runs = _in_lockstep(scene, association, chosen, jobs, scene_config.gate, progress)
-    elif scene_config.association == "filter":
-        association, runs = _speculated(pool, scene, association, chosen, jobs, scene_config.gate, progress)
     else:
         runs = pool.track([job + (progress if one else None,) for job in jobs], None if one else progress)
     results, kept, skipped = [], [], {}
@@ -322,50 +318,6 @@ def _ticks(scene: SceneDetections, data_fps: float, prior_fps: float) -> np.ndar
     return schedule(scene.frames, data_fps, prior_fps)
 
 
-def _speculated(pool: "_Pool", scene: SceneDetections, association: SceneAssociation, chosen: list[int], jobs: list,
-                gate: float, progress: Callable[[int, int], None] | None) -> tuple[SceneAssociation, list]:
-    """:func:`_in_lockstep`'s decisions and runs, each person's run in a worker on the current decisions
-    (:func:`~priortrack.tracking.reassociation.follows`), the assignment replayed from their costs and the
-    people whose detections it changes run again (:mod:`~priortrack.tracking.reassociation`), for at most
-    :data:`ROUNDS` rounds; then the lockstep in this process."""
-    slots, present = association.slots.copy(), association.present
-    followed, errors, todo = {}, {}, list(chosen)
-    for turn in range(ROUNDS):
-        outcomes = pool.track([jobs[chosen.index(p)] + (scene, slots[:, :, p]) for p in todo],
-                              progress if turn == 0 else None, _follow_person)
-        for p, (outcome, error) in zip(todo, outcomes):
-            if error is None:
-                followed[p] = outcome
-            else:
-                errors[p] = error
-        if not followed:
-            break
-        index = _ticks(scene, jobs[0][3].fps, next(iter(followed.values()))[0].fps)
-        found = first_disagreement(slots, {p: costs for p, (_, costs) in followed.items()}, present, index, gate)
-        if found is None:
-            return (replace(association, slots=slots),
-                    [(followed[p][0] if p in followed else None, errors.get(p)) for p in chosen])
-        k, decided = found
-        f = int(index[k])
-        todo = [p for p in followed if (decided[:, p] != slots[f, :, p]).any()]
-        log.info("round %d: the filters decide frame %d otherwise; %s run again", turn + 1, scene.frames[f],
-                 ", ".join(f"person {association.person_ids[p]}" for p in todo))
-        slots[f] = decided
-    log.info("the filters decide otherwise in more than %d frames: the people are tracked in lockstep here", ROUNDS)
-    return _in_lockstep(scene, association, chosen, jobs, gate, progress)
-
-
-def _follow_person(job):
-    """One person's run prepared and following the decisions ``job`` ends with
-    (:func:`~priortrack.tracking.reassociation.follows`): (result, costs), or None and why it could not be
-    tracked."""
-    *person, scene, slots = job
-    try:
-        return follows(prepared(*person), scene, slots), None
-    except PriortrackError as exc:
-        return None, str(exc)
-
-
 def _track_person(job) -> tuple[DetectionTrack | None, str | None]:
     """One person's :func:`track_detections` (``job``: its arguments, detections to progress): the result, or
     None and why it could not be tracked. Runs in a worker or here; a worker's log records are re-logged
@@ -388,14 +340,14 @@ class _Captured(logging.Handler):
         self.records.append(record)
 
 
-def _in_worker(work: Callable, job, level: int):
-    """``work(job)`` in a worker process, with the log records it made at ``level`` or above."""
+def _in_worker(job, level: int):
+    """:func:`_track_person` in a worker process, with the log records it made at ``level`` or above."""
     handler = _Captured()
     root = logging.getLogger()
     root.addHandler(handler)
     root.setLevel(level)
     try:
-        return work(job), handler.records
+        return _track_person(job), handler.records
     finally:
         root.removeHandler(handler)
 
@@ -431,11 +383,9 @@ class _Pool:
             for _ in range(workers):             # the executor starts its processes for waiting tasks
                 self.executor.submit(_ready)
 
-    def track(self, jobs: list, progress: Callable[[int, int], None] | None = None, work: Callable = None) -> list:
-        """Each job's ``work(job)`` (:func:`_track_person`), in the jobs' order, ``progress(done, total)`` after
-        each."""
-        work = work or _track_person
-        outcomes = map(work, jobs) if self.executor is None or len(jobs) == 1 else self._in_workers(work, jobs)
+    def track(self, jobs: list, progress: Callable[[int, int], None] | None = None) -> list:
+        """Each job's :func:`_track_person`, in the jobs' order, ``progress(done, total)`` after each."""
+        outcomes = map(_track_person, jobs) if self.executor is None or len(jobs) == 1 else self._in_workers(jobs)
         results = []
         for outcome in outcomes:
             results.append(outcome)
@@ -443,13 +393,13 @@ class _Pool:
                 progress(len(results), len(jobs))
         return results
 
-    def _in_workers(self, work: Callable, jobs: list):
+    def _in_workers(self, jobs: list):
         """The jobs' outcomes from the workers as they come, in order, each worker's log records re-logged here."""
         from loky.process_executor import TerminatedWorkerError
 
         level = logging.getLogger().getEffectiveLevel()
         try:
-            for outcome, records in self.executor.map(_in_worker, [work] * len(jobs), jobs, [level] * len(jobs)):
+            for outcome, records in self.executor.map(_in_worker, jobs, [level] * len(jobs)):
                 for record in records:
                     logging.getLogger(record.name).handle(record)
                 yield outcome

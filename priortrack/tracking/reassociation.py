@@ -26,13 +26,6 @@ people tracked, stay theirs and are offered to nobody else. Frames the prior's t
 30 fps prior) keep the scene tracker's decisions; their detections are not the filters' anyway.
 
 A filter that cannot predict its detections (the MAP tracker) leaves the scene tracker's decisions as they are.
-
-Two ways to the same decisions: :func:`reassociated` steps every filter in this process, tick by tick; with
-worker processes, each person's run :func:`follows` the current decisions on their own, noting what its filter
-makes of every detection of every ticked frame (its costs, which depend on its own past alone), and
-:func:`first_disagreement` replays the assignment from those costs: where it first decides otherwise, that
-tick's decisions are taken and the people whose detections changed run again (each round fixes at least one
-tick; most scenes need one round). The decisions, and each run, are the lockstep's.
 """
 
 from __future__ import annotations
@@ -45,8 +38,8 @@ import numpy as np
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.tracking.motion import SIGMA_PX
-from priortrack.tracking.person import DetectionTrack, PersonRun
-from priortrack.tracking.scene import GATE, SceneAssociation, gated_assignment, prediction_costs, slot_detections
+from priortrack.tracking.person import PersonRun
+from priortrack.tracking.scene import GATE, SceneAssociation, gated_assignment, prediction_costs
 
 log = logging.getLogger(__name__)
 
@@ -150,43 +143,3 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
     for p, run in people.items():
         run.observe(out.detections_of(scene, p))
     return out, {p: run.result() for p, run in runs.items()}
-
-
-def follows(person: PersonRun, scene: SceneDetections, slots: np.ndarray) -> tuple[DetectionTrack, np.ndarray]:
-    """The person's run on the detections ``slots`` (T, C) gives them (−1: none), and what their filter makes of
-    every detection of each frame it ticks: costs (ticks, C, N) (:func:`detection_costs`; inf at the ticks it
-    does not filter). Runs in a worker."""
-    uv, confidence = scene.eval15(person.config.min_confidence)
-    person.observe(slot_detections(scene, slots, person.detections.source))
-    filt, config = person.filt, person.config
-    run = filt.started(person.known, len(person.z), config.keep_snapshots, None, config.snapshot_every,
-                       person.on_step, **person.initial)
-    costs = np.full((len(person.z), uv.shape[0], uv.shape[2]), np.inf)
-    for t in range(KNOWN_FRAMES, len(person.z)):
-        f = int(person.index[t])
-        if f < 0:
-            run.record(filt.step(np.full((len(uv), 15, 3), np.nan)))                 # no frame
-            continue
-        filt.advance()
-        costs[t] = detection_costs(person, uv[:, f], confidence[:, f])
-        run.record(filt.correct(observation(uv[:, f], confidence[:, f], slots[f])))
-    return person.finished(run.result()), costs
-
-
-def first_disagreement(slots: np.ndarray, costs: dict[int, np.ndarray], present: np.ndarray, index: np.ndarray,
-                       gate: float = GATE) -> tuple[int, np.ndarray] | None:
-    """The first tick at which the assignment from the runs' costs ({p: (ticks_p, C, N)}, each run's ticks the
-    last of ``index``'s, :func:`follows`) decides otherwise than ``slots`` (T, C, P), and that frame's
-    decided slots (C, P); None where it agrees everywhere."""
-    K = len(index)
-    first = {p: K - len(c) for p, c in costs.items()}
-    for k in range(K):
-        f = int(index[k])
-        deciding = {p: c[k - first[p]] for p, c in costs.items() if f >= 0 and k >= first[p] + KNOWN_FRAMES
-                    and present[f, p]}
-        if deciding:
-            decided = assigned(deciding, slots[f], gate)
-            if (decided != slots[f]).any():
-                return k, decided
-    return None
-

@@ -51,7 +51,7 @@ log = logging.getLogger(__name__)
 #: The χ² quantile (2 degrees of freedom, 99.9 %) a detection's median joint distance must be under.
 GATE = 13.8
 #: How each tick's detections are finally decided (:class:`SceneConfig`).
-ASSOCIATIONS = ("filter", "joints")
+ASSOCIATIONS = ("joints", "filter")
 #: A tentative person's next proposal lies within this median joint distance (metres) of the last.
 FOLLOW_M = 0.3
 #: A returning person's bone lengths within this relative RMS difference of an ended person's are theirs.
@@ -76,10 +76,14 @@ class SceneConfig:
         birth_s: seconds of proposals that confirm a new person.
         birth_views: cameras a proposal needs to start a person (capped at the rig's camera count).
         death_s: seconds unseen after which a person's track ends.
-        association: "filter": each tick's detections are decided again through every person's own filter
-            (:mod:`~priortrack.tracking.reassociation`), the people tracked in lockstep in one process;
-            "joints": the scene tracker's decisions are kept and each person's filter runs on their own (in
-            worker processes, side by side).
+        association: "joints" (the default): the scene tracker's decisions are kept and each person's filter
+            runs on their own (in worker processes, side by side); "filter": each tick's detections are decided
+            again through every person's own filter (:mod:`~priortrack.tracking.reassociation`), the people
+            tracked in lockstep in this process. Measured on the composed scenes (``eval scenes``), both decide
+            alike (0–1 person-frames otherwise, the same identity scores, MPJPE within 0.2 mm); with four people
+            1.2 m apart and five cameras, "filter" decides 15 of 240 person-frames otherwise, where two
+            detections in one camera fit a person within 0.2 of each other, and the whole command takes about
+            1.6× as long (one process): hence "joints" by default.
     """
 
     pair_gate_m: float = PAIR_GATE_M
@@ -87,7 +91,7 @@ class SceneConfig:
     birth_s: float = 0.1
     birth_views: int = 3
     death_s: float = 0.5
-    association: str = "filter"
+    association: str = "joints"
 
     def __post_init__(self):
         for name in ("pair_gate_m", "gate", "birth_s", "death_s"):
@@ -289,15 +293,6 @@ def _median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return np.where(k[..., 0] > 0, (low + high) / 2, np.inf)
 
 
-def slot_detections(scene: SceneDetections, slots: np.ndarray, source: str) -> Detections:
-    """One person's detections, (C, T, K, 3) keypoints, from the scene's: in each frame and camera the slot
-    ``slots`` (T, C) names, NaN where it is −1."""
-    keypoints = np.full(scene.keypoints.shape[:2] + scene.keypoints.shape[3:], np.nan, dtype=np.float32)
-    t, c = np.nonzero(slots >= 0)
-    keypoints[c, t] = scene.keypoints[c, t, slots[t, c]]
-    return Detections(scene.layout, scene.camera_names, scene.frames, scene.fps, source, keypoints=keypoints)
-
-
 @dataclass
 class SceneAssociation:
     """What the scene tracker decided over a recording.
@@ -320,8 +315,13 @@ class SceneAssociation:
     gap: int = 0
 
     def detections_of(self, scene: SceneDetections, p: int) -> Detections:
-        """Person p's (index into ``person_ids``) detections in ``scene`` (:func:`slot_detections`)."""
-        return slot_detections(scene, self.slots[:, :, p], f"{scene.source} (person {self.person_ids[p]})")
+        """Person p's (index into ``person_ids``) detections in ``scene``: (C, T, K, 3) keypoints, NaN where no
+        detection was theirs."""
+        keypoints = np.full(scene.keypoints.shape[:2] + scene.keypoints.shape[3:], np.nan, dtype=np.float32)
+        t, c = np.nonzero(self.slots[:, :, p] >= 0)
+        keypoints[c, t] = scene.keypoints[c, t, self.slots[t, c, p]]
+        return Detections(scene.layout, scene.camera_names, scene.frames, scene.fps,
+                          f"{scene.source} (person {self.person_ids[p]})", keypoints=keypoints)
 
     @property
     def present(self) -> np.ndarray:
