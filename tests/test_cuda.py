@@ -192,3 +192,24 @@ def test_an_unknown_device_is_named():
             resolve_device(name)
     with pytest.raises(PriortrackError, match="not one of cpu, cuda"):
         ParticleFilter(None, 10, device="tpu")
+
+
+@needs_cuda
+def test_the_particle_filters_prediction_of_its_detections_on_the_gpu_is_the_cpus(priors, walk):
+    """advance() then predicted_measurement() (the scene tracker's view of a person's filter) on the GPU: the
+    predicted pixels and their covariance are the CPU's weighted moments of the same float64 particles'
+    projections to 1e-9 (relative); correct() then weighs them there."""
+    model, observations = _model(priors["lie"], walk)
+    pf = ParticleFilter(model, 2000, seed=0, device="cuda")
+    pf.initialise(walk)
+    pf.step(observations.uv[2])
+    pf.advance()
+    mean, covariance = pf.predicted_measurement()
+    states, w = pf.states.cpu(), torch.exp(pf.log_weights).cpu()
+    h = model.likelihood.pixels(model.observe(states)).reshape(len(states), -1, 2)
+    m = torch.einsum("i,ikc->kc", w, h)
+    r = h - m
+    np.testing.assert_allclose(mean, m.numpy(), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(covariance, torch.einsum("i,ikc,ikd->kcd", w, r, r).numpy(), rtol=1e-9, atol=1e-9)
+    snapshot = pf.correct(observations.uv[3])
+    assert pf.states.device.type == "cuda" and np.isfinite(snapshot.estimate).all()
