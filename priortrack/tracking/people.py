@@ -1,7 +1,9 @@
 """Every person of a scene tracked by a filter preset: the scene tracker decides who is who
 (:mod:`priortrack.tracking.scene`), then each kept person's own detections are tracked by the preset
 with their own body (:func:`~priortrack.tracking.person.track_detections`: their bones measured over
-their whole trial, their start, their filter), and the people are gathered on one tick grid.
+their whole trial, their start, their filter), and the people are gathered on one tick grid. With
+``SceneConfig(association="filter")`` the people's filters are stepped together in this process instead, and
+each tick's detections decided again through their predictions (:mod:`~priortrack.tracking.reassociation`).
 
 :func:`track_scene` gives a :class:`SceneTrack`: ``joints`` (T, P, 15, 3) in the calibration's world,
 NaN where a person is not in the scene (before they appear, after their track ended and until they

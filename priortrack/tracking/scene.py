@@ -27,7 +27,9 @@ has three cameras or more. A track, once born, continues on any number of views.
 :meth:`SceneTracker.run` tracks a whole :class:`~priortrack.data.scene_detections.SceneDetections` and
 gives a :class:`SceneAssociation`: which detection slot is whose, per frame and camera, and each person's
 joints as the motion model has them. Each person's body is then tracked by a filter preset from their own
-detections (:mod:`priortrack.tracking.people`).
+detections (:mod:`priortrack.tracking.people`), or every person's filter steps with the others and decides each
+tick's detections again (:mod:`priortrack.tracking.reassociation`, with :func:`prediction_costs` and
+:func:`gated_assignment`).
 """
 
 from __future__ import annotations
