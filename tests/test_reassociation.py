@@ -139,3 +139,41 @@ def test_the_scene_of_the_filters_and_of_the_joint_model_agree_where_nothing_is_
     np.testing.assert_array_equal(by["filter"].association.slots, by["joints"].association.slots)
     np.testing.assert_allclose(by["filter"].joints, by["joints"].joints, atol=1e-9)
 
+
+
+def test_the_filters_association_from_the_command_line_an_interrupt_and_a_filter_that_cannot_predict(demo, tmp_path,
+                                                                                                      capsys, caplog):
+    """``track --people all --association filter``: both people, their files, the log line counting the decisions
+    changed; Ctrl-C during the lockstep (interruptible) ends every run at the tick reached; the MAP tracker, which
+    has no prediction of its detections, is said not to predict."""
+    import json
+    import logging
+
+    from priortrack.cli.main import main
+
+    from test_scene import POSE as pose, QCA as qca
+
+    with caplog.at_level(logging.INFO, logger="priortrack.tracking.reassociation"):
+        assert main(["track", "--detections", str(pose), "--cameras", str(qca), "--keypoints", "body25b", "--fps", "60",
+                     "--filter", "ukf-real", "--people", "all", "--association", "filter", "--frames", "40",
+                     "--out", str(tmp_path / "s.npz"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["people"] == [0, 1]
+    assert any("person-frames decided otherwise than the scene tracker's" in r.getMessage() for r in caplog.records)
+    with np.load(tmp_path / "s.npz") as f:
+        assert f["joints"].shape[1:] == (2, 15, 3) and np.isfinite(f["joints"]).any(axis=(0, 2, 3)).all()
+
+    scene, calibration = demo
+
+    def interrupt(tick, ticks):
+        if tick == 20:
+            raise KeyboardInterrupt
+
+    result = track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60, interruptible=True),
+                         SceneConfig(association="filter"), progress=interrupt)
+    assert all(person.interrupted and len(person.joints) < 25 for person in result.people)
+    with pytest.raises(KeyboardInterrupt):
+        track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), SceneConfig(association="filter"),
+                    progress=interrupt)
+    person = prepared(_association(scene, calibration).detections_of(scene, 1), calibration, "map-gpdm",
+                      TrackConfig(fps=60))
+    assert not predicts(person)

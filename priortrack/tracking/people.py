@@ -221,10 +221,10 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     says (:class:`~priortrack.tracking.scene.SceneConfig`), each person as ``config`` says
     (:class:`~priortrack.tracking.person.TrackConfig`: its frame rate, up, camera map, confidence threshold
     and seed are the scene's too). ``workers``: processes that track people side by side (None: one per core
-    this process may use; 1: every person in this process; an ``interruptible`` run
-    is tracked here); a person's run in a worker is the one here, up to rounding where the worker's torch
-    has fewer threads. ``progress(done, total)``: a scene of one's ticks as its filter goes, else the people
-    tracked so far. A scene of one (``people=1``, or one id) may take their own body (``skeleton``)."""
+    this process may use; 1: every person in this process; an ``interruptible`` run, and the filters'
+    association, are tracked here); a person's run in a worker is the one here, up to rounding where the worker's
+    torch has fewer threads. ``progress(done, total)``: a scene of one's ticks as its filter goes, or the ticks of
+    the filters stepped together, else the people tracked so far. A scene of one (``people=1``, or one id) may take their own body (``skeleton``)."""
     start = time.perf_counter()
     config, scene_config = config or TrackConfig(), scene_config or SceneConfig()
     data_fps = config.fps if config.fps is not None else scene.fps
