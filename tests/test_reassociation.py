@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from priortrack import PriortrackError
 from priortrack.data.calibration import read_calibration
 from priortrack.data.scene_detections import read_scene_detections
 from priortrack.filters.snapshot import KNOWN_FRAMES
@@ -144,8 +145,9 @@ def test_the_scene_of_the_filters_and_of_the_joint_model_agree_where_nothing_is_
 def test_the_filters_association_from_the_command_line_an_interrupt_and_a_filter_that_cannot_predict(demo, tmp_path,
                                                                                                       capsys, caplog):
     """``track --people all --association filter``: both people, their files, the log line counting the decisions
-    changed; Ctrl-C during the lockstep (interruptible) ends every run at the tick reached; the MAP tracker, which
-    has no prediction of its detections, is said not to predict."""
+    changed; Ctrl-C during the lockstep (interruptible) ends every run at the tick reached; a fixed-lag smoother,
+    which would smooth with detections not yet decided, refused; the MAP tracker, which has no prediction of its
+    detections, is said not to predict."""
     import json
     import logging
 
@@ -174,6 +176,9 @@ def test_the_filters_association_from_the_command_line_an_interrupt_and_a_filter
     with pytest.raises(KeyboardInterrupt):
         track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), SceneConfig(association="filter"),
                     progress=interrupt)
+    with pytest.raises(PriortrackError, match="smooth the whole run .--smooth without --lag."):
+        track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60, smooth=True, lag=5),
+                    SceneConfig(association="filter"))
     person = prepared(_association(scene, calibration).detections_of(scene, 1), calibration, "map-gpdm",
                       TrackConfig(fps=60))
     assert not predicts(person)

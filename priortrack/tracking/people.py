@@ -35,8 +35,8 @@ from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
 from priortrack.tracking.person import (DetectionTrack, TrackConfig, fitted_once, match_cameras, output_path, prepared,
                                          schedule, track_detections, up_from_detections)
-from priortrack.tracking.reassociation import predicts, reassociated
 from priortrack.geometry.camera import PinholeCamera
+from priortrack.tracking.reassociation import predicts, reassociated
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
 
 log = logging.getLogger(__name__)
@@ -224,13 +224,17 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     this process may use; 1: every person in this process; an ``interruptible`` run, and the filters'
     association, are tracked here); a person's run in a worker is the one here, up to rounding where the worker's
     torch has fewer threads. ``progress(done, total)``: a scene of one's ticks as its filter goes, or the ticks of
-    the filters stepped together, else the people tracked so far. A scene of one (``people=1``, or one id) may take their own body (``skeleton``)."""
+    the filters stepped together, else the people tracked so far. A scene of one (``people=1``, or one id) may
+    take their own body (``skeleton``)."""
     start = time.perf_counter()
     config, scene_config = config or TrackConfig(), scene_config or SceneConfig()
     data_fps = config.fps if config.fps is not None else scene.fps
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
     in_lockstep = scene_config.association == "filter"              # in this process
+    if in_lockstep and config.smooth and config.lag is not None:
+        raise PriortrackError("the filters' association decides each tick as the filters go: smooth the whole run "
+                              "(--smooth without --lag), or decide by the joint model (--association joints)")
     pool = _Pool(1 if config.interruptible or skeleton is not None or in_lockstep else worker_count(workers))  # now
     association, cameras = associated(scene, calibration, data_fps, config, scene_config)
     chosen = chosen_people(association, people, scene)
@@ -304,7 +308,8 @@ def _in_lockstep(scene: SceneDetections, association: SceneAssociation, chosen: 
             errors[p] = str(exc)
     if runs and all(predicts(run) for run in runs.values()):
         run = next(iter(runs.values()))
-        association, tracks = reassociated(scene, association, runs, _ticks(scene, run.config.fps, run.prior.fps),
+        association, tracks = reassociated(scene, association, runs, schedule(scene.frames, run.config.fps,
+                                                                              run.prior.fps),
                                            run.config.min_confidence, gate, progress, run.config.interruptible)
         results = {p: runs[p].finished(track) for p, track in tracks.items()}
     else:
@@ -313,11 +318,6 @@ def _in_lockstep(scene: SceneDetections, association: SceneAssociation, chosen: 
                      "tracker's decisions", next(iter(runs.values())).preset.filter_kind)
         results = {p: run.tracked() for p, run in runs.items()}
     return association, [(results.get(p), errors.get(p)) for p in chosen]
-
-
-def _ticks(scene: SceneDetections, data_fps: float, prior_fps: float) -> np.ndarray:
-    """(K,) the detection frame of each of the prior's ticks over the scene (every person's run ticks with them)."""
-    return schedule(scene.frames, data_fps, prior_fps)
 
 
 def _track_person(job) -> tuple[DetectionTrack | None, str | None]:

@@ -12,10 +12,7 @@ person's filter runs together, tick by tick (the prior's ticks, :func:`~priortra
    the particle cloud's weighted moments), through the lens, as the filter's own likelihood projects;
 3. **associate**: in each camera, the detections of the tick's frame to the people the scene tracker has
    in the scene there and whose filter runs, by the scene tracker's cost (the median over joints of the
-   Mahalanobis distance with S = P_zz + R, R = (σ_px / confidence)² I in pixels (the detections' noise as the
-   scene tracker has it, :data:`~priortrack.tracking.motion.SIGMA_PX`, not the filter's own σ: the same
-   detections, the same noise; ukf-real's σ = 5 px left a camera 20–30 px off the others' consensus, one of
-   Pose2Sim's demo, out of the synthetic person's association from the first tick on), plus the spread penalty,
+   Mahalanobis distance with S = P_zz + R, R = (σ_px / confidence)² I in pixels, plus the spread penalty,
    the mirror's where smaller: :func:`~priortrack.tracking.scene.prediction_costs`) and its optimal
    assignment with a "not this person" option at the gate (:func:`~priortrack.tracking.scene.gated_assignment`);
 4. **update**: each filter corrects with the detections it was given (``correct``; as detected: a swap is
@@ -24,6 +21,11 @@ person's filter runs together, tick by tick (the prior's ticks, :func:`~priortra
 The detections of a person whose filter has not started yet (their start ticks), or who is not among the
 people tracked, stay theirs and are offered to nobody else. Frames the prior's ticks skip (60 fps data, a
 30 fps prior) keep the scene tracker's decisions; their detections are not the filters' anyway.
+
+σ_px is the detections' noise as the scene tracker has it (:data:`~priortrack.tracking.motion.SIGMA_PX`), not the
+filter's own: the same detections, the same noise. With ukf-real's σ = 5 px, one camera of Pose2Sim's demo that sees
+the synthetic person 20–30 px off the other cameras' consensus was left out of that person's association from the
+first tick on (the filter, no longer corrected by it, drifted further from it).
 
 A filter that cannot predict its detections (the MAP tracker) leaves the scene tracker's decisions as they are.
 """
@@ -119,19 +121,19 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
         for k in range(K):
             running = [p for p in people if k >= first[p] + KNOWN_FRAMES]
             f = int(index[k])
-            if f < 0:
+            if f < 0:                                                       # a tick without a frame
                 for p in running:
-                    runs[p].record(people[p].filt.step(np.full((len(uv), 15, 3), np.nan)))   # no frame
-                continue
-            for p in running:
-                people[p].filt.advance()
-            costs = {p: detection_costs(people[p], uv[:, f], confidence[:, f]) for p in running if present[f, p]}
-            if costs:
-                decided = assigned(costs, slots[f], gate)
-                changed += int((decided != slots[f]).any(axis=0).sum())
-                slots[f] = decided
-            for p in running:
-                runs[p].record(people[p].filt.correct(observation(uv[:, f], confidence[:, f], slots[f, :, p])))
+                    runs[p].record(people[p].filt.step(np.full((len(uv), 15, 3), np.nan)))
+            else:
+                for p in running:
+                    people[p].filt.advance()
+                costs = {p: detection_costs(people[p], uv[:, f], confidence[:, f]) for p in running if present[f, p]}
+                if costs:
+                    decided = assigned(costs, slots[f], gate)
+                    changed += int((decided != slots[f]).any(axis=0).sum())
+                    slots[f] = decided
+                for p in running:
+                    runs[p].record(people[p].filt.correct(observation(uv[:, f], confidence[:, f], slots[f, :, p])))
             if progress:
                 progress(k, K)
     except KeyboardInterrupt:
