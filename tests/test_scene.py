@@ -208,13 +208,19 @@ def test_compare_detections_per_person_scores_each_persons_held_out_cameras(tmp_
     """``compare --detections … --people all``: each person's grid in OUT/person<id>/, every camera left out
     in turn and scored on that person's own detections there: the median over held-out cameras within 1.25× of
     the other cameras' per-frame DLT of the same person (measured: the synthetic person 27.6 px against 23.5);
-    a person asked for who is not there is named, and a truth file is one person's."""
+    a person asked for who is not there is named, and a truth file is one person's; the scene is read and
+    associated once for the whole grid."""
+    from priortrack.experiments.compare_detections import _associated
+
     out = tmp_path / "cmp"
     common = ["compare", "--filters", "ukf-real", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints",
               "body25b", "--fps", "60", "--frames", "60"]
+    _associated.cache_clear()
     assert main(common + ["--people", "all", "--out", str(out), "--json"]) == 0
     result = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert set(result["people"]) == {"0", "1"}
+    # the files read and who is who decided once for the plan and every run of the grid (this process)
+    assert _associated.cache_info().misses == 1 and _associated.cache_info().hits >= 8
     for pid, person in result["people"].items():
         assert (out / f"person{pid}" / "summary.md").is_file()
         rows = person["rows"]

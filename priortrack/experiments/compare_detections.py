@@ -29,7 +29,7 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from functools import cached_property
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -128,7 +128,7 @@ def _inputs(config: DetectionRunConfig):
         if config.frames is not None:
             detections = detections.head(config.frames)
     else:
-        detections = scene_person(config, calibration)
+        detections = scene_person(config)
     if len(detections.camera_names) < 2:
         raise PriortrackError(f"compare --detections scores each camera left out: {config.detections} has "
                               f"{len(detections.camera_names)} camera; it needs two or more")
@@ -139,21 +139,37 @@ def scene_people(detections: str, cameras: str, people, keypoints: str | None = 
                  frames: int | None = None) -> list[int]:
     """The scene tracker's ids of the ``people`` asked for (:func:`~priortrack.tracking.people.parse_people`'s
     forms) in files of several people."""
-    from priortrack.data.calibration import read_calibration
-    from priortrack.tracking.people import associated, chosen_people
+    from priortrack.tracking.people import chosen_people
 
-    scene, rate = _scene(detections, keypoints, fps, frames)
-    association, _ = associated(scene, read_calibration(cameras), rate)
+    scene, association = _associated(detections, cameras, keypoints, fps, frames, _inputs_digest(detections, cameras))
     return [int(association.person_ids[p]) for p in chosen_people(association, people, scene)]
 
 
-def scene_person(config: DetectionRunConfig, calibration):
+def scene_person(config: DetectionRunConfig):
     """The detections of ``config.person`` in files of several people (:class:`DetectionRunConfig`)."""
-    from priortrack.tracking.people import associated, chosen_people
+    from priortrack.tracking.people import chosen_people
 
-    scene, rate = _scene(config.detections, config.keypoints, config.fps, config.frames)
-    association, _ = associated(scene, calibration, rate)
+    scene, association = _associated(config.detections, config.cameras, config.keypoints, config.fps, config.frames,
+                                     _inputs_digest(config.detections, config.cameras))
     return association.detections_of(scene, chosen_people(association, [config.person], scene)[0])
+
+
+def _inputs_digest(detections: str, cameras: str) -> bytes:
+    return _digest(Path(detections)) + _digest(Path(cameras))
+
+
+@lru_cache(maxsize=2)
+def _associated(detections: str, cameras: str, keypoints: str | None, fps: float | None, frames: int | None,
+                digest: bytes):
+    """Every person of the files and who is who (:func:`~priortrack.tracking.people.associated`), read and
+    decided once in a process for every run of a grid (the files' bytes, ``digest``, in the key: files changed
+    since are read again)."""
+    from priortrack.data.calibration import read_calibration
+    from priortrack.tracking.people import associated
+
+    scene, rate = _scene(detections, keypoints, fps, frames)
+    association, _ = associated(scene, read_calibration(cameras), rate)
+    return scene, association
 
 
 def _scene(detections: str, keypoints: str | None, fps: float | None, frames: int | None):
