@@ -36,7 +36,7 @@ def _bench_scene(args: argparse.Namespace) -> None:
     from priortrack.experiments.benchmarks.scene import bench_scene
 
     print_json(bench_scene(people=args.people, cameras=args.cameras, frames=args.frames, fps=args.fps,
-                           preset=args.filter, seed=args.seed))
+                           preset=args.filter, seed=args.seed, association=args.association))
 
 
 def _bench_ukf(args: argparse.Namespace) -> None:
@@ -133,6 +133,8 @@ def add_parsers(verbs) -> None:
     scene.add_argument("--frames", type=int, default=300, help="frames, 10 to 1800 (default %(default)s)")
     scene.add_argument("--fps", type=float, default=30.0, help="the input's frame rate (default %(default)s)")
     scene.add_argument("--filter", default="ukf-real", help="the preset (default %(default)s)")
+    scene.add_argument("--association", default="joints", metavar="joints|filter",
+                       help="who is who finally decided (track --association; default %(default)s)")
     _json_options(scene)
     scene.set_defaults(run=_bench_scene)
     real_track = bench.add_parser("real-track", help="the whole track --detections command on real-format input "

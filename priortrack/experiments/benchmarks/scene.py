@@ -32,14 +32,17 @@ SPACING = 1.2
 
 
 def bench_scene(people: int = 4, cameras: int = 5, frames: int = 300, fps: float = 30.0, preset: str = "ukf-real",
-                seed: int = 0) -> dict:
-    """Seconds of the scene command on ``people`` × ``cameras`` × ``frames`` and of the single-person
-    command on one person with the same cameras and frames (module docstring)."""
+                seed: int = 0, association: str = "joints") -> dict:
+    """Seconds of the scene command on ``people`` × ``cameras`` × ``frames`` (who is who decided as
+    ``association`` says: :class:`~priortrack.tracking.scene.SceneConfig`) and of the single-person command on one
+    person with the same cameras and frames (module docstring)."""
     from priortrack.data.scene_detections import read_scene_detections
     from priortrack.experiments.scenes import scene_keypoints, write_scene_openpose
     from priortrack.tracking.people import track_scene
     from priortrack.tracking.person import TrackConfig
+    from priortrack.tracking.scene import SceneConfig
 
+    scene_config = SceneConfig(association=association)
     if not 1 <= people <= 9:
         raise PriortrackError(f"bench scene: people must be in [1, 9], got {people}")
     if not 3 <= cameras <= 12:
@@ -57,11 +60,12 @@ def bench_scene(people: int = 4, cameras: int = 5, frames: int = 300, fps: float
         folder = write_scene_openpose(scene_keypoints(X, views, rng, up="y"), Path(tmp) / "scene", rng)
         start = time.perf_counter()
         result = track_scene(read_scene_detections(folder, keypoints="body25b"), calibration, preset,
-                             TrackConfig(fps=fps, seed=seed))
+                             TrackConfig(fps=fps, seed=seed), scene_config)
         result.save(Path(tmp) / "scene.npz")
         seconds = time.perf_counter() - start
     single = bench_real_track(frames=frames, preset=preset, seed=seed, cameras=cameras, fps=fps)
     return {"people": people, "cameras": cameras, "frames": frames, "fps": fps, "preset": preset,
+            "association": association,
             "people_tracked": len(result.person_ids), "command_seconds": seconds,
             "single_person_seconds": single["command_seconds"],
             "ratio_to_people_times_single": seconds / (people * single["command_seconds"]),
