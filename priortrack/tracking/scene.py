@@ -81,11 +81,11 @@ class SceneConfig:
         association: "joints" (the default): the scene tracker's decisions are kept and each person's filter
             runs on their own (in worker processes, side by side); "filter": each tick's detections are decided
             again through every person's own filter (:mod:`~priortrack.tracking.reassociation`), the people
-            tracked in lockstep in this process. Measured on the composed scenes (``eval scenes``), both decide
-            alike (0–1 person-frames otherwise, the same identity scores, MPJPE within 0.2 mm); with four people
-            1.2 m apart and five cameras, "filter" decides 15 of 240 person-frames otherwise, where two
-            detections in one camera fit a person within 0.2 of each other, and the whole command takes about
-            1.6× as long (one process): hence "joints" by default.
+            tracked in lockstep in this process. Measured (``eval scenes``, ``bench scene``;
+            docs/results/2026-11-27-scenes.md): with ukf-real both give the same scores (0–3 person-frames a run
+            decided otherwise); with pf-lie "filter" is worse where the particle filter loses its person (its
+            prediction then covers none of their detections, it is given none and does not recover: IDF1 0.88
+            against 0.997); and the whole command takes 1.4× as long (one process): hence "joints" by default.
     """
 
     pair_gate_m: float = PAIR_GATE_M
