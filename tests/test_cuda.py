@@ -163,6 +163,34 @@ def test_real_detections_track_on_the_gpu():
 
 
 @needs_cuda
+def test_a_scene_of_two_people_tracks_on_the_gpu_with_either_association():
+    """Pose2Sim's multi-person demo (60 frames) with pf-diffusion-local on the GPU: each person's run in a worker
+    process (the joint model's association) and every person's filter stepped together here (the filters'
+    association): both people tracked, every tracked joint finite, each person's median reprojection within 25 %
+    (+ 1 px) of the CPU's."""
+    from pathlib import Path
+
+    from priortrack.data.scene_detections import read_scene_detections
+    from priortrack.tracking.people import track_scene
+    from priortrack.tracking.scene import SceneConfig
+
+    folder = Path(__file__).parent / "data" / "pose2sim_multiperson"
+    scene = read_scene_detections(folder / "pose", keypoints="body25b").head(60)
+    calibration = read_calibration(folder / "calibration" / "Calib.qca.txt")
+
+    def medians(result):
+        return [np.median(list(person.summary()["reprojection_px"].values())) for person in result.people]
+
+    for association in ("joints", "filter"):
+        runs = {device: track_scene(scene, calibration, "pf-diffusion-local", TrackConfig(fps=60, device=device),
+                                    SceneConfig(association=association), workers=2) for device in ("cpu", "cuda")}
+        assert runs["cuda"].person_ids.tolist() == [0, 1]
+        assert np.isfinite(runs["cuda"].joints[np.isfinite(runs["cuda"].joints[..., 0, 0])]).all()
+        for cpu, cuda in zip(medians(runs["cpu"]), medians(runs["cuda"])):
+            assert cuda <= 1.25 * cpu + 1.0, (association, cpu, cuda)
+
+
+@needs_cuda
 def test_bench_pf_times_the_gpu(priors):
     result = bench_pf(particles=100_000, steps=3, warmup=1, priors={k: priors[k] for k in ("diffusion", "gpdm", "lie")},
                       device="cuda")
