@@ -230,6 +230,31 @@ def test_distorted_projection_is_cv2_project_points(name):
         np.testing.assert_allclose(J.numpy(), numeric, atol=1e-4)
 
 
+def test_the_projection_kernel_is_the_torch_path():
+    """CPU float64 and float32 points without gradients take the fused kernel
+    (priortrack.geometry.projection_kernel): the torch path's pixels (1e-12 relative in float64, float32's
+    rounding in float32), the same points in front, NaN for a NaN point and one behind the camera; a point that
+    needs a gradient takes the torch path, and the gradient flows."""
+    cam = read_calibration(POSE2SIM / "Calib.toml").cameras[0]
+    camera = PinholeCamera(cam.K, cam.R, cam.t, *cam.size, dist=np.array([-0.3, 0.1, 0.002, -0.001, -0.02]))
+    points = torch.as_tensor(np.random.default_rng(2).uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 1.8], size=(125, 15, 3)))
+    points[0, 0] = float("nan")
+    R, t = camera.R.numpy(), camera.t.numpy()
+    points[0, 1] = torch.as_tensor(R.T @ (np.array([0.0, 0.0, -1.0]) - t))                        # behind
+    for dtype, rtol in ((torch.float64, 1e-12), (torch.float32, 1e-5)):
+        kernel = camera._project_in_kernel(points.to(dtype))
+        reference = camera._project_distorted(points.to(dtype), jacobian=False)[:3]
+        assert kernel[0].dtype == dtype and kernel[0].shape == (125, 15, 2)
+        assert torch.equal(kernel[1], reference[1]) and not kernel[1][0, :2].any() and kernel[1].sum() == 125 * 15 - 2
+        np.testing.assert_allclose(kernel[0].numpy(), reference[0].numpy(), rtol=rtol, atol=1e-9)
+        np.testing.assert_allclose(kernel[2].numpy(), reference[2].numpy(), rtol=rtol)
+        np.testing.assert_array_equal(camera.project(points.to(dtype))[0].numpy(), kernel[0].numpy())
+    wanted = points[1:].clone().requires_grad_(True)
+    uv, _ = camera.project(wanted)
+    uv.sum().backward()
+    assert uv.requires_grad and torch.isfinite(wanted.grad).all()
+
+
 def test_opencv_filestorage_yaml_single_and_multi_camera(tmp_path):
     """Files written by cv2.FileStorage: one camera (K, dist, rvec, tvec, image size) and the
     multi-camera layout (names, K_<name>, dist_<name>, Rot_<name>, T_<name>)."""

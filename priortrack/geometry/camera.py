@@ -30,6 +30,7 @@ import torch
 
 from priortrack.data.calibration import CameraCalibration
 from priortrack.errors import PriortrackError
+from priortrack.kernels import cpu_kernel_applies
 
 __all__ = ["PinholeCamera", "MIN_DEPTH"]
 
@@ -144,7 +145,8 @@ class PinholeCamera:
         K64, R64, t64 = K.double(), R.double(), t.double()
         self._P = (K64 @ R64).cpu()
         self._p = (K64 @ t64).cpu()
-        self._cache: dict[tuple[Any, Any], tuple[torch.Tensor, torch.Tensor]] = {}
+        #: (device, dtype) → P, p there (:meth:`projection`); ("kernel", dtype) → R, t, K, dist as numpy arrays.
+        self._cache: dict[tuple[Any, Any], tuple] = {}
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -353,6 +355,8 @@ class PinholeCamera:
         self._check_points_shape(tuple(points.shape))
         if not points.is_floating_point():
             points = points.to(torch.float64)
+        if self.distorted and points.dtype in (torch.float32, torch.float64) and cpu_kernel_applies(points):
+            return self._project_in_kernel(points)
         if self.distorted:
             uv, in_front, z_safe, _ = self._project_distorted(points, jacobian=False)
             return uv, in_front, z_safe
@@ -364,6 +368,24 @@ class PinholeCamera:
         uv = h[..., :2] / z_safe.unsqueeze(-1)
         uv = torch.where(in_front.unsqueeze(-1), uv, float("nan"))
         return uv, in_front, z_safe
+
+    def _project_in_kernel(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`_project_distorted`'s projection of CPU float32/float64 points without gradients, by the fused
+        kernel of :mod:`priortrack.geometry.projection_kernel`."""
+        from priortrack.geometry.projection_kernel import project_distorted
+
+        key = ("kernel", points.dtype)
+        arrays = self._cache.get(key)
+        if arrays is None:
+            arrays = tuple(a.to(points.dtype).numpy().copy() for a in (self.R, self.t, self.K, self.dist))
+            self._cache[key] = arrays
+        flat = points.reshape(-1, 3).contiguous().numpy()
+        uv = np.empty((len(flat), 2), dtype=flat.dtype)
+        in_front, z_safe = np.empty(len(flat), dtype=np.bool_), np.empty(len(flat), dtype=flat.dtype)
+        project_distorted(flat, *arrays, MIN_DEPTH, uv, in_front, z_safe)
+        shape = points.shape[:-1]
+        return (torch.from_numpy(uv).view(shape + (2,)), torch.from_numpy(in_front).view(shape),
+                torch.from_numpy(z_safe).view(shape))
 
     def _project_distorted(self, points: torch.Tensor, jacobian: bool = True):
         """Pixels through the distortion model (module docstring), with the depth and the Jacobian
