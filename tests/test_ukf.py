@@ -357,3 +357,30 @@ def test_swap_correction_exchanges_a_pair_only_where_the_exchange_lies_nearer_th
     # no gate, no exchange
     _, _, none = swap_corrected(z.ravel(), np.diag(variances), *points(predicted), EVAL15_MIRROR_PAIRS, J, b, np.inf)
     assert len(none) == 0
+
+
+def test_the_placements_kernels_are_the_torch_path(monkeypatch):
+    """⊞, ⊟ and the signed mean of the unscented filter's placements on float64 CPU tensors, by the fused kernels
+    (priortrack.filters.placements_kernel): the torch path's results to 1e-12, for rotations from 1e-7 to 3 rad and
+    the unscented weights' negative W_0; a gradient or float32 takes the torch path."""
+    from priortrack.filters import ukf
+
+    rng = np.random.default_rng(5)
+    g = rng.normal(size=(125, 12)) * 0.05 + rng.normal(size=(1, 12))
+    for k in (3, 9):
+        axis = rng.normal(size=(125, 3))
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        g[:, k:k + 3] = axis * np.geomspace(1e-7, 3.0, 125)[:, None]
+    g[1:, 3:6] = g[0, 3:6] + rng.normal(size=(124, 3)) * 0.02            # sigma points about the first, for the mean
+    g = torch.as_tensor(g)
+    v = torch.as_tensor(rng.normal(size=(125, 12)) * 0.1)
+    w = torch.full((125,), 4.0 / 124, dtype=torch.float64)
+    w[0] = -3.0                                                            # Σ w = 1, W_0 < 0
+    kernel = (ukf.placements_plus(g, v), ukf.placements_minus(g, g[7]), ukf.placements_mean(g, w))
+    monkeypatch.setattr(ukf, "cpu_kernel_applies", lambda *tensors, dtype=None: False)
+    reference = (ukf.placements_plus(g, v), ukf.placements_minus(g, g[7]), ukf.placements_mean(g, w))
+    for a, b in zip(kernel, reference):
+        assert a.dtype == torch.float64 and a.shape == b.shape
+        np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=0, atol=1e-12)
+    monkeypatch.undo()
+    assert not ukf._in_kernel(g.float(), v.float()) and not ukf._in_kernel(g.clone().requires_grad_(True), v)

@@ -112,10 +112,12 @@ from scipy.stats import chi2
 from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
+from priortrack.filters import placements_kernel
 from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.geometry import so3
-from priortrack.geometry.manifold_mean import signed_mean
+from priortrack.geometry.manifold_mean import MEAN_MAX_STEPS, MEAN_TOL, signed_mean
+from priortrack.kernels import cpu_kernel_applies
 from priortrack.models.protocols import GaussianTransition
 from priortrack.models.tracking import GLOBAL_DIM, TrackingModel
 from priortrack.threads import blas_threads, torch_threads
@@ -140,6 +142,12 @@ UNSCENTED_INTERFACE = ("dim", "tangent_dim", "observation_shape", "measurement_b
                        "process_covariance", "measurement", "gate", "boxplus", "boxminus", "sigma_mean", "transport")
 
 
+def _in_kernel(*tensors: torch.Tensor) -> bool:
+    """Whether the placements' ⊞, ⊟ and mean take the fused kernels (:mod:`~priortrack.filters.placements_kernel`):
+    float64 CPU tensors without gradients, the states of a batch (N, 12)."""
+    return cpu_kernel_applies(*tensors, dtype=torch.float64) and tensors[0].dim() == 2
+
+
 def _placements(g: torch.Tensor) -> torch.Tensor:
     """(..., 12) → (..., 2, 6): the two placements (g_t, g_{t-1}) of a state, each (t, ω)."""
     return g.reshape(g.shape[:-1] + (2, GLOBAL_DIM))
@@ -149,6 +157,10 @@ def placements_plus(g: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """(t, ω) ⊞ (δt, η) = (t + δt, log(exp(η) exp(ω))) on both placements: g (N, 12), v (N, 12) → (N, 12).
     The rotations are composed as unit quaternions (:mod:`priortrack.geometry.so3`): a third of the
     operations of the matrices' exp, product and log, the same rotation vector to rounding."""
+    if _in_kernel(g, v):
+        out = np.empty(tuple(g.shape))
+        placements_kernel.plus(g.contiguous().numpy(), v.contiguous().numpy(), out)
+        return torch.from_numpy(out)
     g, v = _placements(g), _placements(v)
     q = so3.quaternion_product(so3.quaternion(v[..., 3:]), so3.quaternion(g[..., 3:]))
     return torch.cat([g[..., :3] + v[..., :3], so3.quaternion_log(q)], -1).flatten(-2)
@@ -157,6 +169,10 @@ def placements_plus(g: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 def placements_minus(g: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
     """g ⊟ base = (t − t_b, log(exp(ω) exp(ω_b)ᵀ)) on both placements: g (N, 12), base (12,) → (N, 12),
     the rotations composed as unit quaternions (as :func:`placements_plus`)."""
+    if _in_kernel(g, base):
+        out = np.empty(tuple(g.shape))
+        placements_kernel.minus(g.contiguous().numpy(), base.contiguous().numpy(), out)
+        return torch.from_numpy(out)
     g, base = _placements(g), _placements(base)
     q = so3.quaternion_product(so3.quaternion(g[..., 3:]), so3.quaternion_conjugate(so3.quaternion(base[..., 3:])))
     return torch.cat([g[..., :3] - base[..., :3], so3.quaternion_log(q)], -1).flatten(-2)
@@ -166,6 +182,12 @@ def placements_mean(g: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Mean (12,) of both placements of states g (N, 12): the translations' Σ w_i t_i and the
     rotations' :func:`signed_mean` with R ⊞ η = exp(η) R, R_i ⊟ M = log(R_i Mᵀ), the rotations as unit
     quaternions q_i (computed once; q ⊟ m = log(q m*))."""
+    if _in_kernel(g, w):
+        out = np.empty(2 * GLOBAL_DIM)
+        if placements_kernel.signed_mean(g.contiguous().numpy(), w.contiguous().numpy(), MEAN_TOL, MEAN_MAX_STEPS,
+                                         out) < 0:
+            log.warning("signed mean of the placements: no convergence in %d steps", MEAN_MAX_STEPS)
+        return torch.from_numpy(out)
     g = _placements(g)
     q = so3.quaternion(g[..., 3:])                                                 # (N, 2, 4)
     m = signed_mean(q[0], w, lambda m: so3.quaternion_log(so3.quaternion_product(q, so3.quaternion_conjugate(m))).flatten(-2),

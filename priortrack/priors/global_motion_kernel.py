@@ -20,33 +20,11 @@ import math
 import numba
 import numpy as np
 
-
-@numba.njit(inline="always")
-def _quaternion(x, y, z):
-    """so3.quaternion of one rotation vector: (cos θ/2, sin(θ/2) ω/θ)."""
-    theta_sq = x * x + y * y + z * z
-    if theta_sq < np.float32(1e-8):
-        s = np.float32(0.5) - theta_sq / np.float32(48.0)
-        c = np.float32(1.0) - theta_sq / np.float32(8.0)
-    else:
-        half = np.float32(0.5) * math.sqrt(theta_sq)
-        s = math.sin(half) / (np.float32(2.0) * half)
-        c = math.cos(half)
-    return c, s * x, s * y, s * z
+from priortrack.geometry.so3_kernel import helpers
 
 
-@numba.njit(inline="always")
-def _log(w, x, y, z):
-    """so3.quaternion_log of one unit quaternion: ω = 2 atan2(|v|, |w|) / |v| · sign(w) v."""
-    sign = np.float32(-1.0) if w < 0 else np.float32(1.0)
-    w = w * sign
-    n_sq = x * x + y * y + z * z
-    if n_sq < np.float32(1e-16):
-        f = np.float32(2.0) / w * sign
-    else:
-        n = math.sqrt(n_sq)
-        f = np.float32(2.0) * math.atan2(n, w) / n * sign
-    return f * x, f * y, f * z
+#: :mod:`priortrack.geometry.so3`'s quaternion and logarithm for one float32 rotation.
+_quaternion, _log, _ = helpers(np.float32)
 
 
 @numba.njit(inline="always")
