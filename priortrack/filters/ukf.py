@@ -523,8 +523,9 @@ class UnscentedFilter(SequentialFilter):
         self.threshold = gate_threshold(gate_probability, self.unscented.measurement_block)
         self.initialised = False
         self.frame, self.gated_frames = 0, 0
-        #: h of the predicted sigma points (2n + 1, m) between :meth:`advance` and :meth:`correct`, else None.
-        self._measured: np.ndarray | None = None
+        #: Between :meth:`advance` and :meth:`correct`: True, and h of the predicted sigma points (2n + 1, m) once
+        #: read (:meth:`_sigma_measurements`).
+        self._advanced, self._measured = False, None
         self._predict_seconds = 0.0
         #: (J,) per joint (an observation (…, J, coordinates); a flat one's points are J), the frames
         #: running in which every camera seeing it rejected it.
@@ -604,9 +605,10 @@ class UnscentedFilter(SequentialFilter):
         """After :meth:`advance`: every observed point's predicted pixels ẑ (…, 2) and their covariance
         P_zz (…, 2, 2) (``observation_shape[:-1]``: (C, 15) for C cameras; NaN where a sigma point is behind
         the camera), the unscented transform of the predicted sigma points (:func:`predicted_points`)."""
-        if self._measured is None:
+        if not self._advanced:
             raise PriortrackError("no prediction to read: call advance() first")
-        z_hat, P = predicted_points(self._measured.reshape(len(self._measured), -1, 2), self.kf.Wm, self.kf.Wc)
+        measured = self._sigma_measurements()
+        z_hat, P = predicted_points(measured.reshape(len(measured), -1, 2), self.kf.Wm, self.kf.Wc)
         shape = tuple(self.unscented.observation_shape)[:-1]
         return z_hat.reshape(shape + (2,)), P.reshape(shape + (2, 2))
 
@@ -628,11 +630,18 @@ class UnscentedFilter(SequentialFilter):
         kf.repairs += repaired
         kf.Q = self.unscented.process_covariance(torch.from_numpy(kf.x)).numpy()
         kf.predict(UT=kf.transform_states)
-        self._measured = kf.measure(kf.sigmas_f)           # h of each predicted sigma point (2n + 1, m)
+        self._advanced, self._measured = True, None
         self._predict_seconds = time.perf_counter() - t0
 
-    def _correct(self, z: np.ndarray) -> Snapshot:
+    def _sigma_measurements(self) -> np.ndarray:
+        """h of each predicted sigma point (2n + 1, m), computed once a step where it is read (a frame without
+        observations and without a reader of the prediction needs none)."""
         if self._measured is None:
+            self._measured = self.kf.measure(self.kf.sigmas_f)
+        return self._measured
+
+    def _correct(self, z: np.ndarray) -> Snapshot:
+        if not self._advanced:
             raise PriortrackError("no prediction to correct: call advance() first")
         kf, flags = self.kf, []
         gated, count = self.unscented.gate(z)
@@ -642,7 +651,7 @@ class UnscentedFilter(SequentialFilter):
         t1 = time.perf_counter()
         values, R = self.unscented.measurement(torch.as_tensor(z, dtype=torch.float64))
         self._update(values.numpy(), R.numpy(), flags)
-        self._measured = None
+        self._advanced, self._measured = False, None
         t2 = time.perf_counter()
         if kf.repairs:
             flags.append("covariance-repaired")
@@ -666,7 +675,7 @@ class UnscentedFilter(SequentialFilter):
             flags.append("no-observation")
             kf.update(None)
             return
-        predicted = self._measured
+        predicted = self._sigma_measurements()
         usable = seen & np.isfinite(predicted).all(axis=0)
         if (seen & ~usable).any():
             flags.append("behind-camera")
