@@ -36,6 +36,7 @@ from priortrack.errors import PriortrackError
 from priortrack.tracking.person import (DetectionTrack, TrackConfig, fitted_once, match_cameras, output_path, prepared,
                                          schedule, track_detections, up_from_detections)
 from priortrack.geometry.camera import PinholeCamera
+from priortrack.tracking.presets import Preset, load_preset
 from priortrack.tracking.reassociation import predicts, reassociated
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
 
@@ -231,7 +232,11 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     data_fps = config.fps if config.fps is not None else scene.fps
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
-    in_lockstep = scene_config.association == "filter"              # in this process
+    preset = load_preset(preset) if not isinstance(preset, Preset) else preset
+    in_lockstep = scene_config.association == "filter" and predicts(preset)          # in this process
+    if scene_config.association == "filter" and not in_lockstep:
+        log.info("the %s filter does not predict its detections: each person is tracked on the scene tracker's "
+                 "decisions", preset.filter_kind)
     if in_lockstep and config.smooth and config.lag is not None:
         raise PriortrackError("the filters' association decides each tick as the filters go: smooth the whole run "
                               "(--smooth without --lag), or decide by the joint model (--association joints)")
@@ -297,8 +302,7 @@ def _in_lockstep(scene: SceneDetections, association: SceneAssociation, chosen: 
                  gate: float, progress: Callable[[int, int], None] | None) -> tuple[SceneAssociation, list]:
     """The chosen people's runs prepared (``jobs``: :func:`~priortrack.tracking.person.prepared`'s arguments),
     their filters run in lockstep, who is who decided again through them
-    (:func:`~priortrack.tracking.reassociation.reassociated`; a filter that cannot predict its detections, the
-    MAP tracker's: each run on the scene tracker's decisions); the association and, per chosen person, the
+    (:func:`~priortrack.tracking.reassociation.reassociated`); the association and, per chosen person, the
     result or None and why they could not be tracked."""
     runs, errors = {}, {}
     for p, job in zip(chosen, jobs):
@@ -306,17 +310,13 @@ def _in_lockstep(scene: SceneDetections, association: SceneAssociation, chosen: 
             runs[p] = prepared(*job)
         except PriortrackError as exc:
             errors[p] = str(exc)
-    if runs and all(predicts(run) for run in runs.values()):
+    results = {}
+    if runs:
         run = next(iter(runs.values()))
         association, tracks = reassociated(scene, association, runs, schedule(scene.frames, run.config.fps,
                                                                               run.prior.fps),
                                            run.config.min_confidence, gate, progress, run.config.interruptible)
         results = {p: runs[p].finished(track) for p, track in tracks.items()}
-    else:
-        if runs:
-            log.info("the %s filter does not predict its detections: each person is tracked on the scene "
-                     "tracker's decisions", next(iter(runs.values())).preset.filter_kind)
-        results = {p: run.tracked() for p, run in runs.items()}
     return association, [(results.get(p), errors.get(p)) for p in chosen]
 
 

@@ -27,7 +27,8 @@ filter's own: the same detections, the same noise. With ukf-real's σ = 5 px, on
 the synthetic person 20–30 px off the other cameras' consensus was left out of that person's association from the
 first tick on (the filter, no longer corrected by it, drifted further from it).
 
-A filter that cannot predict its detections (the MAP tracker) leaves the scene tracker's decisions as they are.
+A filter that cannot predict its detections (the MAP tracker, :func:`predicts`) leaves the scene tracker's decisions
+as they are (:func:`~priortrack.tracking.people.track_scene` runs each person on their own then).
 """
 
 from __future__ import annotations
@@ -41,14 +42,17 @@ from priortrack.data.scene_detections import SceneDetections
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.tracking.motion import SIGMA_PX
 from priortrack.tracking.person import PersonRun
+from priortrack.tracking.presets import Preset, filter_class
 from priortrack.tracking.scene import GATE, SceneAssociation, gated_assignment, prediction_costs
 
 log = logging.getLogger(__name__)
 
 
-def predicts(person: PersonRun) -> bool:
-    """Whether the person's filter steps in halves with a prediction of its detections in between."""
-    return all(hasattr(person.filt, name) for name in ("advance", "predicted_measurement", "correct"))
+def predicts(preset: Preset) -> bool:
+    """Whether the preset's filter steps in halves with a prediction of its detections in between (the particle
+    and unscented filters; not the MAP tracker)."""
+    return all(hasattr(filter_class(preset.filter_kind), name) for name in ("advance", "predicted_measurement",
+                                                                             "correct"))
 
 
 def detection_costs(person: PersonRun, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:
