@@ -10,6 +10,11 @@ Per frame, for P particles s^i held as one tensor:
     move      (``moves`` K > 0) after a resampling, K Metropolis–Hastings moves of each particle's pose
               that leave the filtering distribution invariant (resample-move, :meth:`ParticleFilter.move`).
 
+With ``proposal="guided"`` the prediction is drawn from a proposal that looks at the frame's detections
+(:mod:`priortrack.filters.proposal`), s_t^i ~ q(s_t | s_{t-1}^i, z_t), and the weight adds
+log p(s_t^i | s_{t-1}^i) − log q(s_t^i | s_{t-1}^i, z_t): the same filtering distribution, far fewer
+particles wasted where the likelihood is much narrower than the prior's step.
+
 A frame with no observed joint leaves the weights as they are (the prediction stands). If
 every particle's likelihood is −inf, the weights are reset to uniform (flagged), never NaN.
 
@@ -34,6 +39,7 @@ from priortrack.errors import PriortrackError
 from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.backward_simulation import backward_indices, distinct
 from priortrack.filters.marginal_translation import kalman_update, predict_covariance, smooth_translation
+from priortrack.filters.proposal import GuidedProposal
 from priortrack.filters.resampling import resampler
 from priortrack.filters.smoothing import blockwise_spread
 from priortrack.filters.snapshot import Snapshot
@@ -49,6 +55,9 @@ SMOOTH_JOINT_ROWS = 1 << 16
 
 #: How the body's translation is handled (see ``ParticleFilter``'s ``translation``).
 TRANSLATIONS = ("sampled", "marginalised")
+
+#: Where the predicted particles are drawn from (see ``ParticleFilter``'s ``proposal``).
+PROPOSALS = ("prior", "guided")
 
 
 class ParticleFilter(SequentialFilter):
@@ -73,6 +82,11 @@ class ParticleFilter(SequentialFilter):
             (0: none, the bootstrap filter; :meth:`move`).
         move_scale: the moves' first step size, as a fraction of the size of the prior's own step
             this frame (adapted between frames towards an acceptance rate of 0.2–0.5).
+        proposal: "prior" (default: the bootstrap filter's draw from the transition) or "guided" (the
+            linearised optimal proposal mixed with the prior, exact weights: :mod:`~priortrack.filters.proposal`;
+            a prior with a Gaussian transition covariance and a likelihood that projects).
+        defensive: the guided proposal's share of the prior itself, δ (default 0.1).
+        inflation: the guided proposal's factor on its linearised covariance, γ (default 2).
         seed: seeds the filter's own torch.Generator (on ``device``: a GPU draws other numbers than
             the CPU from the same seed).
         device: where the particles live and every step computes ("cpu", "cuda", "cuda:N";
@@ -85,7 +99,8 @@ class ParticleFilter(SequentialFilter):
 
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
                  ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", moves: int = 0,
-                 move_scale: float = 0.3, seed: int = 0, device: str = "cpu"):
+                 move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1, inflation: float = 2.0,
+                 seed: int = 0, device: str = "cpu"):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
         if not 0.0 <= ess_threshold <= 1.0:
@@ -100,8 +115,13 @@ class ParticleFilter(SequentialFilter):
                                   "linearisable (a JointLikelihood without robust_nu, or a MultiViewLikelihood)")
         if moves < 0 or not 0 < move_scale <= 10:
             raise PriortrackError(f"moves must be at least 0 and move_scale in (0, 10]; got {moves} and {move_scale}")
+        if proposal not in PROPOSALS:
+            raise PriortrackError(f"proposal must be one of {', '.join(PROPOSALS)}, got {proposal!r}")
         self.moves, self.move_step = int(moves), float(move_scale)
         self.marginal = translation == "marginalised"
+        #: The guided proposal (:mod:`~priortrack.filters.proposal`), or None: the prior's draw.
+        self.proposal = GuidedProposal(model, self.marginal, defensive, inflation) if proposal == "guided" else None
+        self._log_ratio: torch.Tensor | None = None
         self.covariance: torch.Tensor | None = None
         self.model, self.P, self.ess_threshold = model, int(particles), float(ess_threshold)
         self.dtype = DTYPES[dtype]
@@ -151,15 +171,35 @@ class ParticleFilter(SequentialFilter):
 
     def advance(self) -> None:
         """The prediction half of a step: every particle through the transition (the scene tracker reads
-        :meth:`predicted_measurement` before :meth:`correct` weighs the particles with the frame)."""
+        :meth:`predicted_measurement` before :meth:`correct` weighs the particles with the frame). With the
+        guided proposal the draw waits for the frame, in :meth:`correct`."""
         if self.states is None:
             raise PriortrackError("the filter is not initialised: call initialise(motion) first")
-        t0 = time.perf_counter()
         self._parents = (self.states, self.covariance)
+        self._observed, self._log_ratio, self._predict_seconds = None, None, 0.0
+        if self.proposal is None:
+            self._prior_draw(self.states)
+
+    def _prior_draw(self, parents: torch.Tensor) -> None:
+        """The predicted particles drawn from the transition p(s_t | s_t−1) of ``parents``."""
+        t0 = time.perf_counter()
         if self.marginal:       # t_t = t̂_t, its covariance predicted in update (or below)
-            self.states = self.model.predict(self.states, self.generator, translation=False)
+            self.states = self.model.predict(parents, self.generator, translation=False)
         else:                   # any model with predict(s, generator), not only a TrackingModel
-            self.states = self.model.predict(self.states, self.generator)
+            self.states = self.model.predict(parents, self.generator)
+        self._observed = None
+        self._predict_seconds += time.perf_counter() - t0
+
+    def _guided_draw(self, z: torch.Tensor, parents: torch.Tensor, covariance: torch.Tensor | None) -> None:
+        """The predicted particles drawn from the guided proposal with the frame's (gated) z, and the
+        log ratio of prior to proposal that their weights add."""
+        t0 = time.perf_counter()
+        predicted_covariance = None
+        if self.marginal:
+            motion = self.model.global_motion
+            predicted_covariance = predict_covariance(covariance, motion.sigma[:3], motion.velocity)
+        self.states, self._log_ratio = self.proposal.draw(parents, torch.exp(self.log_weights), z, self.generator,
+                                                          predicted_covariance)
         self._observed = None
         self._predict_seconds = time.perf_counter() - t0
 
@@ -170,6 +210,8 @@ class ParticleFilter(SequentialFilter):
         behind the camera). Needs a model with a likelihood that projects (``likelihood.pixels``)."""
         if self._parents is None:
             raise PriortrackError("no prediction to read: call advance() first")
+        if self.proposal is not None and self.states is self._parents[0]:
+            self._prior_draw(self._parents[0])  # the guided draw waits for the frame: what the scene reads is the prior's prediction
         pixels = getattr(getattr(self.model, "likelihood", None), "pixels", None)
         if pixels is None:
             raise PriortrackError(f"the {type(self.model).__name__} model's observations are not pixels: no "
@@ -209,6 +251,11 @@ class ParticleFilter(SequentialFilter):
         if count:
             flags.append("outlier-gated")
             z = gated.to(z)
+        if self.proposal is not None:
+            if torch.isfinite(z).any():
+                self._guided_draw(z, parents, parent_covariance)
+            elif self.states is parents:
+                self._prior_draw(parents)
         t1 = time.perf_counter()
         predicted = self.states
         if torch.isfinite(z).any():
@@ -249,6 +296,9 @@ class ParticleFilter(SequentialFilter):
         joints = self.predicted_joints()
         log_likelihood, pending = self.weigh(joints, z)
         joints = self.keep_update(pending, joints)
+        if self._log_ratio is not None:      # the guided proposal's log p(s_t | s_t−1) − log q(s_t | s_t−1, z)
+            log_likelihood = log_likelihood.to(torch.float64) + self._log_ratio
+            self._log_ratio = None
         self.log_weights = self.normalised(self.log_weights + log_likelihood, flags)
         return joints
 

@@ -167,9 +167,9 @@ def placements_plus(g: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 
 def placements_minus(g: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
-    """g ⊟ base = (t − t_b, log(exp(ω) exp(ω_b)ᵀ)) on both placements: g (N, 12), base (12,) → (N, 12),
-    the rotations composed as unit quaternions (as :func:`placements_plus`)."""
-    if _in_kernel(g, base):
+    """g ⊟ base = (t − t_b, log(exp(ω) exp(ω_b)ᵀ)) on both placements: g (N, 12), base (12,) (or one per row,
+    (N, 12)) → (N, 12), the rotations composed as unit quaternions (as :func:`placements_plus`)."""
+    if base.dim() == 1 and _in_kernel(g, base):
         out = np.empty(tuple(g.shape))
         placements_kernel.minus(g.contiguous().numpy(), base.contiguous().numpy(), out)
         return torch.from_numpy(out)
@@ -210,15 +210,11 @@ class UnscentedTracking:
     measurement_block = 2
 
     def __init__(self, model: TrackingModel):
-        prior, likelihood = model.prior, model.likelihood
+        prior = model.prior
         if not isinstance(prior, GaussianTransition):
             raise PriortrackError(f"the unscented filter needs a prior with a Gaussian transition (a mean step and a "
                                   f"noise covariance); the {prior.kind!r} prior ({type(prior).__name__}) has none: "
                                   f"use the particle filter")
-        if likelihood.robust_nu is not None:
-            raise PriortrackError(f"the unscented filter needs a Gaussian likelihood (R = σ_px² I); this one is a "
-                                  f"Student-t (robust_nu={likelihood.robust_nu:g}), which has no measurement "
-                                  f"covariance: use the particle filter, or an observation model without robust_nu")
         self.model, self.space = model, prior.space
         self.dim, self.tangent_dim = model.dim, self.space.tangent_dim + 2 * GLOBAL_DIM
         self.observation_shape = model.observation_shape
@@ -233,9 +229,9 @@ class UnscentedTracking:
         return torch.cat([self.space.retract(s[:, :S], v[:, :n]), placements_plus(s[:, S:], v[:, n:])], -1)
 
     def boxminus(self, s: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
-        """s (N, A) ⊟ base (A,) → (N, n), in the tangent coordinates at base."""
+        """s (N, A) ⊟ base (A,) (or one base per row, (N, A)) → (N, n), in the tangent coordinates at base."""
         S = self.model.pose_dim
-        return torch.cat([self.space.local(s[:, :S], base[:S]), placements_minus(s[:, S:], base[S:])], -1)
+        return torch.cat([self.space.local(s[:, :S], base[..., :S]), placements_minus(s[:, S:], base[..., S:])], -1)
 
     def sigma_mean(self, s: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         """Mean (A,) of states s (N, A) for weights w (N,) summing to 1 (any sign): on each factor
@@ -273,10 +269,17 @@ class UnscentedTracking:
                                 motion.rotation_covariance(g)[0], torch.diag(jitter))
 
 
-def unscented_form(model):
+def unscented_form(model, robust: bool = False):
     """The model as the unscented filter uses it: a TrackingModel wrapped in
-    :class:`UnscentedTracking`; any other model must itself keep ``UNSCENTED_INTERFACE``."""
+    :class:`UnscentedTracking`; any other model must itself keep ``UNSCENTED_INTERFACE``. A robust
+    (Student-t) likelihood is refused unless ``robust`` (the guided proposal weighs its points itself:
+    :mod:`priortrack.filters.proposal`)."""
     if isinstance(model, TrackingModel):
+        nu = model.likelihood.robust_nu
+        if nu is not None and not robust:
+            raise PriortrackError(f"the unscented filter needs a Gaussian likelihood (R = σ_px² I); this one is a "
+                                  f"Student-t (robust_nu={nu:g}), which has no measurement covariance: use the "
+                                  f"particle filter, or an observation model without robust_nu")
         return UnscentedTracking(model)
     missing = [name for name in UNSCENTED_INTERFACE if not hasattr(model, name)]
     if missing:

@@ -332,7 +332,7 @@ class DirectionSpace(StateSpace):
         return self.boxplus(x, v.reshape(x.shape))
 
     def local(self, y, x):
-        """y ⊟ x = E(x) log_x(y): y (N, 3K), x (3K,) → (N, 2K)."""
+        """y ⊟ x = E(x) log_x(y): y (N, 3K), x (3K,) (or one per row, (N, 3K)) → (N, 2K)."""
         v = self.boxminus(y, x.expand_as(y))
         c = to_coordinates(tangent_basis(self._spheres(x)), self._spheres(v))
         return c.reshape(y.shape[:-1] + (self.tangent_dim,))

@@ -1,0 +1,84 @@
+"""The guided proposal (issue 45) against closed forms on a linear-Gaussian model."""
+
+import numpy as np
+import pytest
+import torch
+
+from priortrack import PriortrackError
+from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.proposal import GuidedProposal
+
+from linear_gaussian import LinearGaussian, kalman
+
+
+@pytest.fixture
+def sharp():
+    """A constant-velocity state seen through a likelihood far narrower than the transition's step."""
+    A = [[1, 1.0, 0], [0, 1, 0], [0, 0, 0.9]]
+    Q = np.diag([0.04, 0.04, 0.09])
+    H = [[1.0, 0, 0], [0, 0, 1.0]]
+    R = np.diag([0.001, 0.002])
+    return LinearGaussian(A, Q, H, R)
+
+
+def test_optimal_proposal_weight_is_the_predictive_likelihood(sharp):
+    """With δ = 0 and γ = 1 the guided proposal of a linear-Gaussian model is p(s_t | s_t−1, y_t): every
+    particle's incremental weight log p(y | s) + log p(s | s_t−1) − log q(s) is the predictive likelihood
+    log N(y; H A s_t−1, H Q Hᵀ + R), whatever s was drawn (to rounding)."""
+    g = torch.Generator().manual_seed(0)
+    parents = torch.randn(500, 3, generator=g, dtype=torch.float64)
+    weights = torch.rand(500, generator=g, dtype=torch.float64)
+    y = torch.tensor([0.3, -0.4], dtype=torch.float64)
+    proposal = GuidedProposal(sharp, defensive=0.0, inflation=1.0)
+    s, log_ratio = proposal.draw(parents, weights, y, g)
+    incremental = sharp.log_likelihood(sharp.observe(s), y) + log_ratio
+    A, Q, H, R = sharp.A, sharp.Q, sharp.H, sharp.R
+    predictive = torch.distributions.MultivariateNormal(parents @ A.T @ H.T, H @ Q @ H.T + R).log_prob(y)
+    np.testing.assert_allclose(incremental.numpy(), predictive.numpy(), atol=1e-9)
+    # the draws are the Kalman posterior of each parent's step: mean m + K (y − H m), covariance (I − K H) Q
+    K = torch.linalg.solve(H @ Q @ H.T + R, H @ Q).T
+    residual = s - (parents @ A.T + (y - parents @ A.T @ H.T) @ K.T)
+    np.testing.assert_allclose(np.cov(residual.numpy().T), (Q - K @ H @ Q).numpy(), atol=0.15 * float(Q.max()))
+
+
+@pytest.mark.parametrize("defensive, inflation", [(0.0, 1.0), (0.1, 2.0)])
+def test_guided_filter_posterior_is_the_kalman_posterior(sharp, defensive, inflation):
+    """The guided filter (defaults δ = 0.1, γ = 2, and the plain optimal proposal) over six frames with a
+    missing entry: its weighted particles' mean within 5 standard errors of the Kalman filter's, covariance
+    within 8 % of its largest entry. Under this sharp likelihood the bootstrap filter's effective sample size is
+    a small fraction of the guided filter's (measured per frame, of 4000: guided 333 677 6 3705 180 1889 with
+    the optimal proposal, 203 388 3 2214 121 1250 with the defaults; bootstrap 7 37 1 1 1 84; the guided
+    filter's own dips are the parents' spread in the unobserved velocity, which no proposal can undo)."""
+    rng = np.random.default_rng(0)
+    zs = rng.normal(0, 1, (6, 2))
+    zs[3, 0] = np.nan
+    m0, P0 = np.array([0.5, -0.2, 1.0]), np.diag([0.3, 0.2, 0.5])
+    m, P = kalman(sharp, m0, P0, zs)
+    n = 4000
+    g = torch.Generator().manual_seed(2)
+    start = torch.as_tensor(m0) + torch.randn(n, 3, generator=g, dtype=torch.float64) @ torch.linalg.cholesky(
+        torch.as_tensor(P0)).T
+    ess = {}
+    for proposal in ("guided", "prior"):
+        pf = ParticleFilter(sharp, n, ess_threshold=0.5, proposal=proposal, defensive=defensive, inflation=inflation,
+                            seed=1)
+        pf.initialise_states(start)
+        snaps = [pf.step(z) for z in zs]
+        ess[proposal] = np.median([s.ess for s in snaps])
+        if proposal == "guided":
+            w, s = snaps[-1].weights.numpy(), snaps[-1].particles.numpy()
+            mean = w @ s
+            cov = (w[:, None] * (s - mean)).T @ (s - mean)
+            se = np.sqrt(np.diag(P) / snaps[-1].ess)
+            assert np.all(np.abs(mean - m) < 5 * se), (mean, m, se)
+            np.testing.assert_allclose(cov, P, atol=0.08 * np.abs(P).max())
+    assert ess["guided"] > 20 * ess["prior"], ess
+
+
+def test_guided_settings_are_checked(sharp):
+    with pytest.raises(PriortrackError, match="proposal must be one of"):
+        ParticleFilter(sharp, 10, proposal="optimal")
+    with pytest.raises(PriortrackError, match="defensive share"):
+        ParticleFilter(sharp, 10, proposal="guided", defensive=1.0)
+    with pytest.raises(PriortrackError, match="inflation"):
+        ParticleFilter(sharp, 10, proposal="guided", inflation=0.5)
