@@ -226,9 +226,11 @@ def test_the_real_track_benchmark_runs_the_whole_command(capsys):
     assert main(["bench", "real-track", "--frames", "12"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["frames"] == 12 and result["cameras"] == 4 and result["command_seconds"] > 0
+    assert result["prior_draw_seconds"] > 0 and result["guided_over_prior"] > 0      # pf-lie draws guided
     assert main(["bench", "real-track", "--frames", "12", "--cameras", "5", "--fps", "25", "--filter", "ukf-real"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["cameras"] == 5 and result["fps"] == 25.0 and result["command_seconds"] > 0
+    assert result["prior_draw_seconds"] is None
     assert main(["bench", "real-track", "--frames", "5000"]) == 2
     assert "frames must be in [3, 1800]" in capsys.readouterr().err
     assert main(["bench", "real-track", "--cameras", "1"]) == 2

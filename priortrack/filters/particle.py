@@ -86,7 +86,7 @@ class ParticleFilter(SequentialFilter):
             linearised optimal proposal mixed with the prior, exact weights: :mod:`~priortrack.filters.proposal`;
             a prior with a Gaussian transition covariance and a likelihood that projects).
         defensive: the guided proposal's share of the prior itself, δ (default 0.1).
-        inflation: the guided proposal's factor on its linearised covariance, γ (default 2).
+        inflation: the guided proposal's factor on its linearised covariance, γ (default 1).
         seed: seeds the filter's own torch.Generator (on ``device``: a GPU draws other numbers than
             the CPU from the same seed).
         device: where the particles live and every step computes ("cpu", "cuda", "cuda:N";
@@ -99,7 +99,7 @@ class ParticleFilter(SequentialFilter):
 
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
                  ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", moves: int = 0,
-                 move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1, inflation: float = 2.0,
+                 move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1, inflation: float = 1.0,
                  seed: int = 0, device: str = "cpu"):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
@@ -211,7 +211,11 @@ class ParticleFilter(SequentialFilter):
         if self._parents is None:
             raise PriortrackError("no prediction to read: call advance() first")
         if self.proposal is not None and self.states is self._parents[0]:
-            self._prior_draw(self._parents[0])  # the guided draw waits for the frame: what the scene reads is the prior's prediction
+            # the guided draw waits for the frame: what the scene reads is the prior's prediction, drawn without
+            # moving the generator on (a step in halves draws what the whole step draws)
+            state = self.generator.get_state()
+            self._prior_draw(self._parents[0])
+            self.generator.set_state(state)
         pixels = getattr(getattr(self.model, "likelihood", None), "pixels", None)
         if pixels is None:
             raise PriortrackError(f"the {type(self.model).__name__} model's observations are not pixels: no "

@@ -7,7 +7,9 @@ OpenPose BODY_25B JSON at ``fps`` with the detector errors of :mod:`priortrack.e
 seen by the Pose2Sim demo's 4 cameras or by ``cameras`` distorted cameras on a ring
 (:func:`~priortrack.experiments.benchmarks.ukf.ring_cameras`, a Y-up world). Timed in this process, as
 the command runs it: reading the files, fitting or loading the prior, starting, tracking, writing an
-.npz; the preset sets the particles.
+.npz; the preset sets the particles. A particle preset that draws from the guided proposal
+(:mod:`priortrack.filters.proposal`) is also timed drawing from its prior (``proposal = "prior"``), on the same
+input: the guided draw's cost beside the bootstrap filter's.
 """
 
 from __future__ import annotations
@@ -45,9 +47,13 @@ def _ring_calibration(X: np.ndarray, count: int) -> Calibration:
 def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, cameras: int = 4,
                      fps: float = FPS) -> dict:
     """Seconds of the whole command's work on ``frames`` frames × ``cameras`` cameras at ``fps``, and of
-    DLT on the same input."""
+    DLT on the same input; for a guided particle preset also the command's seconds with the prior's draw
+    (``prior_draw_seconds``) and ``guided_over_prior``."""
+    from dataclasses import replace
+
     from priortrack.experiments.benchmarks.long import LOOP_SECONDS, ping_pong
     from priortrack.tracking.person import TrackConfig, track_detections
+    from priortrack.tracking.presets import load_preset
 
     if not 3 <= frames <= MAX_FRAMES:
         raise PriortrackError(f"bench real-track: frames must be in [3, {MAX_FRAMES}], got {frames}")
@@ -63,16 +69,26 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
         calibration = _ring_calibration(X, cameras)
     X = ping_pong(X, frames)
     views = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    shipped = load_preset(preset)
+    guided = shipped.filter_kind == "pf" and shipped.filter_options.get("proposal") == "guided"
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_openpose(detector_keypoints(X, views, np.random.default_rng(seed)), Path(tmp) / "pose")
-        start = time.perf_counter()
-        detections = read_detections(folder, keypoints="body25b")
-        result = track_detections(detections, calibration, preset, TrackConfig(fps=fps, seed=seed))
-        result.save(Path(tmp) / "out.npz")
-        seconds = time.perf_counter() - start
+
+        def command(chosen) -> float:
+            start = time.perf_counter()
+            detections = read_detections(folder, keypoints="body25b")
+            result = track_detections(detections, calibration, chosen, TrackConfig(fps=fps, seed=seed))
+            result.save(Path(tmp) / "out.npz")
+            return time.perf_counter() - start
+
+        seconds = command(shipped)
         start = time.perf_counter()
         uv, confidence = read_detections(folder, keypoints="body25b").eval15(0.3)
         triangulate(views, uv, confidence)
         dlt_seconds = time.perf_counter() - start
+        prior_draw = (command(replace(shipped, filter_options={**shipped.filter_options, "proposal": "prior"}))
+                      if guided else None)
     return {"frames": frames, "fps": fps, "cameras": len(views), "preset": preset, "command_seconds": seconds,
-            "dlt_seconds": dlt_seconds, "ratio": seconds / dlt_seconds, "load_average": load_average()}
+            "seconds_per_frame": seconds / frames, "dlt_seconds": dlt_seconds, "ratio": seconds / dlt_seconds,
+            "prior_draw_seconds": prior_draw, "guided_over_prior": None if prior_draw is None else seconds / prior_draw,
+            "load_average": load_average()}
