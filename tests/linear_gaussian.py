@@ -103,3 +103,35 @@ def kalman_rts(model, m0, P0, zs):
         means.append(m + G @ (means[-1] - A @ m))
         covariances.append(P + G @ (covariances[-1] - P_pred) @ G.T)
     return np.array(means[::-1]), np.array(covariances[::-1])
+
+
+class LinearMixture(LinearGaussian):
+    """s_t = A s_{t-1} + b_k + N(0, Q_k) with probability π_k, z_t = H s_t + N(0, R): a Gaussian-mixture transition
+    (``step_components``, as the Lie prior's), linear; ``Q`` its moment-matched covariance."""
+
+    def __init__(self, A, b, Qs, pi, H, R):
+        self.b, self.Qs = torch.as_tensor(b, dtype=torch.float64), torch.as_tensor(Qs, dtype=torch.float64)
+        self.pi = torch.as_tensor(pi, dtype=torch.float64)
+        b_bar = self.pi @ self.b
+        d = self.b - b_bar
+        Q = torch.einsum("k,kij->ij", self.pi, self.Qs) + torch.einsum("k,ki,kj->ij", self.pi, d, d)
+        super().__init__(A, Q, H, R)
+        self.b_bar = b_bar
+
+    def predict(self, s, generator):
+        k = torch.multinomial(self.pi, len(s), replacement=True, generator=generator)
+        noise = torch.randn(s.shape, generator=generator, dtype=s.dtype)
+        return s @ self.A.T + self.b[k] + (torch.linalg.cholesky(self.Qs)[k] @ noise[..., None])[..., 0]
+
+    def log_transition(self, s_next, s):
+        terms = torch.stack([torch.distributions.MultivariateNormal(s @ self.A.T + b, Q).log_prob(s_next)
+                             for b, Q in zip(self.b, self.Qs)], -1)
+        return torch.logsumexp(terms + torch.log(self.pi), -1)
+
+    def mean_step(self, s):
+        return s @ self.A.T + self.b_bar
+
+    def step_components(self, s):
+        """ln π (B, K), the steps A s + b_k − s (B, K, n), the covariances Q_k (B, K, n, n)."""
+        steps = (s @ self.A.T - s)[:, None] + self.b[None]
+        return (torch.log(self.pi).expand(len(s), -1), steps, self.Qs.expand(len(s), -1, -1, -1))

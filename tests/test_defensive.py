@@ -34,6 +34,18 @@ def test_the_density_is_the_two_component_mixture(mixture):
             - 1e-9).all()
 
 
+def test_the_step_components_are_the_mixtures_density(mixture):
+    """The Lie prior's K Gaussian steps weighted 1 − ε and the diffusion's one weighted ε (what the guided proposal
+    linearises): their mixture at the step x_next ⊟ x is log_prob, to rounding, on a held-out walk."""
+    x = mixture.encode(load_motion("cmu:07_10"))[:40].double()
+    log_pi, means, covariances = mixture.step_components(x[:-1])
+    assert log_pi.shape[1] == mixture.learned.clusters + 1
+    np.testing.assert_allclose(torch.logsumexp(log_pi, 1).numpy(), 0.0, atol=1e-12)
+    u = mixture.space.local(x[1:], x[:-1])
+    density = torch.logsumexp(log_pi + torch.distributions.MultivariateNormal(means, covariances).log_prob(u[:, None]), 1)
+    np.testing.assert_allclose(density.numpy(), mixture.log_prob(x[1:], x[:-1]).numpy(), rtol=1e-9)
+
+
 def test_a_tenth_of_the_steps_come_from_the_diffusion(mixture):
     x = mixture.encode(load_motion("cmu:07_10"))[:1].double().expand(4000, -1).contiguous()
     g = torch.Generator().manual_seed(0)

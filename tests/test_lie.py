@@ -300,6 +300,30 @@ def test_log_prob_is_the_mixture_conditional_density(synthetic):
     np.testing.assert_allclose(prior.log_prob(xnt, xt).numpy(), expected + 2 * B * math.log(SCALE), rtol=1e-9)
 
 
+def test_the_step_components_are_the_transition_density_and_its_moments(synthetic):
+    """step_components (what the guided proposal linearises) is the transition itself: the mixture of its Gaussians at
+    the step u = x_next ⊟ x (DirectionSpace.local) is log_prob to 1e-9, and its moments are mean and
+    transition_covariance (the unscented filter's moment-matched step)."""
+    prior, rng = synthetic
+    m = prior.mixture
+    p = 8
+    x = near(rng, m.means.numpy()[rng.integers(3, size=p)], 0.3)
+    v = rng.normal(size=(p, B, 3))
+    v -= np.sum(v * x, axis=-1, keepdims=True) * x
+    xt, xnt = torch.as_tensor(x).reshape(p, -1), torch.as_tensor(np_exp(x, v / SCALE)).reshape(p, -1)
+    log_pi, means, covariances = prior.step_components(xt)
+    assert log_pi.shape == (p, 3) and means.shape == (p, 3, 2 * B) and covariances.shape == (p, 3, 2 * B, 2 * B)
+    u = prior.space.local(xnt, xt)
+    density = torch.logsumexp(log_pi + torch.distributions.MultivariateNormal(means, covariances).log_prob(u[:, None]), 1)
+    np.testing.assert_allclose(density.numpy(), prior.log_prob(xnt, xt).numpy(), rtol=1e-9)
+    pi = torch.exp(log_pi)
+    mean = torch.einsum("pk,pki->pi", pi, means)
+    spread = means - mean[:, None]
+    moments = torch.einsum("pk,pkij->pij", pi, covariances) + torch.einsum("pk,pki,pkj->pij", pi, spread, spread)
+    np.testing.assert_allclose(moments.numpy(), prior.transition_covariance(xt).numpy(), atol=1e-12)
+    np.testing.assert_allclose(prior.space.retract(xt, mean).numpy(), prior.mean(xt).numpy(), atol=1e-12)
+
+
 def test_mean_is_the_exp_of_the_mixture_mean_velocity(synthetic):
     prior, rng = synthetic
     m = prior.mixture

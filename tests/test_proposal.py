@@ -8,7 +8,7 @@ from priortrack import PriortrackError
 from priortrack.filters.particle import ParticleFilter
 from priortrack.filters.proposal import GuidedProposal
 
-from linear_gaussian import LinearGaussian, kalman
+from linear_gaussian import LinearGaussian, LinearMixture, kalman
 
 
 @pytest.fixture
@@ -39,6 +39,42 @@ def test_optimal_proposal_weight_is_the_predictive_likelihood(sharp):
     K = torch.linalg.solve(H @ Q @ H.T + R, H @ Q).T
     residual = s - (parents @ A.T + (y - parents @ A.T @ H.T) @ K.T)
     np.testing.assert_allclose(np.cov(residual.numpy().T), (Q - K @ H @ Q).numpy(), atol=0.15 * float(Q.max()))
+
+
+def test_a_mixture_transitions_guided_weight_is_its_predictive_likelihood(sharp):
+    """A transition that is a Gaussian mixture (three components with their own shifts and covariances, as the
+    Lie prior's step): with δ = 0 and γ = 1 the guided proposal is the exact posterior of the step, the mixture of
+    each component's Kalman posterior weighted by π_k N(y; H (A s + b_k), H Q_k Hᵀ + R), so every particle's
+    incremental weight is the predictive likelihood log Σ_k π_k N(y; H (A s + b_k), H Q_k Hᵀ + R), to rounding."""
+    A, H, R = sharp.A.numpy(), sharp.H.numpy(), sharp.R.numpy()
+    b = [[0.3, 0.0, -0.2], [-0.4, 0.1, 0.0], [0.0, -0.3, 0.5]]
+    Qs = np.array([np.diag([0.02, 0.01, 0.05]), np.diag([0.05, 0.03, 0.02]),
+                   [[0.04, 0.01, 0], [0.01, 0.02, 0], [0, 0, 0.03]]])
+    model = LinearMixture(A, b, Qs, [0.5, 0.3, 0.2], H, R)
+    g = torch.Generator().manual_seed(0)
+    parents = 0.3 * torch.randn(400, 3, generator=g, dtype=torch.float64)
+    y = torch.tensor([0.2, -0.1], dtype=torch.float64)
+    s, log_ratio = GuidedProposal(model, defensive=0.0, inflation=1.0).draw(parents, torch.ones(400), y, g)
+    incremental = model.log_likelihood(model.observe(s), y) + log_ratio
+    terms = torch.stack([torch.distributions.MultivariateNormal((parents @ model.A.T + b_k) @ model.H.T,
+                                                                model.H @ Q_k @ model.H.T + model.R).log_prob(y)
+                         for b_k, Q_k in zip(model.b, model.Qs)], -1)
+    predictive = torch.logsumexp(terms + torch.log(model.pi), -1)
+    np.testing.assert_allclose(incremental.numpy(), predictive.numpy(), atol=1e-9)
+    # and the defensive share keeps the weights exact: the filter's posterior mean is the exact mixture posterior's
+    pf = ParticleFilter(model, 20000, ess_threshold=0.0, proposal="guided", seed=3)
+    pf.initialise_states(torch.zeros(20000, 3, dtype=torch.float64))
+    snapshot = pf.step(y.numpy())
+    w, x = snapshot.weights.numpy(), snapshot.particles.numpy()
+    post, log_w = [], []
+    for b_k, Q_k, pi_k in zip(model.b.numpy(), model.Qs.numpy(), model.pi.numpy()):      # from the parent s = 0
+        S = H @ Q_k @ H.T + R
+        K = np.linalg.solve(S, H @ Q_k).T
+        post.append(b_k + K @ (y.numpy() - H @ b_k))
+        r = y.numpy() - H @ b_k
+        log_w.append(np.log(pi_k) - 0.5 * r @ np.linalg.solve(S, r) - 0.5 * np.linalg.slogdet(S)[1])
+    exact = np.exp(log_w - np.logaddexp.reduce(log_w)) @ np.array(post)
+    np.testing.assert_allclose(w @ x, exact, atol=5e-3)
 
 
 @pytest.mark.parametrize("defensive, inflation", [(0.0, 1.0), (0.1, 1.0), (0.1, 2.0)])

@@ -34,7 +34,7 @@ class StateSpace(Protocol):
         """x (N, S) ⊞ c (N, n) → (N, S)."""
 
     def local(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """y (N, S) ⊟ x (S,) → (N, n), tangent coordinates at x."""
+        """y (N, S) ⊟ x (S,) (or one x per row, (N, S)) → (N, n), tangent coordinates at x."""
 
     def coordinate_transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         """(n, n) map from tangent coordinates at a (S,) to those at b (S,)."""

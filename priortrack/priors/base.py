@@ -63,6 +63,18 @@ class TransitionModel(ABC):
     def mean(self, x: torch.Tensor) -> torch.Tensor:
         """(P, S) → (P, S), the mean (or mode) of p(x_t | x_{t-1})."""
 
+    def step_components(self, x) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The transition as a mixture of Gaussian steps in the tangent coordinates of ``space.local`` at each
+        state x (P, S): ln π (P, K), the component means (P, K, n) and covariances (P, K, n, n) (what the particle
+        filter's guided proposal linearises: :mod:`priortrack.filters.proposal`). A Gaussian transition is one
+        component, the mean step mean(x) ⊟ x and ``transition_covariance(x)``; the Lie mixture overrides it."""
+        x = self.check_state(x)
+        covariance = getattr(self, "transition_covariance", None)
+        if covariance is None:
+            raise PriortrackError(f"the {self.kind} prior has no Gaussian step (no transition_covariance)")
+        return (x.new_zeros(len(x), 1, dtype=torch.float64), self.space.local(self.mean(x), x)[:, None],
+                covariance(x)[:, None])
+
     def initial(self, x0, n: int, generator: torch.Generator) -> torch.Tensor:
         """(S,) known first state → (n, S) states drawn around it with the prior's own
         one-step spread: the first row is x0 itself, the others one transition from it; drawn on the

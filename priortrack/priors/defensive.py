@@ -63,8 +63,7 @@ class DefensiveMixture:
     def _mean_step(self, x: torch.Tensor) -> torch.Tensor:
         """(P, S) → (P, n) ū, the learned prior's mean step log_x(mean(x)) in the tangent coordinates of
         ``space.local`` at each row (the diffusion's mean step is 0)."""
-        space, target = self.learned.space, self.learned.mean(x)
-        return torch.cat([space.local(target[i:i + 1], x[i]) for i in range(len(x))])
+        return self.learned.space.local(self.learned.mean(x), x)
 
     def mean(self, x: torch.Tensor) -> torch.Tensor:
         """(P, S) → (P, S) x ⊞ (1 − ε) ū: the mixture's mean step (the diffusion stays put)."""
@@ -83,6 +82,15 @@ class DefensiveMixture:
         eps = self.epsilon
         return ((1 - eps) * self.learned.transition_covariance(x) + eps * self.fallback.transition_covariance(x).to(u)
                 + eps * (1 - eps) * u[:, :, None] * u[:, None, :])
+
+    def step_components(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The learned prior's Gaussian steps weighted by 1 − ε and the diffusion's by ε (each ``step_components``):
+        ln π (P, K + 1), means (P, K + 1, n), covariances (P, K + 1, n, n)."""
+        parts = (self.learned.step_components(x), self.fallback.step_components(x))
+        log_pi = torch.cat([parts[0][0].to(torch.float64) + math.log1p(-self.epsilon),
+                            parts[1][0].to(torch.float64) + math.log(self.epsilon)], 1)
+        return log_pi, torch.cat([parts[0][1], parts[1][1].to(parts[0][1])], 1), torch.cat([parts[0][2],
+                                                                                            parts[1][2].to(parts[0][2])], 1)
 
     def log_prob(self, x_next: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """(P,) ln[(1 − ε) p_learned + ε p_fallback], in float64."""

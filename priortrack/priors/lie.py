@@ -370,17 +370,29 @@ class GeodesicMixture:
 
         block-diagonal over bones within a component, full between them."""
         b, n = self.bones, x.shape[0]
+        log_pi, c, blocks = self._transported(x)
+        pi = torch.exp(log_pi)
+        mean = torch.einsum("pk,pkbi->pbi", pi, c)
+        within = torch.einsum("pk,pkbij->pbij", pi, blocks)
+        spread = (c - mean[:, None]).reshape(n, self.components, 2 * b)
+        covariance = _block_diagonal(within) + torch.einsum("pk,pki,pkj->pij", pi, spread, spread)
+        return mean.reshape(n, 2 * b), 0.5 * (covariance + covariance.transpose(-1, -2))
+
+    def _transported(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Every component's conditional velocity in the coordinates E(x) of :meth:`velocity_moments`: ln π (P, K),
+        the means c_k = T_k (m_k + R_k a_k) (P, K, B, 2) and the covariance blocks T_k C_k T_kᵀ (P, K, B, 2, 2)."""
+        b, n = self.bones, x.shape[0]
         log_pi, means, cond = self.conditional(x)                                     # (P, K), (P, K, B, 2)
         moved = transport(self.means.to(x).reshape(1, -1, b, 1, 3), x.reshape(n, 1, b, 1, 3),
                           self.basis.to(x)[None])                                      # (P, K, B, 2, 3)
         T = tangent_basis(x.reshape(n, 1, b, 3)) @ moved.transpose(-1, -2)             # (P, K, B, 2, 2)
-        c = (T @ means[..., None])[..., 0]                                             # (P, K, B, 2)
-        pi = torch.exp(log_pi)
-        mean = torch.einsum("pk,pkbi->pbi", pi, c)
-        within = torch.einsum("pk,pkbij->pbij", pi, T @ cond[None] @ T.transpose(-1, -2))
-        spread = (c - mean[:, None]).reshape(n, self.components, 2 * b)
-        covariance = _block_diagonal(within) + torch.einsum("pk,pki,pkj->pij", pi, spread, spread)
-        return mean.reshape(n, 2 * b), 0.5 * (covariance + covariance.transpose(-1, -2))
+        return log_pi, (T @ means[..., None])[..., 0], T @ cond[None] @ T.transpose(-1, -2)
+
+    def velocity_components(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """p(v | x) as the Gaussian mixture it is, in the coordinates E(x) of T_x (S²)ᴮ: ln π (P, K), the
+        component means (P, K, 2B) and covariances (P, K, 2B, 2B), block-diagonal over bones."""
+        log_pi, c, blocks = self._transported(x)
+        return log_pi, c.reshape(x.shape[0], self.components, 2 * self.bones), _block_diagonal(blocks)
 
     # ---- the sampling path (any dtype and device, planar, in blocks) ------------------------------
     def _hot(self, dtype: torch.dtype, device: torch.device, scale: float) -> _Hot:
@@ -864,6 +876,13 @@ class LiePrior(TransitionModel):
         (the same moments' mean) it is the Gaussian transition the unscented filter runs (``ukf-lie``)."""
         x = self.check_state(x)
         return self.mixture.velocity_moments(x.contiguous())[1] / self.scale ** 2
+
+    def step_components(self, x) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(P, 42) → the transition as the mixture of Gaussian steps u = log_x(x_next) = v / s it is, in the tangent
+        coordinates of :meth:`DirectionSpace.local` at each x: ln π_k(x) (P, K), means (P, K, 28), covariances
+        (P, K, 28, 28) (:meth:`GeodesicMixture.velocity_components` over s and s²)."""
+        log_pi, means, covariances = self.mixture.velocity_components(self.check_state(x).contiguous())
+        return log_pi, means / self.scale, covariances / self.scale ** 2
 
     def responsibilities(self, x) -> torch.Tensor:
         """(P, 42) → (P, K) π_k(x), summing to 1 over k."""

@@ -109,7 +109,7 @@ class StateSpace(ABC):
 
     @abstractmethod
     def local(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """y (N, S) ⊟ x (S,) → (N, n), in the tangent coordinates at x."""
+        """y (N, S) ⊟ x (S,) (or one x per row, (N, S)) → (N, n), in the tangent coordinates at x."""
 
     @abstractmethod
     def coordinate_transport(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
