@@ -131,7 +131,12 @@ class LinearMixture(LinearGaussian):
     def mean_step(self, s):
         return s @ self.A.T + self.b_bar
 
-    def step_components(self, s):
-        """ln π (B, K), the steps A s + b_k − s (B, K, n), the covariances Q_k (B, K, n, n)."""
+    def step_components(self, s, covariances=True, components=None):
+        """ln π (B, K), the steps A s + b_k − s (B, K, n), the covariances Q_k (B, K, n, n) (None unless asked);
+        with ``components`` (B, k) indices, those of each row."""
         steps = (s @ self.A.T - s)[:, None] + self.b[None]
-        return (torch.log(self.pi).expand(len(s), -1), steps, self.Qs.expand(len(s), -1, -1, -1))
+        log_pi, Qs = torch.log(self.pi).expand(len(s), -1), self.Qs.expand(len(s), -1, -1, -1)
+        if components is not None:
+            log_pi, steps, Qs = (torch.gather(log_pi, 1, components), steps[torch.arange(len(s))[:, None], components],
+                                 self.Qs[components])
+        return log_pi, steps, Qs if covariances else None

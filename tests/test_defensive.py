@@ -44,6 +44,13 @@ def test_the_step_components_are_the_mixtures_density(mixture):
     u = mixture.space.local(x[1:], x[:-1])
     density = torch.logsumexp(log_pi + torch.distributions.MultivariateNormal(means, covariances).log_prob(u[:, None]), 1)
     np.testing.assert_allclose(density.numpy(), mixture.log_prob(x[1:], x[:-1]).numpy(), rtol=1e-9)
+    np.testing.assert_allclose(mixture.step_weights(x[:-1]).numpy(), log_pi.numpy(), atol=1e-12)
+    K = log_pi.shape[1] - 1
+    index = torch.tensor([[K, 0], [3, K]]).repeat(len(u) // 2 + 1, 1)[:len(u)]      # the diffusion's (K) among them
+    rows = torch.arange(len(u))[:, None]
+    for got, full in zip(mixture.step_components(x[:-1], components=index),
+                         (log_pi[rows, index], means[rows, index], covariances[rows, index])):
+        np.testing.assert_allclose(got.numpy(), full.numpy(), atol=1e-12)
 
 
 def test_a_tenth_of_the_steps_come_from_the_diffusion(mixture):

@@ -322,6 +322,13 @@ def test_the_step_components_are_the_transition_density_and_its_moments(syntheti
     moments = torch.einsum("pk,pkij->pij", pi, covariances) + torch.einsum("pk,pki,pkj->pij", pi, spread, spread)
     np.testing.assert_allclose(moments.numpy(), prior.transition_covariance(xt).numpy(), atol=1e-12)
     np.testing.assert_allclose(prior.space.retract(xt, mean).numpy(), prior.mean(xt).numpy(), atol=1e-12)
+    # the weights alone, and chosen components of each row alone, are the full mixture's
+    np.testing.assert_allclose(prior.step_weights(xt).numpy(), log_pi.numpy(), atol=1e-12)
+    index = torch.tensor([[2, 0]] * 4 + [[1, 2]] * 4)
+    chosen = prior.step_components(xt, components=index)
+    rows = torch.arange(p)[:, None]
+    for got, full in zip(chosen, (log_pi[rows, index], means[rows, index], covariances[rows, index])):
+        np.testing.assert_allclose(got.numpy(), full.numpy(), atol=1e-12)
 
 
 def test_mean_is_the_exp_of_the_mixture_mean_velocity(synthetic):

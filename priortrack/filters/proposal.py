@@ -137,7 +137,7 @@ class GuidedProposal:
         m_bar = self.model.mean(m.to(f64), w)
         drawn = self.drawn.to(device)
         f = len(drawn)
-        log_pi, offsets, index, Q = self._components(parents, m_bar)
+        log_pi, offsets, index, Q, moment = self._components(parents, m, m_bar)
         keep = log_pi.shape[1]
         H = self._jacobian(m_bar, drawn, seen)
         nuisance = torch.zeros((len(y), len(y)), dtype=f64, device=device)
@@ -145,7 +145,6 @@ class GuidedProposal:
             C = (w[:, None, None] * translation_covariance[:, :3, :3].to(f64)).sum(0)
             H_t = self._jacobian(m_bar, torch.tensor(self.nuisance, device=device), seen)
             nuisance = H_t @ C @ H_t.T
-        moment = form.process_covariance(m_bar).to(f64)[drawn][:, drawn]
         R = self._robust_variances(y - form.measure(m_bar[None])[0, seen].to(f64), H @ moment @ H.T + nuisance,
                                    variances)
         # every component's Kalman update, once: S_k, its Cholesky factor, the gain and the proposal's factor
@@ -194,37 +193,42 @@ class GuidedProposal:
             math.log1p(-self.defensive) + log_gauss, math.log(self.defensive) + log_prior)
         return s, log_prior - log_q
 
-    def _components(self, parents: torch.Tensor, m_bar: torch.Tensor):
-        """The transition's Gaussian steps (``step_components`` of a tracking model's prior, or of the model itself),
-        the :data:`TOP_COMPONENTS` likeliest of each particle: ln π (P, k), their means' offsets from the particle's
-        mean step (P, k, f) in the drawn coordinates (0 beyond the pose), the components' indices (P, k), and every
-        component's covariance (K, f, f) at m̄ (its pose block the component's, the rest the model's Q). A model
-        without ``step_components``: one component, Q."""
+    def _components(self, parents: torch.Tensor, m: torch.Tensor, m_bar: torch.Tensor):
+        """The transition's Gaussian steps (``step_weights`` and ``step_components`` of a tracking model's prior, or of
+        the model itself), the :data:`TOP_COMPONENTS` likeliest of each particle: ln π (P, k) (normalised over every
+        component), their means' offsets from the particle's mean step m (P, k, f) in the drawn coordinates (0
+        beyond the pose), the components' indices (P, k), every component's covariance (K, f, f) at m̄ (its pose
+        block the component's, the rest the model's Q) and the moment-matched Q (f, f) at m̄. A model without
+        ``step_components``: one component, Q."""
         f64, device = torch.float64, parents.device
         drawn = self.drawn.to(device)
         Q = self.form.process_covariance(m_bar).to(f64)[drawn][:, drawn]
         P, f = len(parents), len(drawn)
         if isinstance(self.model, TrackingModel):
-            S = self.model.pose_dim
-            components, parents, m_bar = self.model.prior.step_components, parents[:, :S], m_bar[:S]
+            S, prior = self.model.pose_dim, self.model.prior
+            weights, components = prior.step_weights, prior.step_components
+            x, m_bar = parents[:, :S], m_bar[:S]
+            mean = prior.space.local(m[:, :S], x).to(f64)                           # Σ_k π_k d_k, from the mean step
         else:
             components = getattr(self.model, "step_components", None)
             if components is None:
                 return (torch.zeros((P, 1), dtype=f64, device=device), torch.zeros((P, 1, f), dtype=f64, device=device),
-                        torch.zeros((P, 1), dtype=torch.long, device=device), Q[None])
-        log_pi, steps, _ = components(parents)
-        covariances = components(m_bar[None])[2][0].to(f64)                          # (K, n_x, n_x)
-        log_pi = log_pi.to(f64)
+                        torch.zeros((P, 1), dtype=torch.long, device=device), Q[None], Q)
+
+            def weights(states):
+                return components(states, covariances=False)[0]
+
+            x, mean = parents, self.form.boxminus(m, parents).to(f64)
+        log_pi = weights(x).to(f64)
         log_pi = log_pi - torch.logsumexp(log_pi, 1, keepdim=True)
-        steps = steps.to(f64)
-        offsets = steps - torch.einsum("pk,pki->pi", torch.exp(log_pi), steps)[:, None]
-        n_x = steps.shape[-1]
+        log_pi, index = log_pi.topk(min(TOP_COMPONENTS, log_pi.shape[1]), dim=1)
+        offsets = components(x, covariances=False, components=index)[1].to(f64) - mean[:, None]
+        covariances = components(m_bar[None])[2][0].to(f64)                          # (K, n_x, n_x)
+        n_x = offsets.shape[-1]
         Q_k = Q.expand(len(covariances), f, f).clone()
         Q_k[:, :n_x, :n_x] = covariances
-        log_pi, index = log_pi.topk(min(TOP_COMPONENTS, log_pi.shape[1]), dim=1)
-        offsets = torch.gather(offsets, 1, index[..., None].expand(-1, -1, n_x))
         offsets = torch.cat([offsets, offsets.new_zeros(offsets.shape[:2] + (f - n_x,))], -1)
-        return log_pi, offsets, index, Q_k
+        return log_pi, offsets, index, Q_k, Q
 
     def views(self, z) -> float:
         """The cameras that see something in the frame z: a tracking model's (C, J, 3) cameras with a detection

@@ -63,17 +63,24 @@ class TransitionModel(ABC):
     def mean(self, x: torch.Tensor) -> torch.Tensor:
         """(P, S) → (P, S), the mean (or mode) of p(x_t | x_{t-1})."""
 
-    def step_components(self, x) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def step_weights(self, x) -> torch.Tensor:
+        """ln π (P, K) of :meth:`step_components` alone: one component, weight 1."""
+        return torch.zeros((len(x), 1), dtype=torch.float64, device=torch.as_tensor(x).device)
+
+    def step_components(self, x, covariances: bool = True, components: torch.Tensor | None = None):
         """The transition as a mixture of Gaussian steps in the tangent coordinates of ``space.local`` at each
-        state x (P, S): ln π (P, K), the component means (P, K, n) and covariances (P, K, n, n) (what the particle
-        filter's guided proposal linearises: :mod:`priortrack.filters.proposal`). A Gaussian transition is one
-        component, the mean step mean(x) ⊟ x and ``transition_covariance(x)``; the Lie mixture overrides it."""
+        state x (P, S): ln π (P, K), the component means (P, K, n) and covariances (P, K, n, n) (None unless
+        ``covariances``) (what the particle filter's guided proposal linearises: :mod:`priortrack.filters.proposal`).
+        A Gaussian transition is one component, the mean step mean(x) ⊟ x and ``transition_covariance(x)`` (its
+        ``components`` (P, k) indices all 0); the Lie mixture overrides it."""
         x = self.check_state(x)
         covariance = getattr(self, "transition_covariance", None)
         if covariance is None:
             raise PriortrackError(f"the {self.kind} prior has no Gaussian step (no transition_covariance)")
-        return (x.new_zeros(len(x), 1, dtype=torch.float64), self.space.local(self.mean(x), x)[:, None],
-                covariance(x)[:, None])
+        k = 1 if components is None else components.shape[1]
+        step = self.space.local(self.mean(x), x)[:, None].expand(-1, k, -1)
+        return (x.new_zeros(len(x), k, dtype=torch.float64), step,
+                covariance(x)[:, None].expand(-1, k, -1, -1) if covariances else None)
 
     def initial(self, x0, n: int, generator: torch.Generator) -> torch.Tensor:
         """(S,) known first state → (n, S) states drawn around it with the prior's own

@@ -83,14 +83,27 @@ class DefensiveMixture:
         return ((1 - eps) * self.learned.transition_covariance(x) + eps * self.fallback.transition_covariance(x).to(u)
                 + eps * (1 - eps) * u[:, :, None] * u[:, None, :])
 
-    def step_components(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The learned prior's Gaussian steps weighted by 1 − ε and the diffusion's by ε (each ``step_components``):
-        ln π (P, K + 1), means (P, K + 1, n), covariances (P, K + 1, n, n)."""
-        parts = (self.learned.step_components(x), self.fallback.step_components(x))
-        log_pi = torch.cat([parts[0][0].to(torch.float64) + math.log1p(-self.epsilon),
-                            parts[1][0].to(torch.float64) + math.log(self.epsilon)], 1)
-        return log_pi, torch.cat([parts[0][1], parts[1][1].to(parts[0][1])], 1), torch.cat([parts[0][2],
-                                                                                            parts[1][2].to(parts[0][2])], 1)
+    def step_weights(self, x: torch.Tensor) -> torch.Tensor:
+        """ln π (P, K + 1) of :meth:`step_components`: the learned prior's weights and the diffusion's, by 1 − ε and ε."""
+        return torch.cat([self.learned.step_weights(x).to(torch.float64) + math.log1p(-self.epsilon),
+                          self.fallback.step_weights(x).to(torch.float64) + math.log(self.epsilon)], 1)
+
+    def step_components(self, x: torch.Tensor, covariances: bool = True, components: torch.Tensor | None = None):
+        """The learned prior's K Gaussian steps weighted by 1 − ε and the diffusion's one (index K) by ε (each
+        ``step_components``): ln π (P, K + 1), means (P, K + 1, n), covariances (P, K + 1, n, n) (None unless
+        ``covariances``); with ``components`` (P, k) indices, those of each row only."""
+        K = self.learned.step_weights(x[:1]).shape[1]
+        learned = None if components is None else torch.where(components < K, components, 0)
+        (log_a, mean_a, cov_a), (log_b, mean_b, cov_b) = (self.learned.step_components(x, covariances, learned),
+                                                          self.fallback.step_components(x, covariances))
+        log_a, log_b = log_a.to(torch.float64) + math.log1p(-self.epsilon), log_b.to(torch.float64) + math.log(self.epsilon)
+        mean_b, cov_b = mean_b.to(mean_a), None if cov_b is None else cov_b.to(cov_a)
+        if components is None:
+            return (torch.cat([log_a, log_b], 1), torch.cat([mean_a, mean_b], 1),
+                    torch.cat([cov_a, cov_b], 1) if covariances else None)
+        diffusion = components == K
+        return (torch.where(diffusion, log_b, log_a), torch.where(diffusion[..., None], mean_b, mean_a),
+                torch.where(diffusion[..., None, None], cov_b, cov_a) if covariances else None)
 
     def log_prob(self, x_next: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """(P,) ln[(1 − ε) p_learned + ε p_fallback], in float64."""

@@ -169,6 +169,24 @@ def _coordinates(x: torch.Tensor, v: torch.Tensor | None, frame: torch.Tensor, b
     return a, yv[..., 1:] - (yv[..., 0] / (1 + c)).unsqueeze(-1) * ex
 
 
+def _transport_matrices(mu: torch.Tensor, basis: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """T = E(x) Γ_{μ→x} E_μᵀ (..., B, 2, 2): the parallel transport from T_μ S² to T_x S² in the bases E_μ (``basis``,
+    (..., B, 2, 3)) and E(x) (:func:`~priortrack.geometry.tangent_basis.tangent_basis`), for unit μ, x (..., B, 3)
+    broadcasting. For a tangent v at μ and c = μ·x, Γ(v) = v − (x·v)/(1 + c) (μ + x), so that, E(x) x being 0,
+
+        T = E(x) E_μᵀ − (E(x) μ)(E_μ x)ᵀ / (1 + c),
+
+    a few 2 × 3 products instead of :func:`~priortrack.geometry.sphere.transport`'s checked general form (which
+    rows within 0.25 rad of the antipode, where 1 + c vanishes, still take)."""
+    E_x = tangent_basis(x)
+    if bool((torch.linalg.vector_norm(mu + x, dim=-1) < 0.25).any()):                      # |μ + x| = 2 cos(θ/2)
+        moved = transport(mu.unsqueeze(-2), x.unsqueeze(-2), basis)
+        return E_x @ moved.transpose(-1, -2)
+    c = (mu * x).sum(-1)[..., None, None]
+    return (E_x @ basis.transpose(-1, -2)
+            - (E_x @ mu.unsqueeze(-1)) @ (basis @ x.unsqueeze(-1)).transpose(-1, -2) / (1 + c))
+
+
 def _columns(matrices: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """The c columns (..., r, 1) of a batch of matrices (..., r, c), so that Σ_j columns[j] X[..., j:j+1, :]
     is the product with a planar X (..., c, n)."""
@@ -378,21 +396,27 @@ class GeodesicMixture:
         covariance = _block_diagonal(within) + torch.einsum("pk,pki,pkj->pij", pi, spread, spread)
         return mean.reshape(n, 2 * b), 0.5 * (covariance + covariance.transpose(-1, -2))
 
-    def _transported(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _transported(self, x: torch.Tensor, covariances: bool = True, components: torch.Tensor | None = None):
         """Every component's conditional velocity in the coordinates E(x) of :meth:`velocity_moments`: ln π (P, K),
-        the means c_k = T_k (m_k + R_k a_k) (P, K, B, 2) and the covariance blocks T_k C_k T_kᵀ (P, K, B, 2, 2)."""
+        the means c_k = T_k (m_k + R_k a_k) (P, K, B, 2) and the covariance blocks T_k C_k T_kᵀ (P, K, B, 2, 2)
+        (None unless ``covariances``); with ``components`` (P, k) indices, those components of each row only
+        (the transport, most of the cost, done for them alone)."""
         b, n = self.bones, x.shape[0]
         log_pi, means, cond = self.conditional(x)                                     # (P, K), (P, K, B, 2)
-        moved = transport(self.means.to(x).reshape(1, -1, b, 1, 3), x.reshape(n, 1, b, 1, 3),
-                          self.basis.to(x)[None])                                      # (P, K, B, 2, 3)
-        T = tangent_basis(x.reshape(n, 1, b, 3)) @ moved.transpose(-1, -2)             # (P, K, B, 2, 2)
-        return log_pi, (T @ means[..., None])[..., 0], T @ cond[None] @ T.transpose(-1, -2)
+        mu, basis, cond = self.means.to(x)[None], self.basis.to(x)[None], cond[None]
+        if components is not None:
+            log_pi = torch.gather(log_pi, 1, components)
+            means = torch.gather(means, 1, components[..., None, None].expand(-1, -1, b, 2))
+            mu, basis, cond = mu[0][components], basis[0][components], cond[0][components]
+        T = _transport_matrices(mu.reshape(len(mu), -1, b, 3), basis, x.reshape(n, 1, b, 3))      # (P, k, B, 2, 2)
+        return log_pi, (T @ means[..., None])[..., 0], T @ cond @ T.transpose(-1, -2) if covariances else None
 
-    def velocity_components(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def velocity_components(self, x: torch.Tensor, covariances: bool = True, components: torch.Tensor | None = None):
         """p(v | x) as the Gaussian mixture it is, in the coordinates E(x) of T_x (S²)ᴮ: ln π (P, K), the
-        component means (P, K, 2B) and covariances (P, K, 2B, 2B), block-diagonal over bones."""
-        log_pi, c, blocks = self._transported(x)
-        return log_pi, c.reshape(x.shape[0], self.components, 2 * self.bones), _block_diagonal(blocks)
+        component means (P, K, 2B) and covariances (P, K, 2B, 2B), block-diagonal over bones (None unless
+        ``covariances``: at P = 1000 and K = 30 they are 190 MB); with ``components`` (P, k), those of each row."""
+        log_pi, c, blocks = self._transported(x, covariances, components)
+        return (log_pi, c.reshape(x.shape[0], -1, 2 * self.bones), None if blocks is None else _block_diagonal(blocks))
 
     # ---- the sampling path (any dtype and device, planar, in blocks) ------------------------------
     def _hot(self, dtype: torch.dtype, device: torch.device, scale: float) -> _Hot:
@@ -877,12 +901,17 @@ class LiePrior(TransitionModel):
         x = self.check_state(x)
         return self.mixture.velocity_moments(x.contiguous())[1] / self.scale ** 2
 
-    def step_components(self, x) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def step_weights(self, x) -> torch.Tensor:
+        """(P, 42) → ln π_k(x) (P, K), the weights of :meth:`step_components` (without their means)."""
+        return self.mixture.log_responsibilities(self.check_state(x).contiguous())
+
+    def step_components(self, x, covariances: bool = True, components: torch.Tensor | None = None):
         """(P, 42) → the transition as the mixture of Gaussian steps u = log_x(x_next) = v / s it is, in the tangent
         coordinates of :meth:`DirectionSpace.local` at each x: ln π_k(x) (P, K), means (P, K, 28), covariances
-        (P, K, 28, 28) (:meth:`GeodesicMixture.velocity_components` over s and s²)."""
-        log_pi, means, covariances = self.mixture.velocity_components(self.check_state(x).contiguous())
-        return log_pi, means / self.scale, covariances / self.scale ** 2
+        (P, K, 28, 28) (None unless ``covariances``) (:meth:`GeodesicMixture.velocity_components` over s and s²);
+        with ``components`` (P, k) indices, those of each row only."""
+        log_pi, means, cov = self.mixture.velocity_components(self.check_state(x).contiguous(), covariances, components)
+        return log_pi, means / self.scale, None if cov is None else cov / self.scale ** 2
 
     def responsibilities(self, x) -> torch.Tensor:
         """(P, 42) → (P, K) π_k(x), summing to 1 over k."""
