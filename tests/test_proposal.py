@@ -133,7 +133,8 @@ def _with(preset: str, **options):
 def test_the_guided_draw_tracks_four_cameras_closer_than_the_priors_draw():
     """The real-format bench (35_29 as OpenPose JSON through the Pose2Sim demo's 4 cameras with a detector's
     errors, tracked without the truth): pf-diffusion-local as shipped (guided) against the same preset drawing from
-    its prior. Measured: 14.2 mm against 24–51 mm on held-out people (docs/results/2026-11-27-guided.md)."""
+    its prior: below 0.8× its error and within 1.5× the per-frame DLT's (on people the priors never saw, 0.59–1.18×
+    DLT against 1.64–3.10× with the prior's draw: docs/results/2026-11-27-guided.md)."""
     from priortrack.experiments.real_format import run_real_format
 
     guided = run_real_format("pf-diffusion-local", "walkjog:35_29", seed=0)

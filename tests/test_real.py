@@ -101,10 +101,11 @@ def test_schedule_steps_at_the_priors_rate():
 
 
 def test_the_lab_bench_tracks_a_held_out_walk_near_the_triangulation():
-    """35_29 written as OpenPose JSON through the 4 cameras with detector errors, tracked without truth."""
+    """35_29 written as OpenPose JSON through the 4 cameras with detector errors, tracked without truth: pf-lie with its
+    guided proposal within 1.5× the per-frame DLT (measured 8.6 mm, DLT 12.6; with the prior's draw 23.8, 1.9×)."""
     run = run_real_format("pf-lie", "walkjog:35_29", seed=0)
     assert run["cameras"] == 4 and run["ticks"] > 30 and run["mismatch_fraction"] == 0.0
-    assert run["mpjpe_mm"] < 40 and run["mpjpe_where_dlt_mm"] < 2.5 * run["dlt_mm"]
+    assert run["mpjpe_mm"] < 40 and run["mpjpe_where_dlt_mm"] < 1.5 * run["dlt_mm"]
 
 
 def test_bad_input_is_named(tmp_path, capsys):
