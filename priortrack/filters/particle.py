@@ -83,8 +83,9 @@ class ParticleFilter(SequentialFilter):
         move_scale: the moves' first step size, as a fraction of the size of the prior's own step
             this frame (adapted between frames towards an acceptance rate of 0.2–0.5).
         proposal: "prior" (default: the bootstrap filter's draw from the transition) or "guided" (the
-            linearised optimal proposal mixed with the prior, exact weights: :mod:`~priortrack.filters.proposal`;
-            a prior with a Gaussian transition covariance and a likelihood that projects).
+            linearised optimal proposal, per component of the prior's step, mixed with the prior, exact weights:
+            :mod:`~priortrack.filters.proposal`; a prior whose step is Gaussian or a mixture of Gaussians,
+            ``step_components``, and a likelihood that projects; with fewer than two cameras, the prior's draw).
         defensive: the guided proposal's share of the prior itself, δ (default 0.1).
         inflation: the guided proposal's factor on its linearised covariance, γ (default 1).
         seed: seeds the filter's own torch.Generator (on ``device``: a GPU draws other numbers than
@@ -201,7 +202,7 @@ class ParticleFilter(SequentialFilter):
         self.states, self._log_ratio = self.proposal.draw(parents, torch.exp(self.log_weights), z, self.generator,
                                                           predicted_covariance)
         self._observed = None
-        self._predict_seconds = time.perf_counter() - t0
+        self._predict_seconds += time.perf_counter() - t0
 
     def predicted_measurement(self) -> tuple[np.ndarray, np.ndarray]:
         """After :meth:`advance`: every observed point's predicted pixels (…, 2) and their covariance (…, 2, 2)

@@ -69,6 +69,17 @@ MIN_VIEWS = 2
 TOP_COMPONENTS = 4
 
 
+def _log_normal(factors: torch.Tensor, component: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
+    """log N(r_i; 0, L_k L_kᵀ) (N,) of residuals r (N, d), row i under the Cholesky factor ``factors`` (K, d, d) of its
+    ``component`` (N,) k: one triangular solve per component present."""
+    out = torch.empty(len(residual), dtype=residual.dtype, device=residual.device)
+    for k in torch.unique(component).tolist():
+        rows = component == k
+        white = torch.linalg.solve_triangular(factors[k], residual[rows].T, upper=False).T
+        out[rows] = -0.5 * (white * white).sum(-1) - torch.log(torch.diagonal(factors[k])).sum()
+    return out - 0.5 * residual.shape[1] * math.log(2 * math.pi)
+
+
 class GuidedProposal:
     """q(s_t | s_{t−1}, y_t) of the module docstring for a model in the unscented filter's form.
 
@@ -159,14 +170,11 @@ class GuidedProposal:
         particle = torch.arange(P, device=device).repeat_interleave(keep)
         offset = offsets.reshape(-1, f)
         r = innovation[particle] - offset @ H.T                                      # (P keep, m)
-        log_predictive = torch.empty(len(r), dtype=f64, device=device)
         mu = torch.empty_like(offset)
         for k in torch.unique(component).tolist():
             rows = component == k
-            white = torch.linalg.solve_triangular(L_S[k], r[rows].T, upper=False).T
-            log_predictive[rows] = -0.5 * (white * white).sum(-1) - torch.log(torch.diagonal(L_S[k])).sum()
             mu[rows] = offset[rows] + r[rows] @ gain[k].T
-        log_choice = (log_pi.reshape(-1) + log_predictive).reshape(P, keep)
+        log_choice = (log_pi.reshape(-1) + _log_normal(L_S, component, r)).reshape(P, keep)
         log_choice = log_choice - torch.logsumexp(log_choice, 1, keepdim=True)
         u = torch.rand((P, 1), generator=generator, device=device, dtype=f64)
         slot = torch.clamp((torch.cumsum(torch.exp(log_choice), 1) < u).sum(1), max=keep - 1)
@@ -181,13 +189,7 @@ class GuidedProposal:
             s[prior_rows] = self._prior_draw(parents[prior_rows], generator)
             v[prior_rows] = form.boxminus(s[prior_rows], m[prior_rows]).to(f64)[:, drawn]
         # q_i(s) = Σ_k q̃_ik N(s ⊟ m_i; μ_ik, γ Σ_k) over the kept components, with the prior's share
-        log_gauss = torch.empty(len(r), dtype=f64, device=device)
-        residual = v[particle] - mu
-        for k in torch.unique(component).tolist():
-            rows = component == k
-            white = torch.linalg.solve_triangular(L_q[k], residual[rows].T, upper=False).T
-            log_gauss[rows] = -0.5 * (white * white).sum(-1) - torch.log(torch.diagonal(L_q[k])).sum()
-        log_gauss = torch.logsumexp(log_choice + log_gauss.reshape(P, keep), 1) - 0.5 * f * math.log(2 * math.pi)
+        log_gauss = torch.logsumexp(log_choice + _log_normal(L_q, component, v[particle] - mu).reshape(P, keep), 1)
         log_prior = self._log_transition(s, parents).to(f64)
         log_q = log_gauss if self.defensive == 0 else torch.logaddexp(
             math.log1p(-self.defensive) + log_gauss, math.log(self.defensive) + log_prior)
