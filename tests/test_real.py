@@ -564,23 +564,25 @@ def test_a_swap_in_one_camera_on_the_first_frames_does_not_start_the_track(tmp_p
     assert unchecked[:4].min() > 0.04 and unchecked.mean() > 2 * checked.mean(), (unchecked[:4], unchecked.mean())
 
 
-def test_the_start_pulls_to_the_priors_poses_only_where_its_state_is_joint_angles():
-    """pose_spread: ukf-real's prior (local diffusion on joint angles) gets its training motions' per-channel mean
-    and spread; a prior of bone directions (ukf-lie-defensive) and a skeleton with other channels get none (a pull
+def test_the_start_pulls_to_the_presets_training_poses_whatever_the_priors_state():
+    """pose_spread: ukf-real's prior (local diffusion on joint angles) and ukf-lie-defensive's (bone directions)
+    each get their training motions' per-channel mean and spread (issue 45: the Lie prior's one-camera start,
+    pulled to rest, put the legs on the wrong depth branch); a skeleton with other channels gets none (a pull
     to rest)."""
     from priortrack.data.bundled import cmu_skeleton
     from priortrack.tracking.presets import load_preset
     from priortrack.tracking.person import pose_spread
 
-    angles, directions = load_preset("ukf-real"), load_preset("ukf-lie-defensive")
     skeleton = cmu_skeleton("35")
-    spread = pose_spread(angles, angles.prior(), skeleton)
-    channels = np.concatenate([m.channels for m in angles.training_motions])
-    np.testing.assert_allclose(spread.mean, channels.mean(axis=0))
-    np.testing.assert_allclose(spread.std, channels.std(axis=0))
-    assert pose_spread(directions, directions.prior(), skeleton) is None
+    for name in ("ukf-real", "ukf-lie-defensive"):
+        preset = load_preset(name)
+        spread = pose_spread(preset, skeleton)
+        channels = np.concatenate([m.channels for m in preset.training_motions])
+        np.testing.assert_allclose(spread.mean, channels.mean(axis=0))
+        np.testing.assert_allclose(spread.std, channels.std(axis=0))
+    angles = load_preset("ukf-real")
     other = replace(skeleton, channel_names=tuple(f"x{c}" for c in range(skeleton.num_channels)))
-    assert pose_spread(angles, angles.prior(), other) is None
+    assert pose_spread(angles, other) is None
 
 
 @pytest.mark.parametrize("settings, message", [

@@ -22,9 +22,10 @@ m_tj = 0 where X_tj is NaN, λ = ``REGULARISATION`` a small pull to rest over th
 the root does not jump where a frame lacks a limb). The pull fixes the dofs the 15 joints do not see
 (wrist and foot twists, fingers) and chooses among the poses that fit them equally: w_c = 1, θ̄_c = 0;
 or, given a prior's pose spread (:class:`PoseSpread`), below the root w_c = 1 / max(σ_c, ``SPREAD_FLOOR``)²
-and θ̄_c its training motions' mean. A tracker's start on a prior of joint angles takes the latter: a
-converged fit otherwise traded a back twist for clavicle angles of a radian, which the walking priors'
-state leaves out (CMU 35's clavicles never move), and a walk's track went from 6 to 22 mm
+and θ̄_c its training motions' mean. A tracker's start takes the latter wherever its preset names
+training motions: on a prior of joint angles a converged fit otherwise traded a back twist for clavicle
+angles of a radian, which the walking priors' state leaves out (CMU 35's clavicles never move), and a
+walk's track went from 6 to 22 mm; from one camera it chooses a limb's depth branch
 (:func:`priortrack.tracking.person.pose_spread`). Solved by
 Levenberg–Marquardt in float64 (:class:`_LevenbergMarquardt`; 200 iterations of torch's L-BFGS, used
 before, stopped short of convergence and cost an import of torch's compiler stack). The start puts

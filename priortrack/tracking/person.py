@@ -25,8 +25,8 @@
    triangulation measures it, left and right averaged (robust to a detector's swaps and outliers on
    some frames, and to a first second where the person is half in view; reported as the summary's
    ``bones_m``; a bone no tick measures scaled as the measured ones, named in ``bones_unmeasured``), and fitted to the two ticks by
-   inverse kinematics over ``START_TICKS`` ticks (:mod:`priortrack.body.ik`; for a prior on joint angles
-   pulled to its training poses, :func:`pose_spread`), both in the detector's joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
+   inverse kinematics over ``START_TICKS`` ticks (:mod:`priortrack.body.ik`; pulled to the preset's
+   training poses, :func:`pose_spread`), both in the detector's joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
    its neck the mid-shoulders), which the observation model uses too. The two start frames are
    steadied (:func:`steady_start`): the root's translation on the least-squares line through the
    fitted ticks (a velocity from eight noisy frames, not two), its rotation the same in both (no
@@ -530,7 +530,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
         skeleton = (scaled_to_height(template, config.height) if single else
                     fitted_skeleton(template, X, M))
         unmeasured = () if single else tuple(unmeasured_measures(X))
-    pose = pose_spread(preset, prior, skeleton)
+    pose = pose_spread(preset, skeleton)
     if single:
         ticks = z[first:window][:, 0]
         fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
@@ -756,23 +756,19 @@ def better_fitting(motion, preset: Preset, below: float, cache=None) -> dict | N
     return best
 
 
-def pose_spread(preset: Preset, prior, skeleton: Skeleton) -> PoseSpread | None:
+def pose_spread(preset: Preset, skeleton: Skeleton) -> PoseSpread | None:
     """The pose spread of the preset's training motions (:class:`~priortrack.body.ik.PoseSpread`), which the
-    start's and the fit-check's inverse kinematics pull the body to, where the prior's state is the body's
-    joint angles (an :class:`~priortrack.priors.spaces.AngleSpace`, or a GPDM's on one): it keeps only the
-    channels its training moves, so a start that turned the others (CMU 35's clavicles) lost them on entering
-    the filter. None (logged: a pull to rest) for a prior of bone directions (no channels to keep), a preset
-    without training motions, or motions that do not share the skeleton's channels (a user's own skeleton)."""
-    from priortrack.priors.spaces import AngleSpace
-
+    start's and the fit-check's inverse kinematics pull the body to, whatever the prior's state: where it is
+    the body's joint angles, the pull keeps only the channels its training moves (a start that turned the others,
+    CMU 35's clavicles, lost them on entering the filter); for every prior, it is the start's pose prior. From one
+    camera a limb tilted towards it and one tilted away project alike, and the pull decides between them: a pull
+    to rest (zero angles) started pf-lie on people it never saw 185 mm root-relative off at its first tick (the
+    ankles 240–290 mm: the legs on the wrong branch) where the walking poses' pull started it at 32 mm (issue 45).
+    None (logged: a pull to rest) where the training motions do not share the skeleton's channels (a user's own
+    skeleton)."""
     motions = preset.training_motions
-    reason = ("the prior's state is not the body's joint angles"
-              if not isinstance(getattr(prior.space, "angles", prior.space), AngleSpace)
-              else "the preset names no training motions" if not motions
-              else "its training motions' channels are not the body's"
-              if any(m.skeleton.channel_names != skeleton.channel_names for m in motions) else None)
-    if reason is not None:
-        log.info("inverse kinematics pulls the body to rest: %s", reason)
+    if any(m.skeleton.channel_names != skeleton.channel_names for m in motions):
+        log.info("inverse kinematics pulls the body to rest: the preset's training motions' channels are not the body's")
         return None
     return PoseSpread.of(motions)
 
