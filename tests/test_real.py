@@ -384,6 +384,10 @@ def test_the_mismatch_warning_says_what_it_measured_and_names_no_weaker_preset()
     assert "pf-" not in text and "100%" not in text and "implausible" not in text
     judged = mismatch_message(mismatch, unlikely, None, "lie", judged_by_prior=True)
     assert "the lie prior finds the tracked pose implausible" in judged and "triangulation" not in judged
+    worse = np.zeros(T, bool)
+    worse[500:504] = True
+    held_out = mismatch_message(mismatch, unlikely, None, "lie", judged_by_prior=True, worse=worse)
+    assert "4 where it explains each camera's detections over 1.2× worse than the other cameras' triangulation" in held_out
 
 
 def test_the_gate_and_each_cameras_reprojection_are_in_the_npz_and_the_recording(tmp_path):

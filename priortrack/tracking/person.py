@@ -47,7 +47,10 @@
    does not know (the likelihood alone flagged 72 % of a held-out walk at 30 fps under pf-lie, whose
    steps the prior finds ordinary); or, with two cameras or more, where the estimate's joints lie on average
    ``LOST_MM`` from the per-tick triangulation for ``MISMATCH_RUN`` ticks (a lost track, whatever the
-   prior makes of its steps). The ESS is reported, not
+   prior makes of its steps); or, with three cameras or more, where the estimate explains each camera's
+   detections worse than the other cameras' triangulation does (:mod:`~priortrack.tracking.held_out`: an
+   estimate worse than triangulation, which the other two let through: pf-gpdm at 2–3× DLT on people it
+   never saw had 0 % of its ticks flagged). The ESS is reported, not
    used: with four cameras it collapses on data the prior explains well (ESS ≈ 2 of 1000 particles
    on Pose2Sim's standing person, every joint reprojected within 10–20 px).
 """
@@ -76,6 +79,7 @@ from priortrack.filters.smoothing import TRAJECTORIES, FixedLagSmoother, joint_s
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
+from priortrack.tracking.held_out import MIN_CAMERAS, WORSE_RATIO, held_out_errors, held_out_ratio
 from priortrack.tracking.presets import Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.filters.step_store import DEFAULT_MEMORY, StepStore
@@ -642,7 +646,9 @@ class PersonRun:
         joints = in_world(estimates, self.A)
         errors, weight = _reprojection_errors(self.world_cameras, joints, z)
         mismatch = mismatch_flags(loglik, weight, self.model.likelihood)
-        lost = None if X is None else lost_flags(np.einsum("ij,tjk->tik", self.M, run.estimates), X)
+        body = np.einsum("ij,tjk->tik", self.M, run.estimates)            # in the detector's joint definitions
+        lost = None if X is None else lost_flags(body, X)
+        worse = worse_flags(self.cameras, body, z) if len(self.cameras) >= MIN_CAMERAS else None
         # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
         ess = np.asarray(run.ess, dtype=float) if self.preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
         reprojection = np.array([_median_of_seen(e) for e in errors])                # over every tick and joint
@@ -665,8 +671,9 @@ class PersonRun:
         if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
             result.mismatch = result.mismatch & implausible
         unlikely = result.mismatch.copy()
-        if lost is not None:                 # … or one where the estimate has left the data's own triangulation
-            result.mismatch = result.mismatch | lost
+        for flags in (lost, worse):          # … or one where the estimate has left the data's own triangulation
+            if flags is not None:
+                result.mismatch = result.mismatch | flags
         if result.fit_check is not None and result.fit_check["verdict"] != "in support":
             from priortrack.priors.support import verdict_rule
 
@@ -680,7 +687,7 @@ class PersonRun:
                         f"{100 * better['below_p1_fraction']:.0f}% of its frames below): track with --filter {better['preset']}")
         if result.mismatch_fraction > 0:
             log.warning(mismatch_message(result.mismatch, unlikely, lost, self.preset.prior_kind,
-                                         implausible is not None))
+                                         implausible is not None, worse))
         return result
 
 
@@ -899,10 +906,11 @@ def frame_log_likelihoods(likelihood, estimates: np.ndarray, z: np.ndarray) -> n
 
 
 def mismatch_message(mismatch: np.ndarray, unlikely: np.ndarray, lost: np.ndarray | None, prior_kind: str,
-                     judged_by_prior: bool) -> str:
+                     judged_by_prior: bool, worse: np.ndarray | None = None) -> str:
     """The warning of a run with ticks flagged as mismatch: how many, and what was measured at each (the
     detections unlikely under the estimate, by MISMATCH_NATS a detection for MISMATCH_RUN ticks, and a
-    pose the prior finds implausible where it was judged; the estimate LOST_MM from the triangulation).
+    pose the prior finds implausible where it was judged; the estimate LOST_MM from the triangulation; with
+    three cameras or more, ``worse``, an estimate that explains the detections worse than triangulation does).
     It names no other preset: the fit-check's warning does, where a shipped prior fits the motion better."""
     T = len(mismatch) - KNOWN_FRAMES
     causes = [f"{int(unlikely.sum())} where the detections are over {MISMATCH_NATS:g} nats a detection less likely "
@@ -911,6 +919,9 @@ def mismatch_message(mismatch: np.ndarray, unlikely: np.ndarray, lost: np.ndarra
     if lost is not None:
         causes.append(f"{int(lost.sum())} where the estimate is on average over {LOST_MM:g} mm from the detections' "
                       f"own triangulation")
+    if worse is not None:
+        causes.append(f"{int(worse.sum())} where it explains each camera's detections over {WORSE_RATIO:g}× worse than "
+                      f"the other cameras' triangulation, which never saw them (worse than triangulation)")
     return (f"{int(mismatch.sum())} of {T} tracked ticks ({100 * mismatch.sum() / max(T, 1):.1f}%) are flagged as "
             f"mismatch: {'; '.join(causes)}. The estimate there does not explain the detections: look at those ticks "
             f"(the npz's mismatch, the recording's events) for a detector's swap or a lost limb, or a motion the "
@@ -944,6 +955,17 @@ def lost_flags(estimates: np.ndarray, triangulated: np.ndarray) -> np.ndarray:
     mean[judged] = np.nanmean(distance[judged], axis=1)
     with np.errstate(invalid="ignore"):
         return _in_runs(mean > LOST_MM / 1000)
+
+
+def worse_flags(cameras: list[PinholeCamera], E: np.ndarray, z: TickObservations) -> np.ndarray:
+    """(T,) bool: the ticks in runs of MISMATCH_RUN whose held-out ratio (:mod:`~priortrack.tracking.held_out`:
+    the estimate's reprojection error in each camera over that of the other cameras' triangulation) is over
+    ``WORSE_RATIO``, for the estimate E (T, 15, 3) in the detector's joint definitions and the working frame of
+    the ``cameras`` (three or more), against the detections the filter saw (z, read a block at a time)."""
+    errors = [held_out_errors(cameras, E[start:start + len(block)], block) for start, block in z.blocks()]
+    e_E, e_X = (np.concatenate([e[k] for e in errors], axis=1) for k in (0, 1))
+    with np.errstate(invalid="ignore"):
+        return _in_runs(held_out_ratio(e_E, e_X) > WORSE_RATIO)
 
 
 def _in_runs(bad: np.ndarray) -> np.ndarray:
