@@ -105,3 +105,17 @@ def test_a_preset_reading_a_prior_file_cannot_be_refitted_and_says_so(tmp_path):
     preset.write_text('[filter]\nkind = "pf"\n[prior]\nfile = "walk.npz"\ntrain = ["walkjog:35_01"]\n')
     with pytest.raises(PriortrackError, match="reads its prior from .*walk.npz: eval people refits each prior"):
         people.eval_people([str(preset)], ["05"], out=tmp_path / "runs")
+
+
+def test_the_four_camera_cells_give_the_share_of_ticks_flagged_beside_the_ratio_to_dlt(monkeypatch, capsys):
+    """real4 cells: the error, its ratio to DLT (where DLT has the joints) and the mean fraction of ticks flagged
+    as mismatch (issue 45: a preset worse than DLT should say so); printed as its own column."""
+    rows = [{"preset": "pf-gpdm", "person": "05", "bench": "real4", "scenario": "detector", "error_mm": e,
+             "where_dlt_mm": w, "dlt_mm": d, "seconds_per_frame": 0.1, "mismatch_fraction": f}
+            for e, w, d, f in ((30.0, 29.0, 10.0, 1.0), (40.0, 41.0, 12.0, 0.5))]
+    cell = people._table(rows, ["pf-gpdm"], ["05"])["05"]["pf-gpdm"]
+    assert cell["real4_mm"] == pytest.approx(35.0) and cell["real4_dlt_ratio"] == pytest.approx(35.0 / 11.0)
+    assert cell["real4_flagged"] == pytest.approx(0.75) and cell["failed_runs"] == 0
+    monkeypatch.setattr(people, "eval_people", lambda *a, **k: {"table": {"05": {"pf-gpdm": cell}}})
+    assert main(["eval", "people", "--presets", "pf-gpdm", "--people", "05", "--benches", "real4"]) == 0
+    assert "| 05 | pf-gpdm | — | — | 35 (3.18) | 75% | — | 0 |" in capsys.readouterr().out

@@ -206,7 +206,8 @@ def eval_people(presets: Sequence[str] = PRESETS, people: Sequence[str] = tuple(
     Returns {"table": {person: {preset: {cell: value}}}, "runs": [row, …], "presets", "people", "seeds"}.
     A cell is a mean over the person's test walks and seeds: ``clean_mm``, ``blackout_mm`` (lab, world
     MPJPE) with ``clean_ratio`` and ``blackout_ratio`` to the baseline on the same runs; ``real4_mm``
-    with ``real4_dlt_ratio`` (the error where DLT has the joints / DLT's) and ``real4_dlt_mm``;
+    with ``real4_dlt_ratio`` (the error where DLT has the joints / DLT's), ``real4_dlt_mm`` and ``real4_flagged``
+    (the fraction of tracked ticks flagged as mismatch: a preset worse than DLT should be);
     ``real1_relative_mm``; ``seconds_per_frame`` (real4, the median: a process's first run also fits what
     the fit-check reads); ``failed_runs``, the runs that stopped on an
     error (left out of the means). Cells of benches not run are absent.
@@ -278,6 +279,7 @@ def _table(rows: list[dict], presets: Sequence[str], people: Sequence[str]) -> d
             if real4:
                 cells.update(real4_mm=mean(real4, "error_mm"), real4_dlt_mm=mean(real4, "dlt_mm"),
                              real4_dlt_ratio=mean(real4, "where_dlt_mm") / mean(real4, "dlt_mm"),
+                             real4_flagged=mean(real4, "mismatch_fraction"),
                              seconds_per_frame=float(np.median([r["seconds_per_frame"] for r in real4])))
             real1 = [r for r in mine if r["bench"] == "real1"]
             if real1:
