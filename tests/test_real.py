@@ -49,7 +49,7 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
     assert all(e < 35 for e in summary["reprojection_px"].values()) and summary["mismatch_fraction"] == 0.0
     with np.load(folder / "r.npz") as z:
         assert set(z.files) == {"joints", "joint_names", "fps", "frames", "spread", "ess", "loglik", "mismatch",
-                                "camera_names", "reprojection_px", "gated"}
+                                "camera_names", "reprojection_px", "gated", "held_out_ratio"}
         joints = z["joints"]
         by_tick, gated = z["reprojection_px"], z["gated"]
         assert tuple(z["camera_names"]) == ("cam01_json", "cam02_json", "cam03_json", "cam04_json")
@@ -59,11 +59,19 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
         assert z["frames"].tolist() == [0, 2, 4, 6, 8, 10]            # 60 fps data, a 30 fps prior
         assert z["mismatch"].dtype == bool and z["spread"].shape == (6, 15)
         assert np.isfinite(z["loglik"][2:]).all() and np.isfinite(z["ess"][2:]).all()
+        held_out = z["held_out_ratio"]
     # The estimate against the triangulation of the same detections, in the calibration's Z-up world.
     cameras = [PinholeCamera.from_calibration(c) for c in read_calibration(CALIB).cameras]
     uv, conf = read_detections(POSE, keypoints="body25b").eval15(0.3)
     X = triangulate(cameras, uv[:, ::2], conf[:, ::2])
     assert np.nanmean(np.linalg.norm(joints[:, 3:] - X[:, 3:], axis=-1)) < 0.05
+    # the held-out ratio recomputed in the world, from the written joints (the six ticks are one window): a
+    # filter that follows the detections explains each camera better than the other cameras' triangulation
+    from priortrack.tracking.held_out import held_out_errors, held_out_ratio
+    z = np.concatenate([uv[:, ::2], conf[:, ::2, :, None]], axis=-1).transpose(1, 0, 2, 3)
+    z[..., 2] = np.where(np.isfinite(z[..., 0]), z[..., 2], 0.0)
+    np.testing.assert_allclose(held_out, held_out_ratio(*held_out_errors(cameras, joints, z)), rtol=1e-6)
+    assert (held_out < 1.0).all(), held_out
     # each tick's reprojection error per camera, recomputed here: the median over its detections seen
     for t, c in ((0, 0), (5, 3)):
         projected, _ = cameras[c].project(joints[t])
@@ -90,7 +98,8 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
     assert error.mean() < 0.006 and error.max() < 0.08 and len(bvh) == 6 and bvh.fps == 30.0
     entities = {str(c.entity_path) for c in rr.chunk.RrdReader(folder / "r.rrd").stream().to_chunks()}
     assert {"/world/estimate", "/world/cam02_json/image/detections", "/world/cam02_json/image/estimate",
-            "/metrics/ess_fraction", "/metrics/reprojection_px/cam03_json", "/metrics/mismatch"} <= entities
+            "/metrics/ess_fraction", "/metrics/reprojection_px/cam03_json", "/metrics/mismatch",
+            "/metrics/held_out_ratio"} <= entities
 
 
 def test_schedule_steps_at_the_priors_rate():

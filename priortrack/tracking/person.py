@@ -202,6 +202,9 @@ class DetectionTrack:
     #: The body measures (:data:`~priortrack.body.ik.BODY_MEASURES`) no tick measured, which took the template's
     #: proportions (a seated person's legs; :func:`~priortrack.body.ik.fitted_skeleton`).
     bones_unmeasured: tuple[str, ...] = ()
+    #: (T,) the filter's held-out ratio q a tick (:mod:`~priortrack.tracking.held_out`; over ``WORSE_RATIO``: worse
+    #: than triangulation), NaN where not judged or with fewer than three cameras.
+    held_out_ratio: np.ndarray | None = field(default=None, repr=False)
 
     def in_world(self, body: np.ndarray, definitions: bool = True) -> np.ndarray:
         """Points (..., 3) of the filter's Y-up working frame (a snapshot's estimate, best or cloud, the
@@ -232,7 +235,8 @@ class DetectionTrack:
         """``joints`` (T, 15, 3) float64 metres in the calibration's world, ``joint_names``, ``fps``,
         ``frames`` (T,), ``spread`` (T, 15), ``ess`` (T,), ``loglik`` (T,), ``mismatch`` (T,) bool,
         ``camera_names`` (C,), ``reprojection_px`` (T, C) each tick's median pixel error per camera and
-        ``gated`` (T, C, 15) bool the detections the validation gate held out; a smoothed run adds
+        ``gated`` (T, C, 15) bool the detections the validation gate held out, ``held_out_ratio`` (T,) the
+        filter's held-out ratio (NaN: not judged); a smoothed run adds
         ``filtered_joints`` (T, 15, 3) and ``filtered_spread`` (T, 15), the filter's own (``joints`` and
         ``spread`` are the smoother's)."""
         path = output_path(path, "result file")
@@ -243,8 +247,11 @@ class DetectionTrack:
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,
                      ess=self.ess, loglik=self.loglik, mismatch=self.mismatch.astype(bool),
                      camera_names=np.array(self.camera_names), reprojection_px=self.reprojection_by_tick,
-                     gated=self.gated.astype(bool), **smoothed)
+                     gated=self.gated.astype(bool), held_out_ratio=self._held_out_ratio(), **smoothed)
         return path
+
+    def _held_out_ratio(self) -> np.ndarray:
+        return np.full(len(self.frames), np.nan) if self.held_out_ratio is None else self.held_out_ratio
 
     def save_csv(self, path: str | Path) -> Path:
         """One row per tick: frame, time (s), each joint's x, y, z (metres), spread, ESS, loglik, mismatch."""
@@ -648,7 +655,9 @@ class PersonRun:
         mismatch = mismatch_flags(loglik, weight, self.model.likelihood)
         body = np.einsum("ij,tjk->tik", self.M, run.estimates)            # in the detector's joint definitions
         lost = None if X is None else lost_flags(body, X)
-        worse = worse_flags(self.cameras, body, z) if len(self.cameras) >= MIN_CAMERAS else None
+        held_out = held_out_ratios(self.cameras, body, z) if len(self.cameras) >= MIN_CAMERAS else None
+        with np.errstate(invalid="ignore"):
+            worse = None if held_out is None else _in_runs(held_out > WORSE_RATIO)
         # an effective sample size only where there are particles (a UKF's "ESS" is its sigma-point count)
         ess = np.asarray(run.ess, dtype=float) if self.preset.filter_kind in ("pf", "apf") else np.full(T, np.nan)
         reprojection = np.array([_median_of_seen(e) for e in errors])                # over every tick and joint
@@ -666,7 +675,8 @@ class PersonRun:
                                 None if smoothed is None else in_world(run.estimates, self.A),
                                 self.config.lag if self.config.smooth else None,
                                 filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
-                                gated=gated, pose_spread=self.pose, bones_unmeasured=self.unmeasured)
+                                gated=gated, pose_spread=self.pose, bones_unmeasured=self.unmeasured,
+                                held_out_ratio=np.full(T, np.nan) if held_out is None else held_out)
         result.fit_check, implausible = tracked_fit_check(self.preset, self.prior, result, self.config.cache)
         if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
             result.mismatch = result.mismatch & implausible
@@ -957,15 +967,13 @@ def lost_flags(estimates: np.ndarray, triangulated: np.ndarray) -> np.ndarray:
         return _in_runs(mean > LOST_MM / 1000)
 
 
-def worse_flags(cameras: list[PinholeCamera], E: np.ndarray, z: TickObservations) -> np.ndarray:
-    """(T,) bool: the ticks in runs of MISMATCH_RUN whose held-out ratio (:mod:`~priortrack.tracking.held_out`:
-    the estimate's reprojection error in each camera over that of the other cameras' triangulation) is over
-    ``WORSE_RATIO``, for the estimate E (T, 15, 3) in the detector's joint definitions and the working frame of
-    the ``cameras`` (three or more), against the detections the filter saw (z, read a block at a time)."""
+def held_out_ratios(cameras: list[PinholeCamera], E: np.ndarray, z: TickObservations) -> np.ndarray:
+    """(T,) each tick's held-out ratio q (:mod:`~priortrack.tracking.held_out`: the estimate's reprojection error in
+    each camera over that of the other cameras' triangulation, in a window about the tick; NaN where not judged),
+    for the estimate E (T, 15, 3) in the detector's joint definitions and the working frame of the ``cameras``
+    (three or more), against the detections the filter saw (z, read a block at a time)."""
     errors = [held_out_errors(cameras, E[start:start + len(block)], block) for start, block in z.blocks()]
-    e_E, e_X = (np.concatenate([e[k] for e in errors], axis=1) for k in (0, 1))
-    with np.errstate(invalid="ignore"):
-        return _in_runs(held_out_ratio(e_E, e_X) > WORSE_RATIO)
+    return held_out_ratio(*(np.concatenate([e[k] for e in errors], axis=1) for k in (0, 1)))
 
 
 def _in_runs(bad: np.ndarray) -> np.ndarray:

@@ -5,7 +5,8 @@ detections (radius and brightness by confidence; green over them, those the unsc
 validation gate held out, counted as ``gated/<camera>``) and the estimate's reprojection in its image, the
 3D estimate skeleton (a smoothed run: the smoothed one, and the filter's own as "filtered") and the
 particle cloud coloured by weight, and per-frame scalars: each
-camera's median reprojection error, the ESS, the log-likelihood and the mismatch flag.
+camera's median reprojection error, the ESS, the log-likelihood, the mismatch flag and the held-out ratio
+(:mod:`~priortrack.tracking.held_out`; 3+ cameras).
 """
 
 from __future__ import annotations
@@ -65,6 +66,8 @@ def record_detections(result, path: str | Path) -> Path:
                 rec.scalar("ess_fraction", step.ess / step.points)
             rec.scalar("loglik", result.loglik[t])
             rec.scalar("mismatch", float(result.mismatch[t]))
+            if result.held_out_ratio is not None and np.isfinite(result.held_out_ratio[t]):
+                rec.scalar("held_out_ratio", float(result.held_out_ratio[t]))
             observed = bool((np.isfinite(result.observations[t, ..., 0]) & (np.nan_to_num(result.observations[t, ..., 2]) > 0)).any())
             for text, level in step_events(int(result.frames[t]), step, bool(result.mismatch[t]), observed):
                 rec.event(text, level)

@@ -43,7 +43,8 @@ EVAL15_CLASS = 0
 #: Each per-frame quantity's title in the layout, its unit in it.
 QUANTITIES = {"error_mm": "world error (mm)", "ess_fraction": "ESS (fraction of the particles)",
               "loglik": "log-likelihood of the estimate", "mismatch": "mismatch (1: the prior does not explain it)",
-              "reprojection_px": "median reprojection error (px), per camera"}
+              "reprojection_px": "median reprojection error (px), per camera",
+              "held_out_ratio": "held-out ratio (over 1.2: worse than triangulation)"}
 
 
 def entry_name(text: str) -> str:
