@@ -95,7 +95,7 @@ def test_a_run_that_fails_is_a_counted_row_not_a_stopped_evaluation(tmp_path, mo
     assert "blackout_mm" not in cells and result["table"]["05"]["pf-diffusion-local"]["failed_runs"] == 0
     assert main(["eval", "people", "--presets", "pf-diffusion-local", "pf-lie", "--people", "05", "--benches", "lab",
                  "--out", str(tmp_path)]) == 0
-    assert "| 05 | pf-lie | 100 (0.50) | — | — | — | 2 |" in capsys.readouterr().out
+    assert "| 05 | pf-lie | 100 (0.50) | — | — | — | — | 2 |" in capsys.readouterr().out
 
 
 def test_a_preset_reading_a_prior_file_cannot_be_refitted_and_says_so(tmp_path):
