@@ -104,6 +104,11 @@ def test_each_person_is_within_30_mm_of_pose2sims_own_output(demo, tmp_path):
         assert f["joints"].shape == (len(result.frames), 2, 15, 3) and f["person_ids"].tolist() == [0, 1]
         np.testing.assert_array_equal(f["joints"], result.joints)
         assert f["slots"].shape == (100, 4, 2) and f["spread"].shape == (len(result.frames), 2, 15)
+        # each person's held-out ratio on the scene's ticks: ukf-real follows the detections (under 1 where judged)
+        assert f["held_out_ratio"].shape == (len(result.frames), 2)
+        for p in range(2):
+            judged = np.isfinite(f["held_out_ratio"][:, p])
+            assert judged.mean() > 0.8 and (f["held_out_ratio"][judged, p] < 1.0).all(), p
     rows = np.genfromtxt(tmp_path / "s.csv", delimiter=",", names=True)
     assert set(rows["person"].astype(int)) == {0, 1}
     assert np.isfinite(result.joints[..., 0, 0]).sum() == len(rows)
@@ -167,7 +172,8 @@ def test_the_scene_command_writes_every_person_and_a_recording(tmp_path, capsys)
     assert all(len(e["class_description"]["keypoint_connections"]) == 14 for e in contexts[0][0])
     assert {"/world/person1", "/world/person1/label", "/world/cam01_json/image/detections/person1",
             "/world/cam01_json/image/unassigned", "/world/cam01_json/image/estimate/person1",
-            "/world/cam01_json/image/association/person1", "/metrics/reprojection_px/person1/cam01_json"} <= entities
+            "/world/cam01_json/image/association/person1", "/metrics/reprojection_px/person1/cam01_json",
+            "/metrics/held_out_ratio/person1"} <= entities
     assert not any("person0" in e for e in entities)
     # the person's series in the person's colour (set once)
     colors = [row for c in chunks if str(c.entity_path) == "/metrics/loglik/person1"

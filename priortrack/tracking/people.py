@@ -137,6 +137,8 @@ class SceneTrack:
         joints: (T, P, 15, 3) metres in the calibration's world, NaN where the person is absent (no
             detection of theirs, beyond gaps the scene tracker bridges: :attr:`SceneAssociation.present`).
         spread, loglik, mismatch: (T, P, 15), (T, P), (T, P) bool per person, NaN / False where absent.
+        held_out_ratio: (T, P) each person's held-out ratio (:mod:`~priortrack.tracking.held_out`), NaN where
+            absent or not judged.
         people: each person's single-person result, in ``person_ids``' order.
         association: the scene tracker's decisions (slots per frame, camera and person).
         skipped: {id: why} the people asked for that could not be tracked.
@@ -152,6 +154,7 @@ class SceneTrack:
     spread: np.ndarray
     loglik: np.ndarray
     mismatch: np.ndarray
+    held_out_ratio: np.ndarray
     people: list[DetectionTrack] = field(repr=False)
     association: SceneAssociation = field(repr=False)
     skipped: dict[int, str] = field(default_factory=dict)
@@ -187,13 +190,13 @@ class SceneTrack:
 
     def save_npz(self, path: str | Path) -> Path:
         """``joints`` (T, P, 15, 3), ``person_ids`` (P,), ``frames`` (T,), ``fps``, ``joint_names``,
-        ``spread`` (T, P, 15), ``loglik`` (T, P), ``mismatch`` (T, P), and the association's ``slots``
+        ``spread`` (T, P, 15), ``loglik`` (T, P), ``mismatch`` (T, P), ``held_out_ratio`` (T, P), and the association's ``slots``
         (T_frames, C, P) with ``detection_frames`` (T_frames,)."""
         path = output_path(path, "result file")
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints, person_ids=self.person_ids, frames=self.frames, fps=np.array(self.fps),
                      joint_names=np.array(EVAL15_NAMES), spread=self.spread, loglik=self.loglik,
-                     mismatch=self.mismatch, slots=self.association.slots,
+                     mismatch=self.mismatch, held_out_ratio=self.held_out_ratio, slots=self.association.slots,
                      detection_frames=self.association.frames)
         return path
 
@@ -418,7 +421,7 @@ def _gathered(association: SceneAssociation, kept: list[int], results: list[Dete
     tick_frames = np.where(index >= 0, frames[np.maximum(index, 0)], -1)
     T, P = len(index), len(kept)
     joints, spread = np.full((T, P, 15, 3), np.nan), np.full((T, P, 15), np.nan)
-    loglik, mismatch = np.full((T, P), np.nan), np.zeros((T, P), dtype=bool)
+    loglik, mismatch, held_out = np.full((T, P), np.nan), np.zeros((T, P), dtype=bool), np.full((T, P), np.nan)
     position = {int(f): t for t, f in enumerate(tick_frames) if f >= 0}
     # each tick's detection frame, a tick without one taking the last tick's (25 fps data at 30 fps ticks)
     nearest = np.maximum.accumulate(np.where(index >= 0, np.arange(T), 0))
@@ -430,5 +433,6 @@ def _gathered(association: SceneAssociation, kept: list[int], results: list[Dete
         t, k = ticks[keep], np.flatnonzero(keep)
         joints[t, q], spread[t, q] = result.joints[k], result.spread[k]
         loglik[t, q], mismatch[t, q] = result.loglik[k], result.mismatch[k]
+        held_out[t, q] = result.held_out_ratio[k]
     return SceneTrack(association.person_ids[kept], tick_frames, results[0].fps, joints, spread, loglik, mismatch,
-                      results, association, skipped, index=index)
+                      held_out, results, association, skipped, index=index)

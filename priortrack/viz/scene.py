@@ -6,7 +6,7 @@ detections the scene tracker gave each person, in that person's colour, the dete
 in grey (``unassigned``: false positives, people seen by one camera), each person's estimate
 reprojected, and the association (``association/person<id>``: a segment from each joint of a detection to
 the same joint of the estimate of the person it was given to); per-frame scalars per person: each camera's
-median reprojection error, the log-likelihood and the mismatch flag (these two in the person's colour). A mismatch tick draws the person's skeleton in the mismatch colour.
+median reprojection error, the log-likelihood, the mismatch flag and the held-out ratio (these three in the person's colour). A mismatch tick draws the person's skeleton in the mismatch colour.
 """
 
 from __future__ import annotations
@@ -57,6 +57,8 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
                     rec.points_2d(f"estimate/person{pid}", uv, person_color(pid), camera=name, radius=2.0)
                 rec.scalar(f"loglik/person{pid}", scene.loglik[t, p], person_color(pid))
                 rec.scalar(f"mismatch/person{pid}", float(scene.mismatch[t, p]), person_color(pid))
+                if np.isfinite(scene.held_out_ratio[t, p]):
+                    rec.scalar(f"held_out_ratio/person{pid}", float(scene.held_out_ratio[t, p]), person_color(pid))
             f = scene.index[t]
             if f < 0:
                 continue
