@@ -326,7 +326,8 @@ def run_detections(config: DetectionRunConfig, cache: str | None = None,
 
     from priortrack.data.calibration import Calibration
     from priortrack.experiments.compare import RUN_THREADS
-    from priortrack.tracking.person import TrackConfig, pixel_errors, track_detections, up_from_detections
+    from priortrack.geometry.camera import pixel_errors
+    from priortrack.tracking.person import TrackConfig, track_detections, up_from_detections
     from priortrack.geometry.camera import PinholeCamera
     from priortrack.geometry.triangulation import triangulate
     from priortrack.threads import torch_threads

@@ -476,3 +476,11 @@ class PinholeCamera:
             f"center=({c[0]:.4g}, {c[1]:.4g}, {c[2]:.4g}), width={self.width}, height={self.height}, "
             f"dtype={self.K.dtype}, device={self.K.device})"
         )
+
+
+def pixel_errors(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """(T, J) pixel distance between the projected joints (T, J, 3) and the detections (T, J, 2), NaN
+    where a detection is not seen (confidence 0, NaN) or a joint is missing."""
+    projected, _ = camera.project(np.nan_to_num(joints))
+    seen = (confidence > 0) & np.isfinite(uv).all(axis=-1) & np.isfinite(joints).all(axis=-1)
+    return np.where(seen, np.linalg.norm(projected - uv, axis=-1), np.nan)

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from priortrack.geometry.camera import PinholeCamera
+from priortrack.geometry.camera import PinholeCamera, pixel_errors
 from priortrack.geometry.triangulation import triangulate
 
 #: Ticks pooled about each tick judged.
@@ -61,11 +61,9 @@ def held_out_errors(cameras: list[PinholeCamera], E: np.ndarray, z: np.ndarray) 
     for c, camera in enumerate(cameras):
         others = [k for k in range(C) if k != c]
         X = triangulate([cameras[k] for k in others], uv[others], confidence[others])
-        judged = (confidence[c] > 0) & np.isfinite(uv[c]).all(axis=-1) & np.isfinite(X).all(axis=-1) & \
-            np.isfinite(E).all(axis=-1)
-        for errors, points in ((e_E, E), (e_X, X)):
-            projected, _ = camera.project(np.where(judged[..., None], points, 0.0))
-            errors[c] = np.where(judged, np.linalg.norm(projected - uv[c], axis=-1), np.nan)
+        by_estimate, by_others = (pixel_errors(camera, points, uv[c], confidence[c]) for points in (E, X))
+        judged = np.isfinite(by_estimate) & np.isfinite(by_others)
+        e_E[c], e_X[c] = np.where(judged, by_estimate, np.nan), np.where(judged, by_others, np.nan)
     return e_E, e_X
 
 

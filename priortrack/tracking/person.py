@@ -83,7 +83,7 @@ from priortrack.tracking.held_out import MIN_CAMERAS, WORSE_RATIO, held_out_erro
 from priortrack.tracking.presets import Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.filters.step_store import DEFAULT_MEMORY, StepStore
-from priortrack.geometry.camera import PinholeCamera
+from priortrack.geometry.camera import PinholeCamera, pixel_errors
 from priortrack.geometry.frames import in_working_frame, to_y_up, up_from_person, up_vector
 from priortrack.geometry.triangulation import triangulate
 from priortrack.models.tracking import TrackingModel
@@ -247,11 +247,8 @@ class DetectionTrack:
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,
                      ess=self.ess, loglik=self.loglik, mismatch=self.mismatch.astype(bool),
                      camera_names=np.array(self.camera_names), reprojection_px=self.reprojection_by_tick,
-                     gated=self.gated.astype(bool), held_out_ratio=self._held_out_ratio(), **smoothed)
+                     gated=self.gated.astype(bool), held_out_ratio=self.held_out_ratio, **smoothed)
         return path
-
-    def _held_out_ratio(self) -> np.ndarray:
-        return np.full(len(self.frames), np.nan) if self.held_out_ratio is None else self.held_out_ratio
 
     def save_csv(self, path: str | Path) -> Path:
         """One row per tick: frame, time (s), each joint's x, y, z (metres), spread, ESS, loglik, mismatch."""
@@ -1003,14 +1000,6 @@ def _reprojection_errors(cameras: list[PinholeCamera], joints: np.ndarray,
         raw[z.left_out[ticks]] = np.nan
         weight[ticks] = detection_weight(raw)
     return errors, weight
-
-
-def pixel_errors(camera: PinholeCamera, joints: np.ndarray, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:
-    """(T, J) pixel distance between the projected joints (T, J, 3) and the detections (T, J, 2), NaN
-    where a detection is not seen (confidence 0, NaN) or a joint is missing."""
-    projected, _ = camera.project(np.nan_to_num(joints))
-    seen = (confidence > 0) & np.isfinite(uv).all(axis=-1) & np.isfinite(joints).all(axis=-1)
-    return np.where(seen, np.linalg.norm(projected - uv, axis=-1), np.nan)
 
 
 def _median_of_seen(errors: np.ndarray) -> float:

@@ -66,7 +66,7 @@ def record_detections(result, path: str | Path) -> Path:
                 rec.scalar("ess_fraction", step.ess / step.points)
             rec.scalar("loglik", result.loglik[t])
             rec.scalar("mismatch", float(result.mismatch[t]))
-            if result.held_out_ratio is not None and np.isfinite(result.held_out_ratio[t]):
+            if np.isfinite(result.held_out_ratio[t]):
                 rec.scalar("held_out_ratio", float(result.held_out_ratio[t]))
             observed = bool((np.isfinite(result.observations[t, ..., 0]) & (np.nan_to_num(result.observations[t, ..., 2]) > 0)).any())
             for text, level in step_events(int(result.frames[t]), step, bool(result.mismatch[t]), observed):
