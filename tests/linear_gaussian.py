@@ -140,3 +140,25 @@ class LinearMixture(LinearGaussian):
             log_pi, steps, Qs = (torch.gather(log_pi, 1, components), steps[torch.arange(len(s))[:, None], components],
                                  self.Qs[components])
         return log_pi, steps, Qs if covariances else None
+
+    def step_weights(self, s):
+        """ln π (B, K): the same at every state."""
+        return torch.log(self.pi).expand(len(s), -1)
+
+    def component_model(self):
+        """A linear-Gaussian model running component ``k`` (set by the Gaussian-sum filter): s_t = A s + b_k + N(0, Q_k)."""
+        return LinearComponent(self)
+
+
+class LinearComponent(LinearGaussian):
+    """One component of a :class:`LinearMixture`, chosen by ``k``."""
+
+    def __init__(self, mixture: LinearMixture):
+        super().__init__(mixture.A, mixture.Qs[0], mixture.H, mixture.R)
+        self.mixture, self.k = mixture, 0
+
+    def mean_step(self, s):
+        return s @ self.A.T + self.mixture.b[self.k]
+
+    def process_covariance(self, s):
+        return self.mixture.Qs[self.k]

@@ -42,7 +42,7 @@ def test_patterns_in_train_are_expanded():
 
 @pytest.mark.parametrize("changes, message", [
     ({"filter__particels": 10}, r"unknown key 'particels'; valid keys: .*particles"),
-    ({"filter__kind": "kalman"}, r"kind 'kalman' is not one of pf, apf, ukf, map"),
+    ({"filter__kind": "kalman"}, r"kind 'kalman' is not one of pf, apf, ukf, ukf-sum, map"),
     ({"prior__kind": "hmm"}, r"\[prior\] kind 'hmm'"),
     ({"prior__train": []}, r"train must be a non-empty list"),
     ({"prior__options": {"spaces": "angles"}}, r"options \(diffusion-local\): unknown key 'spaces'; valid keys: space"),

@@ -111,7 +111,7 @@ def check_grid(filters: Sequence[str], seeds: int, frames: int | None, smooth: b
     """The checks every grid's arguments share (one PriortrackError naming the first bad one): ``filters``
     and each of ``lists`` non-empty and without repeats, the presets readable (and smoothable with
     ``smooth``), ``seeds`` positive, ``frames`` None or at least 3 (two known, one tracked)."""
-    from priortrack.tracking.presets import load_preset
+    from priortrack.tracking.presets import UNSCENTED_KINDS, load_preset
 
     for name, values in (("filters", filters), *lists.items()):
         if not values:
@@ -125,7 +125,7 @@ def check_grid(filters: Sequence[str], seeds: int, frames: int | None, smooth: b
         raise PriortrackError(f"compare: --frames must be at least 3 (two known, one tracked), got {frames!r}")
     for name in filters:
         preset = load_preset(name)
-        if smooth and preset.filter_kind not in ("pf", "ukf"):
+        if smooth and preset.filter_kind not in ("pf", *UNSCENTED_KINDS):
             raise PriortrackError(f"compare: --smooth needs particle or unscented filters; {name} is a "
                                   f"{preset.filter_kind!r} filter")
 

@@ -541,6 +541,11 @@ class UnscentedFilter(SequentialFilter):
         #: (k,) the points the last step exchanged with their mirror partner (a detector's swap undone);
         #: None where it exchanged none.
         self.swapped: np.ndarray | None = None
+        #: ln p(z_t | z_1:t−1) of the last update, the Gaussian predictive density N(z; ẑ, S) of the points it
+        #: took, each point the gate held out counted at the density of the gate's boundary (its
+        #: b-dimensional N at d² = χ²_b(1 − p_gate)): what a bank of these filters weighs its members by
+        #: (:mod:`priortrack.filters.gaussian_sum`). 0 for a step without observations.
+        self.log_evidence = 0.0
 
     @property
     def mean(self) -> torch.Tensor:
@@ -644,6 +649,13 @@ class UnscentedFilter(SequentialFilter):
         return self._measured
 
     def _correct(self, z: np.ndarray) -> Snapshot:
+        t1 = time.perf_counter()
+        flags = self._corrected(z)
+        return self._snapshot(flags, {"predict": self._predict_seconds, "weight": time.perf_counter() - t1})
+
+    def _corrected(self, z: np.ndarray) -> list[str]:
+        """The update half of a step without its Snapshot: the observation model's outlier gate, the
+        measurement update (``kf.x``, ``kf.P``, :attr:`log_evidence`); returns the step's flags."""
         if not self._advanced:
             raise PriortrackError("no prediction to correct: call advance() first")
         kf, flags = self.kf, []
@@ -651,13 +663,17 @@ class UnscentedFilter(SequentialFilter):
         if count:
             flags.append("outlier-gated")
             z = gated.numpy()
-        t1 = time.perf_counter()
         values, R = self.unscented.measurement(torch.as_tensor(z, dtype=torch.float64))
         self._update(values.numpy(), R.numpy(), flags)
         self._advanced, self._measured = False, None
-        t2 = time.perf_counter()
         if kf.repairs:
             flags.append("covariance-repaired")
+        return flags
+
+    def _snapshot(self, flags: list[str], timings: dict[str, float]) -> Snapshot:
+        """:meth:`step`'s Snapshot of the filter's state (``kf.x``, ``kf.P``) after a step's update; ``timings``
+        gains "estimate"."""
+        kf, t2 = self.kf, time.perf_counter()
         sigmas = torch.from_numpy(kf.points_fn.sigma_points(kf.x, kf.P))
         estimate = self.unscented.observe(torch.from_numpy(kf.x)[None])[0]
         joints = self.unscented.observe(sigmas)
@@ -665,14 +681,16 @@ class UnscentedFilter(SequentialFilter):
         self.frame += 1
         return Snapshot(self.frame, sigmas, torch.from_numpy(kf.Wm.copy()), float(len(sigmas)), None,
                         estimate.cpu().numpy(), estimate.cpu().numpy(), joints, flags,
-                        {"predict": self._predict_seconds, "weight": t2 - t1, "estimate": t3 - t2},
+                        {**timings, "estimate": t3 - t2},
                         mean=self.mean, covariance=self.covariance, held_out=self.held_out,
                         swapped=self.swapped)
 
     def _update(self, z: np.ndarray, R: np.ndarray, flags: list[str]) -> None:
         """The measurement update with z (m,) and R (m, m) on the observed coordinates that every sigma
-        point can predict; then P in the coordinates at the new mean (Γ), repaired if need be."""
+        point can predict; then P in the coordinates at the new mean (Γ), repaired if need be. Sets
+        :attr:`log_evidence`."""
         kf = self.kf
+        self.log_evidence = 0.0
         seen = np.isfinite(z)
         if not seen.any():
             flags.append("no-observation")
@@ -704,6 +722,7 @@ class UnscentedFilter(SequentialFilter):
             return
         x_prior = kf.x.copy()
         kf.update(z[usable], R=R[np.ix_(usable, usable)], UT=unscented_transform, hx=_Rows(predicted[:, usable]))
+        self.log_evidence += float(kf.log_likelihood)
         gamma = self.unscented.transport(torch.from_numpy(x_prior), torch.from_numpy(kf.x)).numpy()
         kf.P, repaired = repaired_covariance(gamma @ kf.P @ gamma.T)
         kf.repairs += repaired
@@ -737,6 +756,8 @@ class UnscentedFilter(SequentialFilter):
                   int(rejected.sum()), len(rejected))
         kept = usable.copy()
         kept[columns.reshape(-1, b)[rejected].ravel()] = False
+        self.log_evidence += float(np.sum(-0.5 * self.threshold - 0.5 * b * np.log(2 * np.pi)
+                                          - 0.5 * np.linalg.slogdet(S[rejected])[1]))
         return kept
 
     def _reacquired(self, points: np.ndarray, rejected: np.ndarray, flags: list[str]) -> np.ndarray:

@@ -9,6 +9,8 @@ Capabilities say what a filter may ask of a kind's transition model
 
 - ``"gaussian"``: one Gaussian transition, a mean step and ``transition_covariance(x)``
   (the unscented filter runs it; the Lie mixture's conditional moment-matched to one Gaussian);
+- ``"mixture"``: that transition as the mixture of Gaussian steps it is, ``step_weights(x)`` and
+  ``step_components(x)`` (the Gaussian-sum unscented filter runs one member per component);
 - ``"latent"``: a GPDM latent space with its GP maps (the sliding-window MAP tracker runs it).
 """
 
@@ -76,7 +78,7 @@ PRIOR_KINDS: dict[str, PriorKind] = {kind.name: kind for kind in (
     PriorKind("bgpdm", "priortrack.priors.gpdm", "GPDM", {"balanced": True},
               frozenset({"gaussian", "latent"}), "balanced GPDM (Urtasun et al. 2006)"),
     PriorKind("lie", "priortrack.priors.lie", "LiePrior", {},
-              frozenset({"gaussian"}), "geodesic mixture over bone directions and velocities (Simo-Serra et al. 2015)"),
+              frozenset({"gaussian", "mixture"}), "geodesic mixture over bone directions and velocities (Simo-Serra et al. 2015)"),
 )}
 
 

@@ -80,7 +80,7 @@ from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
 from priortrack.tracking.held_out import MIN_CAMERAS, WORSE_RATIO, held_out_errors, held_out_ratio
-from priortrack.tracking.presets import Preset, load_preset
+from priortrack.tracking.presets import UNSCENTED_KINDS, Preset, load_preset
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.filters.step_store import DEFAULT_MEMORY, StepStore
 from priortrack.geometry.camera import PinholeCamera, pixel_errors
@@ -547,7 +547,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
         fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton, pose=pose)
     known = steady_start(fitted)
     # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
-    observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind == "ukf" else DEFAULT_NU,
+    observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind in UNSCENTED_KINDS else DEFAULT_NU,
                    **preset.observation}
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))

@@ -5,7 +5,7 @@ A preset (the shipped ones: ``priortrack presets``; any path works too)::
     description = "particle filter, local Gaussian diffusion in joint-angle space"
 
     [filter]                      # kind, then that filter's own parameters
-    kind = "pf"                   # pf | apf | ukf | map
+    kind = "pf"                   # pf | apf | ukf | ukf-sum | map
     particles = 1000
 
     [prior]
@@ -78,8 +78,13 @@ FILTERS: dict[str, tuple[str, str]] = {
     "pf": ("priortrack.filters.particle", "ParticleFilter"),
     "apf": ("priortrack.filters.annealed", "AnnealedParticleFilter"),
     "ukf": ("priortrack.filters.ukf", "UnscentedFilter"),
+    "ukf-sum": ("priortrack.filters.gaussian_sum", "GaussianSumFilter"),
     "map": ("priortrack.filters.map_tracker", "MapTracker"),
 }
+
+
+#: The filter kinds that run unscented filters (a Gaussian likelihood, R; the posterior-linearisation smoother).
+UNSCENTED_KINDS = ("ukf", "ukf-sum")
 
 
 def filter_class(kind: str) -> type:
@@ -135,7 +140,7 @@ class Preset:
 
     Attributes:
         name: the file's stem.
-        filter_kind: "pf", "apf", "ukf" or "map"; filter_options: the filter's parameters.
+        filter_kind: a key of :data:`FILTERS`; filter_options: the filter's parameters.
         prior_kind, train (expanded sources), fps, prior_options: what the prior is fitted to.
         prior_file: a fitted prior to use instead of fitting one (``train`` then fits only the
             global motion), or None.
