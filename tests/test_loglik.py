@@ -21,6 +21,25 @@ def test_one_split_scores_every_model_and_the_defensive_mixture_lies_between_its
         assert all(math.isfinite(v) for v in (mix, lie, local))
         assert mix >= math.log1p(-eps) + lie - 1e-9 and mix >= math.log(eps) + local - 1e-9
     assert result["folds"][0]["test_frames"] == result["test_frames"] > 0
+    # calibration: one person's walks learned, another's scored: every model over-confident there (measured: Lie
+    # moment-matched 17.0, local diffusion 4.0, global 2.7 against 1), the shares beyond χ² 99 % a fraction
+    assert result["lie"]["test_d2"] > result["diffusion_local"]["test_d2"] > 1
+    assert all(0 <= result[m]["test_beyond"] <= 1 for m in ("lie", "lie_defensive", "diffusion_local", "diffusion_global"))
+    assert result["lie"]["test_beyond"] > 0.5
+
+
+def test_calibration_is_one_on_the_frames_a_diffusion_learned_by_maximum_likelihood():
+    """A diffusion's σ² per joint is the mean squared step of its training frames (its maximum-likelihood fit), so
+    on those frames the mean d²/n of its Gaussian step is 1 exactly (both kinds)."""
+    from priortrack.data.load import load_motion
+    from priortrack.experiments.reproductions.loglik import _normalised_distances
+    from priortrack.priors.diffusion import Diffusion
+
+    train = [load_motion(f"walkjog:35_0{i}") for i in range(1, 4)]
+    local = Diffusion.fit(train, local=True, space="directions", fps=30.0)
+    models = {"lie": local, "diffusion_global": Diffusion.fit(train, local=False, space="directions", fps=30.0)}
+    for name, d2 in _normalised_distances(models, train).items():
+        assert float(d2.mean()) == pytest.approx(1.0, abs=1e-9), name
 
 
 def test_a_split_needs_both_sides():

@@ -32,9 +32,12 @@ def _eval_loglik(args: argparse.Namespace) -> None:
     if args.json:
         print_json(result)
         return
-    print("mean log p(v_t | x_t) per frame (higher is better)")
+    print("mean log p(v_t | x_t) per frame (higher is better); held-out steps' d²/n under each model's Gaussian step "
+          "(1: calibrated; more: over-confident) and their share beyond its χ² 99th percentile (1 %: calibrated)")
     for model in ("lie", "lie_defensive", "diffusion_local", "diffusion_global"):
-        print(f"  {model:<17} train {result[model]['train']:9.2f}   test {result[model]['test']:9.2f}")
+        r = result[model]
+        print(f"  {model:<17} train {r['train']:9.2f}   test {r['test']:9.2f}   d²/n {r['test_d2']:6.2f}   "
+              f"beyond {100 * r['test_beyond']:5.1f} %")
 
 
 def _eval_real_format(args: argparse.Namespace) -> None:

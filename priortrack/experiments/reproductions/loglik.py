@@ -11,6 +11,15 @@ isotropic Gaussian per bone, so its density of v is
 
     ln p(v | x) = ln p_u(v / s) − 28 ln s = Diffusion.log_prob(x_next, x) − 28 ln s.
 
+**Calibration** of each model's step as the unscented filters run it (its mean step and ``transition_covariance``:
+the Lie mixture moment-matched to one Gaussian, which at a walking pose is its one responsible component, π_k ≈ 1):
+the normalised squared distance of each held-out step u_t = log_{x_t}(x_{t+1}),
+
+    d²_t / n = (u_t − ū(x_t))ᵀ Q(x_t)⁻¹ (u_t − ū(x_t)) / n,   n = 28,
+
+is 1 on average, and above the χ²_n 99th percentile at 1 % of the frames, for a model whose covariance is the
+spread of the steps it predicts; more means an over-confident model (a filter trusting a wrong prediction).
+
 The defensive mixture of the ``pf-lie-defensive`` preset, (1 − ε) Lie + ε local diffusion with
 that preset's ε (:class:`~priortrack.priors.defensive.DefensiveMixture`), is scored the same way:
 its density of the step, less 28 ln s.
@@ -30,6 +39,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
+from scipy.stats import chi2
 
 from priortrack.data.bundled import bundled_clips
 from priortrack.data.load import load_motion
@@ -44,6 +54,8 @@ from priortrack.priors.lie import DEFAULT_SCALE, LiePrior
 logger = logging.getLogger(__name__)
 
 MODELS = ("lie", "lie_defensive", "diffusion_local", "diffusion_global")
+#: The χ²_n quantile of the calibration's share of frames beyond it (module docstring).
+CALIBRATION_QUANTILE = 0.99
 #: The preset whose defensive mixture is scored as ``lie_defensive``.
 DEFENSIVE_PRESET = "pf-lie-defensive"
 
@@ -65,6 +77,22 @@ def _velocity_log_probs(models: dict, motions: Sequence[Motion], scale: float) -
     return {name: torch.cat(s).numpy() for name, s in scores.items()}
 
 
+def _normalised_distances(models: dict, motions: Sequence[Motion]) -> dict[str, np.ndarray]:
+    """Per-frame d²_t / n of every model's Gaussian step (module docstring, Calibration): name → (T,)."""
+    lie = models["lie"]
+    out: dict[str, list[torch.Tensor]] = {name: [] for name in models}
+    for m in motions:
+        x = lie.encode(m).to(torch.float64)
+        if len(x) < 2:
+            continue
+        for name, model in models.items():
+            space = model.space
+            r = space.local(x[1:], x[:-1]) - space.local(model.mean(x[:-1]), x[:-1])
+            Q = model.transition_covariance(x[:-1]).to(r)
+            out[name].append((r[:, None] @ torch.linalg.solve(Q, r[..., None]))[:, 0, 0] / r.shape[1])
+    return {name: torch.cat(d).numpy() for name, d in out.items()}
+
+
 def _split(train: Sequence[Motion], test: Sequence[Motion], seed: int, scale: float, fps: float,
            max_components: int, subsample: int | None, epsilon: float) -> dict:
     """Fit the three models on ``train`` (and the defensive mixture of the Lie prior and local diffusion
@@ -79,7 +107,11 @@ def _split(train: Sequence[Motion], test: Sequence[Motion], seed: int, scale: fl
     models["lie_defensive"] = DefensiveMixture(models["lie"], models["diffusion_local"], epsilon)
     on_train = _velocity_log_probs(models, train, scale)
     on_test = _velocity_log_probs(models, test, scale)
-    row = {name: {"train": float(on_train[name].mean()), "test": float(on_test[name].mean())} for name in MODELS}
+    distances = _normalised_distances(models, test)
+    beyond = chi2.ppf(CALIBRATION_QUANTILE, 2 * models["lie"].mixture.bones) / (2 * models["lie"].mixture.bones)
+    row = {name: {"train": float(on_train[name].mean()), "test": float(on_test[name].mean()),
+                  "test_d2": float(distances[name].mean()), "test_beyond": float((distances[name] > beyond).mean())}
+           for name in MODELS}
     row.update(clusters=models["lie"].clusters, train_frames=len(on_train["lie"]), test_frames=len(on_test["lie"]),
                fit_frames=models["lie"].train_frames, seconds=time.perf_counter() - start)
     return row
@@ -109,8 +141,9 @@ def eval_loglik(train: Sequence[str] | None = None, test: Sequence[str] | None =
         walkjog: add the subject-35 walk/jog set (33 trials) to subject 35 in the folds.
 
     Returns:
-        ``{"lie": {"train", "test"}, "lie_defensive": {…}, "diffusion_local": {…}, "diffusion_global": {…},
-        "clusters", "train_frames", "test_frames", "folds": [row, …]}``. A row holds the same
+        ``{"lie": {"train", "test", "test_d2", "test_beyond"}, "lie_defensive": {…}, "diffusion_local": {…}, "diffusion_global": {…},
+        "clusters", "train_frames", "test_frames", "folds": [row, …]}``; ``test_d2`` the mean d²/n of the held-out
+        steps and ``test_beyond`` the share of them beyond the χ²_n 99th percentile (module docstring, Calibration). A row holds the same
         per-model numbers for one fold plus ``subject``, ``test_clips``, ``clusters``,
         ``train_frames`` and ``test_frames`` (frame pairs scored), ``fit_frames`` (samples the
         Lie prior learnt from) and ``seconds``. The top-level model numbers, ``clusters``
@@ -141,8 +174,8 @@ def eval_loglik(train: Sequence[str] | None = None, test: Sequence[str] | None =
                         row["diffusion_global"]["train"], row["diffusion_global"]["test"],
                         row["clusters"], row["seconds"])
             folds.append(row)
-    result = {name: {part: float(np.mean([f[name][part] for f in folds])) for part in ("train", "test")}
-              for name in MODELS}
+    result = {name: {part: float(np.mean([f[name][part] for f in folds]))
+                     for part in ("train", "test", "test_d2", "test_beyond")} for name in MODELS}
     result.update(clusters=float(np.mean([f["clusters"] for f in folds])),
                   train_frames=float(np.mean([f["train_frames"] for f in folds])),
                   test_frames=int(sum(f["test_frames"] for f in folds)), folds=folds)
