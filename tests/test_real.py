@@ -240,7 +240,10 @@ def test_the_real_track_benchmark_runs_the_whole_command(capsys):
     assert main(["bench", "real-track", "--frames", "12", "--cameras", "5", "--fps", "25", "--filter", "ukf-real"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["cameras"] == 5 and result["fps"] == 25.0 and result["command_seconds"] > 0
-    assert result["prior_draw_seconds"] is None
+    assert result["prior_draw_seconds"] is None and result["single_unscented_seconds"] is None
+    assert main(["bench", "real-track", "--frames", "12", "--filter", "ukf-lie"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["single_unscented_seconds"] > 0 and result["sum_over_single"] > 0   # beside one unscented filter
     assert main(["bench", "real-track", "--frames", "5000"]) == 2
     assert "frames must be in [3, 1800]" in capsys.readouterr().err
     assert main(["bench", "real-track", "--cameras", "1"]) == 2

@@ -9,7 +9,9 @@ seen by the Pose2Sim demo's 4 cameras or by ``cameras`` distorted cameras on a r
 the command runs it: reading the files, fitting or loading the prior, starting, tracking, writing an
 .npz; the preset sets the particles. A particle preset that draws from the guided proposal
 (:mod:`priortrack.filters.proposal`) is also timed drawing from its prior (``proposal = "prior"``), on the same
-input: the guided draw's cost beside the bootstrap filter's.
+input: the guided draw's cost beside the bootstrap filter's. A Gaussian-sum preset (``ukf-sum``: ``ukf-lie``) is also
+timed as the one unscented filter on the same prior (``kind = "ukf"``: the mixture moment-matched), on the same input:
+the sum's cost beside it.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.triangulation import triangulate
 
 MOTION, FPS = "cmu:49_18", 30.0
+#: The Gaussian-sum filter's own settings, which the one unscented filter it is timed beside does not take.
+SUM_ONLY = ("hypotheses", "branch", "min_share")
 #: The most frames the benchmark writes (a minute at 30 fps).
 MAX_FRAMES = 1800
 
@@ -48,7 +52,8 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
                      fps: float = FPS) -> dict:
     """Seconds of the whole command's work on ``frames`` frames × ``cameras`` cameras at ``fps``, and of
     DLT on the same input; for a guided particle preset also the command's seconds with the prior's draw
-    (``prior_draw_seconds``) and ``guided_over_prior``."""
+    (``prior_draw_seconds``) and ``guided_over_prior``; for a Gaussian-sum preset the command's seconds with one
+    unscented filter (``single_unscented_seconds``) and ``sum_over_single``."""
     from dataclasses import replace
 
     from priortrack.experiments.benchmarks.long import LOOP_SECONDS, ping_pong
@@ -71,6 +76,10 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
     views = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
     shipped = load_preset(preset)
     guided = shipped.filter_kind == "pf" and shipped.filter_options.get("proposal") == "guided"
+    single = None
+    if shipped.filter_kind == "ukf-sum":
+        options = {k: v for k, v in shipped.filter_options.items() if k not in SUM_ONLY}
+        single = replace(shipped, filter_kind="ukf", filter_options=options)
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_openpose(detector_keypoints(X, views, np.random.default_rng(seed)), Path(tmp) / "pose")
 
@@ -88,7 +97,10 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
         dlt_seconds = time.perf_counter() - start
         prior_draw = (command(replace(shipped, filter_options={**shipped.filter_options, "proposal": "prior"}))
                       if guided else None)
+        single_seconds = None if single is None else command(single)
     return {"frames": frames, "fps": fps, "cameras": len(views), "preset": preset, "command_seconds": seconds,
             "seconds_per_frame": seconds / frames, "dlt_seconds": dlt_seconds, "ratio": seconds / dlt_seconds,
             "prior_draw_seconds": prior_draw, "guided_over_prior": None if prior_draw is None else seconds / prior_draw,
+            "single_unscented_seconds": single_seconds,
+            "sum_over_single": None if single_seconds is None else seconds / single_seconds,
             "load_average": load_average()}
