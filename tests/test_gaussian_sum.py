@@ -257,10 +257,10 @@ def test_the_preset_runs_a_lie_prior_and_refuses_another(tmp_path):
 
 def test_the_preset_tracks_a_held_out_walk_on_four_cameras_better_than_triangulation():
     """ukf-lie on the real-format bench (OpenPose-style JSON through 4 real cameras, detector-like errors) on
-    35_29, held out of its prior: world error below 0.8 × per-frame DLT and no tick flagged (measured 7.6 mm
-    against 12.6, 0.60; ukf-lie-defensive 0.48)."""
+    35_29, held out of its prior: world error below 0.6 × per-frame DLT and no tick flagged (measured 5.3 mm
+    against 12.6, 0.42; ukf-lie-defensive 0.48, ukf-real 0.47; ukf-lie at 10 px 0.60)."""
     from priortrack.experiments.real_format import run_real_format
 
     run = run_real_format("ukf-lie", "walkjog:35_29", seed=0)
-    assert run["mpjpe_where_dlt_mm"] < 0.8 * run["dlt_mm"], run
+    assert run["mpjpe_where_dlt_mm"] < 0.6 * run["dlt_mm"], run
     assert run["mismatch_fraction"] == 0.0
