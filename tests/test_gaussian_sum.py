@@ -209,7 +209,7 @@ def test_a_prior_without_a_mixture_is_refused():
 
 
 @pytest.mark.parametrize("options, message", [({"hypotheses": 0}, "hypotheses"), ({"branch": 1.5}, "branch"),
-                                              ({"min_share": 1.0}, "min_share")])
+                                              ({"min_share": 1.0}, "min_share"), ({"min_share": "0.1"}, "min_share")])
 def test_bad_settings_are_refused(mixture, options, message):
     with pytest.raises(PriortrackError, match=message):
         GaussianSumFilter(mixture, **options)

@@ -183,3 +183,27 @@ def test_mean_rotation_is_the_chordal_mean_by_svd():
             U, _, Vh = torch.linalg.svd(torch.einsum("p,pij->ij", w / w.sum(), so3.exp(s[:, k:k + 3])))
             D = torch.diag(torch.tensor([1.0, 1.0, float(torch.sign(torch.linalg.det(U @ Vh)))], dtype=torch.float64))
             torch.testing.assert_close(so3.exp(mean[None, k:k + 3])[0], U @ D @ Vh, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("particles, threads, expected", [(1000, None, 1), (10000, None, 2), (1000, 2, 2), (10000, 1, 1)])
+def test_a_step_runs_on_one_thread_where_the_particles_are_few(linear, particles, threads, expected):
+    """Up to SINGLE_THREAD_PARTICLES on the CPU a step runs on one torch thread (two took 10× as long with the
+    other core busy), more on torch's count; ``threads`` chooses; the caller's count is given back."""
+    seen = []
+    observe = linear.observe
+    linear.observe = lambda s: (seen.append(torch.get_num_threads()), observe(s))[1]
+    previous = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        pf = ParticleFilter(linear, particles, threads=threads)
+        pf.initialise_states(torch.zeros(particles, 3, dtype=torch.float64))
+        pf.step(np.zeros(2))
+        assert seen and set(seen) == {expected} and torch.get_num_threads() == 2
+    finally:
+        linear.observe = observe
+        torch.set_num_threads(previous)
+
+
+def test_threads_must_be_a_count(linear):
+    with pytest.raises(PriortrackError, match="threads must be a whole number"):
+        ParticleFilter(linear, 10, threads=0)

@@ -120,7 +120,7 @@ class GaussianSumFilter(UnscentedFilter):
         for name, value in (("hypotheses", hypotheses), ("branch", branch)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise PriortrackError(f"{name} must be a whole number ≥ 1, got {value!r}")
-        if not 0 <= min_share < 1:
+        if isinstance(min_share, bool) or not isinstance(min_share, (int, float)) or not 0 <= min_share < 1:
             raise PriortrackError(f"min_share must be in [0, 1), got {min_share!r}")
         super().__init__(model, alpha, beta, kappa, True, gate_probability, reacquire, swaps)
         self.max_hypotheses, self.branch, self.min_share = hypotheses, branch, float(min_share)

@@ -121,7 +121,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
     for name, prior in priors.items():
         model = TrackingModel.fitted(prior, train, JointLikelihood(observations.camera))
         filters[name] = ParticleFilter(model, particles, dtype=dtype, translation=translation, seed=seed,
-                                       device=device)
+                                       device=device, threads=threads)
         filters[name].initialise(walk)
     fk = ForwardKinematics(walk.skeleton, device=device, dtype=DTYPES[dtype])
     poses = torch.as_tensor(walk.channels[np.random.default_rng(seed).integers(0, len(walk), particles)],
