@@ -16,9 +16,9 @@ def _presets(args: argparse.Namespace) -> None:
         print(json.dumps([{"name": p.name, "filter": p.filter_kind, "prior": p.prior_kind, "description": p.description}
                           for p in presets], indent=2))
         return
-    print(f"{'preset':<22} {'filter':<6} {'prior':<17} description")
+    print(f"{'preset':<22} {'filter':<7} {'prior':<17} description")
     for p in presets:
-        print(f"{p.name:<22} {p.filter_kind:<6} {p.prior_kind:<17} {p.description}")
+        print(f"{p.name:<22} {p.filter_kind:<7} {p.prior_kind:<17} {p.description}")
 
 
 def _data_list(args: argparse.Namespace) -> None:
