@@ -222,6 +222,8 @@ class GaussianSumFilter(UnscentedFilter):
             h.log_weight -= norm
         self.hypotheses_ = kept
         best = int(np.argmax(log_w))
+        log.debug("frame %d: %d children, %d Gaussians kept, the heaviest (component %d) weighing %.3f", self.frame + 1,
+                  len(self._children), len(kept), int(components[best]), float(np.exp(kept[0].log_weight)))
         self.log_evidence = float(logsumexp(log_w) - logsumexp(prior))
         self.held_out, self.swapped = self._children[best][2].held_out, self._children[best][2].swapped
         kf = self.kf
