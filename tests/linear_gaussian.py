@@ -1,8 +1,11 @@
 """A linear-Gaussian state-space model with the filter interface, and the Kalman filter as its
 exact reference (shared by the particle and unscented filter tests)."""
 
+import contextlib
+
 import numpy as np
 import torch
+from scipy.stats import multivariate_normal
 
 
 class LinearGaussian:
@@ -76,19 +79,41 @@ class LinearGaussian:
         return torch.eye(self.dim, dtype=torch.float64)
 
 
+def kalman_step(model, m, P, z, b=0.0, Q=None):
+    """One Kalman step of s_t = A s + b + N(0, Q) (Q the model's unless given), z = H s + N(0, R), NaN = missing:
+    the mean, the covariance and ln N(z; ẑ, S) of the coordinates seen (0 where none is)."""
+    A, H, R = (t.numpy() for t in (model.A, model.H, model.R))
+    Q = model.Q.numpy() if Q is None else Q
+    m, P = A @ m + b, A @ P @ A.T + Q
+    seen = np.isfinite(z)
+    if not seen.any():
+        return m, P, 0.0
+    Hs, Rs = H[seen], R[np.ix_(seen, seen)]
+    S = Hs @ P @ Hs.T + Rs
+    K = np.linalg.solve(S, Hs @ P).T
+    return m + K @ (z[seen] - Hs @ m), P - K @ S @ K.T, multivariate_normal(Hs @ m, S).logpdf(z[seen])
+
+
 def kalman(model, m0, P0, zs):
     """The Kalman filter's (mean, covariance) after the observations zs (T, m), NaN = missing."""
-    A, Q, H, R = (m.numpy() for m in (model.A, model.Q, model.H, model.R))
     m, P = m0.copy(), P0.copy()
     for z in zs:
-        m, P = A @ m, A @ P @ A.T + Q
-        seen = np.isfinite(z)
-        if seen.any():
-            Hs, Rs = H[seen], R[np.ix_(seen, seen)]
-            S = Hs @ P @ Hs.T + Rs
-            K = np.linalg.solve(S, Hs @ P).T
-            m, P = m + K @ (z[seen] - Hs @ m), P - K @ S @ K.T
+        m, P, _ = kalman_step(model, m, P, z)
     return m, P
+
+
+@contextlib.contextmanager
+def thread_counts(model, method: str):
+    """Inside the block torch runs on 2 threads and ``model.method`` records torch's thread count at each call into
+    the list the block gets; both are given back after."""
+    seen, original, previous = [], getattr(model, method), torch.get_num_threads()
+    setattr(model, method, lambda *args: (seen.append(torch.get_num_threads()), original(*args))[1])
+    torch.set_num_threads(2)
+    try:
+        yield seen
+    finally:
+        setattr(model, method, original)
+        torch.set_num_threads(previous)
 
 
 def kalman_rts(model, m0, P0, zs):

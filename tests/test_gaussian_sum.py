@@ -14,7 +14,7 @@ from priortrack.filters.ukf import UnscentedFilter
 from priortrack.priors.component import ComponentTransition
 from priortrack.priors.lie import LiePrior
 
-from linear_gaussian import LinearGaussian, LinearMixture, kalman
+from linear_gaussian import LinearGaussian, LinearMixture, kalman, kalman_step
 
 A = np.array([[1, 1.0, 0], [0, 1, 0], [0, 0, 0.9]])
 H = np.array([[1.0, 0, 0], [0, 0, 1.0]])
@@ -26,18 +26,6 @@ def mixture():
     b = np.array([[0.0, 0.3, 0.0], [0.0, -0.4, 0.5], [0.2, 0.0, -0.6]])
     Qs = np.stack([np.diag([0.01, 0.04, 0.09]), np.diag([0.02, 0.01, 0.05]), np.diag([0.05, 0.02, 0.01])])
     return LinearMixture(A, b, Qs, [0.5, 0.3, 0.2], H, R)
-
-
-def _kalman_step(m, P, z, b, Q):
-    """One Kalman step of s_t = A s + b + N(0, Q), z = H s + N(0, R): (m, P, ln N(z; ẑ, S)) (NaN: missing)."""
-    m, P = A @ m + b, A @ P @ A.T + Q
-    seen = np.isfinite(z)
-    if not seen.any():
-        return m, P, 0.0
-    Hs, Rs = H[seen], R[np.ix_(seen, seen)]
-    S = Hs @ P @ Hs.T + Rs
-    K = np.linalg.solve(S, Hs @ P).T
-    return m + K @ (z[seen] - Hs @ m), P - K @ S @ K.T, multivariate_normal(Hs @ m, S).logpdf(z[seen])
 
 
 def _moments(w, means, covariances):
@@ -59,7 +47,7 @@ def gpb2(model, m0, P0, zs, hypotheses, branch, min_share):
             for rank, k in enumerate(np.argsort(-pi)[:branch]):
                 if rank and pi[k] < min_share:
                     break
-                mk, Pk, ll = _kalman_step(m, P, z, b[k], Qs[k])
+                mk, Pk, ll = kalman_step(model, m, P, z, b[k], Qs[k])
                 children.setdefault(k, []).append((w * pi[k] * np.exp(ll), mk, Pk))
         hyps = []
         for group in children.values():
@@ -146,7 +134,7 @@ def test_log_evidence_is_the_kalman_filters_predictive_density():
     for t, z in enumerate(zs):
         ukf.step(z)
         m, P = kalman(model, m0, P0, zs[:t])
-        expected = _kalman_step(m, P, z, np.zeros(3), model.Q.numpy())[2]
+        expected = kalman_step(model, m, P, z)[2]
         assert ukf.log_evidence == pytest.approx(expected, abs=1e-9)
         assert (ukf.log_evidence == 0.0) == (t == 4)
 

@@ -15,7 +15,7 @@ from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
 from priortrack.priors.global_motion import GlobalMotion
 
-from linear_gaussian import LinearGaussian, kalman
+from linear_gaussian import LinearGaussian, kalman, thread_counts
 from priortrack.body.fk import joint_positions
 
 
@@ -189,19 +189,11 @@ def test_mean_rotation_is_the_chordal_mean_by_svd():
 def test_a_step_runs_on_one_thread_where_the_particles_are_few(linear, particles, threads, expected):
     """Up to SINGLE_THREAD_PARTICLES on the CPU a step runs on one torch thread (two took 10× as long with the
     other core busy), more on torch's count; ``threads`` chooses; the caller's count is given back."""
-    seen = []
-    observe = linear.observe
-    linear.observe = lambda s: (seen.append(torch.get_num_threads()), observe(s))[1]
-    previous = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
+    with thread_counts(linear, "observe") as seen:
         pf = ParticleFilter(linear, particles, threads=threads)
         pf.initialise_states(torch.zeros(particles, 3, dtype=torch.float64))
         pf.step(np.zeros(2))
         assert seen and set(seen) == {expected} and torch.get_num_threads() == 2
-    finally:
-        linear.observe = observe
-        torch.set_num_threads(previous)
 
 
 def test_threads_must_be_a_count(linear):

@@ -17,7 +17,7 @@ from priortrack.priors.global_motion import GlobalMotion
 from priortrack.priors.lie import LiePrior
 from priortrack.priors.spaces import AngleSpace
 
-from linear_gaussian import LinearGaussian, kalman
+from linear_gaussian import LinearGaussian, kalman, thread_counts
 from priortrack.body.fk import joint_positions
 
 
@@ -277,23 +277,14 @@ def test_a_step_runs_on_one_thread_and_gives_the_count_back(linear):
     idle cores); the caller's thread count is restored after it, also when the step refuses its input."""
     from priortrack.filters.ukf import STEP_THREADS
 
-    model = linear
-    ukf = UnscentedFilter(model)
+    ukf = UnscentedFilter(linear)
     ukf.initialise_states(np.zeros(3), np.eye(3))
-    seen = []
-    measure = model.measure
-    model.measure = lambda states: (seen.append(torch.get_num_threads()), measure(states))[1]
-    previous = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        ukf.step(np.zeros(model.observation_shape))
+    with thread_counts(linear, "measure") as seen:
+        ukf.step(np.zeros(linear.observation_shape))
         assert seen and set(seen) == {STEP_THREADS} and torch.get_num_threads() == 2
         with pytest.raises(PriortrackError, match="observation has shape"):
             ukf.step(np.zeros(7))
-        model.measure = measure
         assert torch.get_num_threads() == 2
-    finally:
-        torch.set_num_threads(previous)
 
 
 def test_bench_ukf_on_several_cameras_and_its_bad_arguments():

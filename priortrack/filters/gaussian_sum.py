@@ -127,8 +127,9 @@ class GaussianSumFilter(UnscentedFilter):
         self._member_options = {"alpha": alpha, "beta": beta, "kappa": kappa, "gate_probability": gate_probability,
                                 "reacquire": reacquire, "swaps": swaps}
         self.hypotheses_: list[Hypothesis] = []
-        #: Unscented filters on one component each, reused from step to step (:meth:`_member`).
-        self._members: list[UnscentedFilter] = []
+        #: Unscented filters on one component each, reused from step to step, with the transition whose ``k`` chooses
+        #: that component (:meth:`_member`).
+        self._members: list[tuple[object, UnscentedFilter]] = []
         #: Between :meth:`advance` and :meth:`correct`: each child's ln w_h π_k(m_h), k and its filter.
         self._children: list[tuple[float, int, UnscentedFilter]] = []
 
@@ -138,19 +139,23 @@ class GaussianSumFilter(UnscentedFilter):
         self._members = []                          # their models take the subject's body as it is now
         self.hypotheses_ = [Hypothesis(0.0, self.kf.x.copy(), self.kf.P.copy(), 0, self.lost_frames.copy())]
 
-    def _member(self, i: int) -> UnscentedFilter:
-        """The i-th member filter (made on first use): an unscented filter on a :class:`ComponentTransition`."""
+    def _member(self, i: int, k: int) -> UnscentedFilter:
+        """The i-th member filter (made on first use: an unscented filter on a :class:`ComponentTransition`, or on
+        the model's ``component_model()``), set to run component k."""
         while len(self._members) <= i:
             base = self.model
             if isinstance(base, TrackingModel):
-                model = TrackingModel(ComponentTransition(base.prior), base.global_motion, base.likelihood)
+                component = ComponentTransition(base.prior)
+                model = TrackingModel(component, base.global_motion, base.likelihood)
                 model.body = base.body
             else:
-                model = base.component_model()
+                component = model = base.component_model()
             member = UnscentedFilter(model, **self._member_options)
             member.initialised = True
-            self._members.append(member)
-        return self._members[i]
+            self._members.append((component, member))
+        component, member = self._members[i]
+        component.k = k
+        return member
 
     def _advance(self) -> None:
         if not self.initialised:
@@ -163,8 +168,7 @@ class GaussianSumFilter(UnscentedFilter):
             for rank, k in enumerate(order):
                 if rank and np.exp(lp[k]) < self.min_share:
                     break
-                member = self._member(len(children))
-                self._choose(member, int(k))
+                member = self._member(len(children), int(k))
                 member.kf.x, member.kf.P = h.x.copy(), h.P.copy()
                 member.gated_frames, member.lost_frames, member.frame = h.gated_frames, h.lost_frames.copy(), self.frame
                 member._advance()
@@ -178,10 +182,6 @@ class GaussianSumFilter(UnscentedFilter):
         if isinstance(self.model, TrackingModel):
             return self.model.prior.step_weights(s[:, :self.model.pose_dim]).to(torch.float64).numpy()
         return self.model.step_weights(s).to(torch.float64).numpy()
-
-    def _choose(self, member: UnscentedFilter, k: int) -> None:
-        """Set the component a member filter runs."""
-        (member.model.prior if isinstance(self.model, TrackingModel) else member.model).k = k
 
     def predicted_measurement(self) -> tuple[np.ndarray, np.ndarray]:
         """After :meth:`advance`: the predicted pixels ẑ (…, 2) and their covariance (…, 2, 2) of the sum, each

@@ -27,10 +27,9 @@ with t integrated out (:mod:`priortrack.filters.marginal_translation`).
 from __future__ import annotations
 
 import contextlib
-import functools
 import math
 import time
-from functools import partial
+from functools import partial, wraps
 
 import numpy as np
 import torch
@@ -70,7 +69,7 @@ SINGLE_THREAD_PARTICLES = 4096
 
 def _on_step_threads(method):
     """Run a filter method on the filter's step threads (:meth:`ParticleFilter.step_threads`)."""
-    @functools.wraps(method)
+    @wraps(method)
     def run(self, *args):
         with self.step_threads():
             return method(self, *args)

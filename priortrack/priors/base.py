@@ -157,6 +157,25 @@ HEADER_TYPES = {"fps": (int, float), "local": bool, "balanced": bool, "space": s
                 "train_frames": int, "fit": dict}
 
 
+class BuiltOnPrior:
+    """A transition built on another prior (the attribute named by ``BASE``): that prior's state space, start and
+    name (``SHARED``) are read from it, the transition's own methods (a draw, a density, a mean step, a covariance)
+    are the subclass's (:class:`~priortrack.priors.defensive.DefensiveMixture`,
+    :class:`~priortrack.priors.component.ComponentTransition`)."""
+
+    #: The attribute holding the prior built on.
+    BASE = "base"
+    #: What is that prior's: the state space and the start.
+    SHARED = ("kind", "space", "fps", "state_dim", "encode", "joints", "initial", "check_state", "check_pair")
+    #: The transition's name in an error.
+    WHAT = "a transition built on a prior"
+
+    def __getattr__(self, name: str):
+        if name not in self.SHARED:
+            raise AttributeError(f"{self.WHAT} has no {name!r}")
+        return getattr(getattr(self, self.BASE), name)
+
+
 def load_prior(path: str | Path) -> TransitionModel:
     """Load a prior written by :meth:`TransitionModel.save`; a clear error for a file of
     another format or version, a truncated file, an unknown kind, arrays of objects or of absurd

@@ -20,25 +20,21 @@ import math
 import torch
 
 from priortrack.errors import PriortrackError
+from priortrack.priors.base import BuiltOnPrior
 
 
-class ComponentTransition:
+class ComponentTransition(BuiltOnPrior):
     """Component ``k`` of ``mixture`` (a prior with ``step_weights`` and ``step_components``) as a
     :class:`~priortrack.models.protocols.GaussianTransition` on the mixture's state space. Everything but the
     transition (``space``, ``encode``, ``joints``, …) is the mixture's."""
 
-    SHARED = ("kind", "space", "fps", "state_dim", "encode", "joints", "initial", "check_state", "check_pair")
+    BASE, WHAT = "mixture", "a mixture component"
 
     def __init__(self, mixture, k: int = 0):
         if not (hasattr(mixture, "step_weights") and hasattr(mixture, "step_components")):
             raise PriortrackError(f"a mixture component needs a prior whose transition is a mixture of Gaussian steps "
                                   f"(step_weights, step_components); the {mixture.kind!r} prior has none")
         self.mixture, self.k = mixture, int(k)
-
-    def __getattr__(self, name: str):
-        if name not in self.SHARED:
-            raise AttributeError(f"a mixture component has no {name!r}")
-        return getattr(self.mixture, name)
 
     def _step(self, x: torch.Tensor, covariances: bool):
         """ū_k(x) (P, n) and Q_k(x) (P, n, n) (None unless ``covariances``) at states x (P, S)."""

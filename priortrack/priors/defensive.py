@@ -22,14 +22,15 @@ import math
 import torch
 
 from priortrack.errors import PriortrackError
+from priortrack.priors.base import BuiltOnPrior
 
 #: The state spaces a defensive diffusion can share, by the learned prior's space class.
 DEFENSIVE_SPACES = {"DirectionSpace": "directions", "AngleSpace": "angles"}
 
 
-class DefensiveMixture:
+class DefensiveMixture(BuiltOnPrior):
     """(1 − ε) ``learned`` + ε ``fallback`` (module docstring). Everything but the transition
-    (``space``, ``encode``, ``joints``, ``initial``, ``mean``, …) is the learned prior's.
+    (``space``, ``encode``, ``joints``, ``initial``, …) is the learned prior's.
 
     Args:
         learned: the prior (a TransitionModel).
@@ -45,14 +46,9 @@ class DefensiveMixture:
                                   f"{learned.kind} prior's {learned.state_dim}: they must share a state space")
         self.learned, self.fallback, self.epsilon = learned, fallback, float(epsilon)
 
-    #: What is the learned prior's (the state space and the start); the transition's own methods
+    #: The learned prior's are the state space and the start (``SHARED``); the transition's own methods
     #: (a mean step, a covariance) are the mixture's (:meth:`mean`, :meth:`transition_covariance`).
-    SHARED = ("kind", "space", "fps", "state_dim", "encode", "joints", "initial", "check_state", "check_pair")
-
-    def __getattr__(self, name: str):
-        if name not in self.SHARED:
-            raise AttributeError(f"a defensive mixture has no {name!r}")
-        return getattr(self.learned, name)
+    BASE, WHAT = "learned", "a defensive mixture"
 
     def sample(self, x: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """(P, S) → (P, S): each row's step from the fallback with probability ε, else from the learned prior."""

@@ -16,6 +16,7 @@ the sum's cost beside it.
 
 from __future__ import annotations
 
+import inspect
 import tempfile
 import time
 from pathlib import Path
@@ -31,8 +32,6 @@ from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.triangulation import triangulate
 
 MOTION, FPS = "cmu:49_18", 30.0
-#: The Gaussian-sum filter's own settings, which the one unscented filter it is timed beside does not take.
-SUM_ONLY = ("hypotheses", "branch", "min_share")
 #: The most frames the benchmark writes (a minute at 30 fps).
 MAX_FRAMES = 1800
 
@@ -58,7 +57,7 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
 
     from priortrack.experiments.benchmarks.long import LOOP_SECONDS, ping_pong
     from priortrack.tracking.person import TrackConfig, track_detections
-    from priortrack.tracking.presets import load_preset
+    from priortrack.tracking.presets import filter_class, load_preset
 
     if not 3 <= frames <= MAX_FRAMES:
         raise PriortrackError(f"bench real-track: frames must be in [3, {MAX_FRAMES}], got {frames}")
@@ -78,7 +77,8 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
     guided = shipped.filter_kind == "pf" and shipped.filter_options.get("proposal") == "guided"
     single = None
     if shipped.filter_kind == "ukf-sum":
-        options = {k: v for k, v in shipped.filter_options.items() if k not in SUM_ONLY}
+        taken = inspect.signature(filter_class("ukf").__init__).parameters      # not the sum's own settings
+        options = {k: v for k, v in shipped.filter_options.items() if k in taken}
         single = replace(shipped, filter_kind="ukf", filter_options=options)
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_openpose(detector_keypoints(X, views, np.random.default_rng(seed)), Path(tmp) / "pose")
