@@ -42,6 +42,14 @@ def test_reports_every_prior_from_real_steps(priors):
     assert result["fk_ms"] > 0 and result["device"] == "cpu"
 
 
+def test_guided_steps_through_a_ring_of_cameras(priors):
+    """--cameras 4 --proposal guided: the presets' real-data step (the multi-view likelihood, the guided draw)."""
+    result = bench_pf(particles=64, steps=2, warmup=1, threads=1, priors={"lie": priors["lie"]}, cameras=4,
+                      proposal="guided")
+    assert result["cameras"] == 4 and result["proposal"] == "guided"
+    assert result["ms_per_step"]["lie"] > 0 and set(result["phases_ms"]["lie"]) == set(PHASES)
+
+
 def test_bad_arguments(priors):
     with pytest.raises(PriortrackError, match="positive"):
         bench_pf(particles=0, priors=priors)
@@ -49,6 +57,10 @@ def test_bad_arguments(priors):
         bench_pf(particles=8, dtype="float16", priors=priors)
     with pytest.raises(PriortrackError, match="translation must be one of"):
         bench_pf(particles=8, translation="integrated", priors=priors)
+    with pytest.raises(PriortrackError, match="guided proposal with 2 or more"):
+        bench_pf(particles=8, proposal="guided", priors=priors)
+    with pytest.raises(PriortrackError, match="cameras in"):
+        bench_pf(particles=8, cameras=9, priors=priors)
     with pytest.raises(PriortrackError, match="exceeds"):
         bench_pf(particles=8, steps=200, priors=priors)
     with pytest.raises(PriortrackError, match="expected some of"):

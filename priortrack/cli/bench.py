@@ -52,7 +52,8 @@ def _bench_pf(args: argparse.Namespace) -> None:
     resolve_device(args.device)                      # a missing GPU is said before the priors are fitted
     priors = bench_priors(args.seed)                 # fitted once for every particle count
     runs = [bench_pf(particles=p, steps=args.steps, seed=args.seed, threads=args.threads, dtype=args.dtype,
-                     translation=args.translation, device=args.device, priors=priors) for p in args.particles]
+                     translation=args.translation, device=args.device, priors=priors, cameras=args.cameras,
+                     proposal=args.proposal) for p in args.particles]
     print_json(runs[0] if len(runs) == 1 else runs)
 
 
@@ -118,6 +119,10 @@ def add_parsers(verbs) -> None:
                     help="particles (default %(default)s); several: one run each, the priors fitted once")
     pf.add_argument("--device", default="cpu", help="cpu (default), cuda or cuda:N: where the particles live")
     pf.add_argument("--steps", type=int, default=20, help="timed steps per prior")
+    pf.add_argument("--cameras", type=int, default=1, help="1: one side camera (default); 2 to 8: distorted cameras "
+                    "on a ring, the multi-view likelihood (σ = 5 px)")
+    pf.add_argument("--proposal", choices=("prior", "guided"), default="prior",
+                    help="the particles' draw: the prior's (default) or guided by the detections (2 cameras or more)")
     pf.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
     pf.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                     help="the particles' dtype (the particle-filter presets run float32)")

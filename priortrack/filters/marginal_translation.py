@@ -34,7 +34,9 @@ and Woodbury). The rotation and the pose are still sampled: only t is integrated
 
 On the CPU the update is one fused numba kernel (:mod:`priortrack.filters.kalman_kernel`, the
 same equations; its rows split among torch's threads by :func:`priortrack.threads.split_rows`);
-the torch code below serves other devices and gradients.
+the torch code below serves other devices and gradients, with the 3 × 3 algebra written out as broadcast
+products and N⁻¹ by the adjugate, as in the kernel (a GPU runs 10⁶ of them faster than cuBLAS's batched
+products and LU factorisations).
 """
 
 from __future__ import annotations
@@ -113,15 +115,29 @@ def kalman_update(joints: torch.Tensor, C: torch.Tensor, sigma: torch.Tensor, ve
     # and C − C A N⁻¹ C loses every digit of float32 there (negative variances, then NaN states)
     A, b = A.double(), b.double()
     P = C[:, :3, :3]
-    lu, pivots = torch.linalg.lu_factor(torch.eye(3, dtype=C.dtype, device=C.device) + A @ P)
-    solved = torch.linalg.lu_solve(lu, pivots, torch.cat([b[..., None], A], dim=-1))   # N⁻¹ [b, A]
-    y, M = solved[..., 0], solved[..., 1:]
+    N = torch.eye(3, dtype=C.dtype, device=C.device) + _product(A, P)
+    N_inv, det = _inverse_3x3(N)                                                       # det N > 0
+    y = _product(N_inv, b[..., None])[..., 0]
     gain = C[:, :, :3]                                                                 # C⁻[:, :3]
-    shift = (gain @ y[..., None])[..., 0]
-    C_post = C - gain @ M @ C[:, :3, :]
-    log_det = torch.log(torch.diagonal(lu, dim1=-2, dim2=-1).abs()).sum(dim=-1)       # det N > 0
-    correction = 0.5 * (b[:, None, :] @ P @ y[..., None])[:, 0, 0] - 0.5 * log_det
+    shift = _product(gain, y[..., None])[..., 0]
+    C_post = C - _product(_product(gain, _product(N_inv, A)), C[:, :3, :])
+    correction = 0.5 * (b * _product(P, y[..., None])[..., 0]).sum(-1) - 0.5 * torch.log(det.abs())
     return shift.to(dtype), C_post.to(dtype), log_p + correction.to(log_p.dtype)
+
+
+def _product(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """a @ b of batches of small matrices (…, n, k) @ (…, k, m) as one broadcast product and sum: on a GPU
+    cuBLAS's batched products of 10⁶ 3 × 3 matrices cost more than the arithmetic."""
+    return (a[..., :, :, None] * b[..., None, :, :]).sum(-2)
+
+
+def _inverse_3x3(N: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """N⁻¹ (…, 3, 3) by the adjugate, and det N (…,): column i of N⁻¹ is the cross product of N's other two
+    rows (in cyclic order) over det N, as in the CPU kernel."""
+    r0, r1, r2 = N[..., 0, :], N[..., 1, :], N[..., 2, :]
+    adjugate = torch.stack([torch.linalg.cross(r1, r2), torch.linalg.cross(r2, r0), torch.linalg.cross(r0, r1)], -1)
+    det = (r0 * adjugate[..., 0]).sum(-1)
+    return adjugate / det[..., None, None], det
 
 
 def transition_matrix(velocity: torch.Tensor) -> torch.Tensor:

@@ -157,6 +157,20 @@ HEADER_TYPES = {"fps": (int, float), "local": bool, "balanced": bool, "space": s
                 "train_frames": int, "fit": dict}
 
 
+class _Shared:
+    """The attribute of that name of the prior a :class:`BuiltOnPrior` is built on. A descriptor on the class, not
+    ``__getattr__``: Python 3.12's ``isinstance`` against a runtime-checkable protocol looks attributes up statically
+    (``inspect.getattr_static``), and would not see a forwarded one."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __get__(self, transition, owner=None):
+        if transition is None:
+            return self
+        return getattr(getattr(transition, transition.BASE), self.name)
+
+
 class BuiltOnPrior:
     """A transition built on another prior (the attribute named by ``BASE``): that prior's state space, start and
     name (``SHARED``) are read from it, the transition's own methods (a draw, a density, a mean step, a covariance)
@@ -170,10 +184,14 @@ class BuiltOnPrior:
     #: The transition's name in an error.
     WHAT = "a transition built on a prior"
 
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        for name in cls.SHARED:
+            if name not in cls.__dict__:
+                setattr(cls, name, _Shared(name))
+
     def __getattr__(self, name: str):
-        if name not in self.SHARED:
-            raise AttributeError(f"{self.WHAT} has no {name!r}")
-        return getattr(getattr(self, self.BASE), name)
+        raise AttributeError(f"{self.WHAT} has no {name!r}")
 
 
 def load_prior(path: str | Path) -> TransitionModel:

@@ -11,7 +11,10 @@ Setup, per prior: the prior is fitted on the subject-35 training walks of the bu
 set (the GPDM on their first ``gpdm_frames`` frames, :func:`priortrack.experiments.benchmarks.gpdm_fit.bench_walks`,
 so that its fit stays short), global motion by :meth:`GlobalMotion.fit` on the same walks, the
 likelihood a :class:`JointLikelihood` through :func:`priortrack.observation.default_camera`;
-observations are the ``noise`` scenario of the first test walk (the paper's eight joints). The
+observations are the ``noise`` scenario of the first test walk (the paper's eight joints). With ``cameras``
+C > 1 instead: C distorted cameras on a ring (:func:`~priortrack.experiments.benchmarks.ukf.ring_observations`,
+every joint with 5 px noise) under the multi-view Gaussian likelihood (σ = 5 px), the real-data setting, where
+``proposal="guided"`` (the presets' draw, :mod:`priortrack.filters.proposal`) looks at the detections. The
 filters of all priors start on that walk's first two frames and step through its frames in
 lockstep (diffusion, gpdm, lie, diffusion, …), so that machine noise hits every prior alike;
 fitting and the warm-up steps are not timed.
@@ -36,10 +39,12 @@ from priortrack.errors import PriortrackError
 from priortrack.device import resolve_device, synchronize
 from priortrack.experiments.benchmarks.timing import load_average
 from priortrack.experiments.benchmarks.gpdm_fit import bench_walks
-from priortrack.filters.particle import DTYPES, ParticleFilter
+from priortrack.experiments.benchmarks.ukf import ring_observations
+from priortrack.filters.particle import DTYPES, PROPOSALS, ParticleFilter
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood
+from priortrack.observation.multiview import MultiViewLikelihood
 from priortrack.priors.base import TransitionModel
 from priortrack.priors.diffusion import Diffusion
 from priortrack.priors.gpdm import GPDM
@@ -67,7 +72,8 @@ def bench_priors(seed: int = 0, gpdm_frames: int = 100) -> dict[str, TransitionM
 
 def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: int = 2, warmup: int = 2,
              gpdm_frames: int = 100, dtype: str = "float32", translation: str = "marginalised",
-             priors: dict[str, TransitionModel] | None = None, device: str = "cpu") -> dict:
+             priors: dict[str, TransitionModel] | None = None, device: str = "cpu", cameras: int = 1,
+             proposal: str = "prior") -> dict:
     """Time ``steps`` particle-filter steps with ``particles`` particles for every prior.
 
     Args:
@@ -83,13 +89,16 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
             presets run (a Kalman filter per particle), or "sampled".
         priors: name → fitted prior, instead of :func:`bench_priors` (tests pass small ones).
         device: where the particles live ("cpu", "cuda"; ``ParticleFilter(device=...)``).
+        cameras: 1, the default side camera; 2 to 8, a ring of distorted cameras (module docstring).
+        proposal: ``ParticleFilter(proposal=...)``: "prior" (the bootstrap draw) or "guided" (two cameras or more).
 
     Returns:
         ``{"particles", "particle_steps_per_s": {prior: P / median step}, "ms_per_step":
         {prior: median ms}, "ms_per_step_range": {prior: [min, max] ms}, "cpu_ms_per_step":
         {prior: median process CPU ms, all threads}, "phases_ms": {prior: {phase: median ms}},
         "resamples": {prior: count over the timed steps}, "steps", "threads", "load_average":
-        [1-minute load before, after] (None where the system has none), "dtype", "translation", "device",
+        [1-minute load before, after] (None where the system has none), "dtype", "translation", "device", "cameras",
+        "proposal",
         "fk_ms": median ms of the FK alone, "step_over_fk": {prior: ms_per_step / fk_ms}, "fk_share":
         {prior: fk_ms / ms_per_step}}``; the phases are those of
         ``Snapshot.timings`` (predict, weight = joints + projection + likelihood +
@@ -102,6 +111,9 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
                               f"(got {particles}, {steps}, {threads}, {warmup})")
     if dtype not in DTYPES:
         raise PriortrackError(f"bench pf: dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
+    if proposal not in PROPOSALS or not 1 <= cameras <= 8 or (proposal == "guided" and cameras < 2):
+        raise PriortrackError(f"bench pf: proposal must be one of {', '.join(PROPOSALS)} and cameras in [1, 8], the "
+                              f"guided proposal with 2 or more (got {proposal!r} with {cameras})")
     device = resolve_device(device)
     walk = load_walkjog().walks("test")[0]
     if warmup + steps > len(walk) - 2:
@@ -116,12 +128,17 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
                               f"{ {name: prior.fps for name, prior in priors.items()} }")
     train = list(load_walkjog().walks("train"))
     X = joint_positions(walk, "eval15")
-    observations = synthesize(X, walk.fps, default_camera(X), "noise", seed=seed)
+    if cameras == 1:
+        observations = synthesize(X, walk.fps, default_camera(X), "noise", seed=seed)
+        likelihood, z = JointLikelihood(observations.camera), observations.uv
+    else:
+        views, z = ring_observations(X, cameras, seed)
+        likelihood = MultiViewLikelihood(views, sigma_px=5.0, robust_nu=None)
     filters = {}
     for name, prior in priors.items():
-        model = TrackingModel.fitted(prior, train, JointLikelihood(observations.camera))
+        model = TrackingModel.fitted(prior, train, likelihood)
         filters[name] = ParticleFilter(model, particles, dtype=dtype, translation=translation, seed=seed,
-                                       device=device, threads=threads)
+                                       device=device, threads=threads, proposal=proposal)
         filters[name].initialise(walk)
     fk = ForwardKinematics(walk.skeleton, device=device, dtype=DTYPES[dtype])
     poses = torch.as_tensor(walk.channels[np.random.default_rng(seed).integers(0, len(walk), particles)],
@@ -142,7 +159,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
                 fk_times.append(time.perf_counter() - start)
             for name, pf in filters.items():
                 start, start_cpu = time.perf_counter(), time.process_time()
-                snap = pf.step(observations.uv[t])
+                snap = pf.step(z[t])
                 synchronize(device)
                 seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - start_cpu
                 if t < 2 + warmup:
@@ -169,6 +186,8 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         "dtype": str(next(iter(filters.values())).states.dtype).removeprefix("torch."),
         "translation": translation,
         "device": str(device),
+        "cameras": cameras,
+        "proposal": proposal,
         "fk_ms": fk_ms,
         "step_over_fk": {name: ms[name] / fk_ms for name in filters},
         "fk_share": {name: fk_ms / ms[name] for name in filters},

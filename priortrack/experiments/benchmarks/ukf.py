@@ -59,6 +59,17 @@ def ring_cameras(X: np.ndarray, count: int) -> list[PinholeCamera]:
     return cameras
 
 
+def ring_observations(X: np.ndarray, count: int, seed: int, sigma_px: float = 5.0) -> tuple[list[PinholeCamera], np.ndarray]:
+    """The ``count`` cameras of :func:`ring_cameras` about X (T, J, 3) and their detections (T, count, J, 3):
+    each joint projected, with N(0, σ_px²) noise on its pixels, at confidence 1."""
+    views = ring_cameras(X, count)
+    rng = np.random.default_rng(seed)
+    z = np.ones((len(X), count, X.shape[1], 3))
+    for c, view in enumerate(views):
+        z[:, c, :, :2] = view.project(X)[0] + rng.normal(0, sigma_px, (len(X), X.shape[1], 2))
+    return views, z
+
+
 def bench_ukf(repeats: int = 5, seed: int = 0, threads: int = 1, cameras: int = 1) -> dict:
     """Median ms per UKF step, batched and per sigma point, on ``ukf-diffusion-local``.
 
@@ -90,11 +101,7 @@ def bench_ukf(repeats: int = 5, seed: int = 0, threads: int = 1, cameras: int = 
             model = TrackingModel.fitted(prior, train, JointLikelihood(observations.camera))
             z = observations.uv
         else:
-            views = ring_cameras(X, cameras)
-            rng = np.random.default_rng(seed)
-            z = np.ones((len(X), cameras, 15, 3))
-            for c, view in enumerate(views):
-                z[:, c, :, :2] = view.project(X)[0] + rng.normal(0, 5.0, (len(X), 15, 2))
+            views, z = ring_observations(X, cameras, seed)
             model = TrackingModel.fitted(prior, train, MultiViewLikelihood(views, sigma_px=5.0, robust_nu=None))
 
         filters = {"batched": UnscentedFilter(model, batched=True), "filterpy": UnscentedFilter(model, batched=False)}
