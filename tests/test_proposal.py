@@ -39,6 +39,11 @@ def test_optimal_proposal_weight_is_the_predictive_likelihood(sharp):
     K = torch.linalg.solve(H @ Q @ H.T + R, H @ Q).T
     residual = s - (parents @ A.T + (y - parents @ A.T @ H.T) @ K.T)
     np.testing.assert_allclose(np.cov(residual.numpy().T), (Q - K @ H @ Q).numpy(), atol=0.15 * float(Q.max()))
+    # the frame's linearised posterior covariance, the Langevin moves' preconditioner, is that (I − K H) Q exactly
+    np.testing.assert_allclose(proposal.covariance.numpy(), (Q - K @ H @ Q).numpy(), atol=1e-12)
+    # the chart of the moves: s ⊞ v ⊟ s = v
+    v = torch.randn(500, 3, generator=g, dtype=torch.float64)
+    np.testing.assert_allclose(proposal.local(proposal.retract(s, v), s).numpy(), v.numpy(), atol=1e-12)
 
 
 def test_a_mixture_transitions_guided_weight_is_its_predictive_likelihood(sharp):

@@ -7,8 +7,9 @@ Per frame, for P particles s^i held as one tensor:
     normalise w_t^i = exp(log w_t^i − logsumexp_j log w_t^j),  ESS = 1 / Σ_i (w_t^i)²
     estimate  the weighted mean state (pose mean on the prior's manifold), and the best particle
     resample  when ESS < threshold · P (systematic by default), weights reset to 1/P.
-    move      (``moves`` K > 0) after a resampling, K Metropolis–Hastings moves of each particle's pose
-              that leave the filtering distribution invariant (resample-move, :meth:`ParticleFilter.move`).
+    move      (``moves`` K > 0) after a resampling, K Metropolis–Hastings moves of each particle
+              that leave the filtering distribution invariant (resample-move, :meth:`ParticleFilter.move`):
+              a random walk of the pose, or Langevin moves (:mod:`~priortrack.filters.langevin`).
 
 With ``proposal="guided"`` the prediction is drawn from a proposal that looks at the frame's detections
 (:mod:`priortrack.filters.proposal`), s_t^i ~ q(s_t | s_{t-1}^i, z_t), and the weight adds
@@ -38,6 +39,7 @@ from priortrack.data.motion import Motion
 from priortrack.device import resolve_device
 from priortrack.errors import PriortrackError
 from priortrack.filters.driver import SequentialFilter
+from priortrack.filters.langevin import adapted, langevin_moves
 from priortrack.filters.backward_simulation import backward_indices, distinct
 from priortrack.filters.marginal_translation import kalman_update, predict_covariance, smooth_translation
 from priortrack.filters.proposal import GuidedProposal
@@ -60,6 +62,8 @@ TRANSLATIONS = ("sampled", "marginalised")
 
 #: Where the predicted particles are drawn from (see ``ParticleFilter``'s ``proposal``).
 PROPOSALS = ("prior", "guided")
+#: The resample-move kernels (``move``).
+MOVES = ("random-walk", "langevin")
 #: Up to this many particles on the CPU a step runs on one torch thread (``threads=None``). Two idle cores:
 #: at 1000 particles one thread is as fast as two (bench pf, lie: 133k against 121k particle-steps/s), at 3000
 #: the same within noise, at 10⁴ two are 1.2–1.3× faster. With the other core busy (a second tracker, the test
@@ -94,10 +98,14 @@ class ParticleFilter(SequentialFilter):
             Gaussian likelihood only). The particles' translations are then the Kalman means, and
             ``covariance`` (P, 6, 6) holds each particle's covariance of (t_t, t_{t-1}) (each
             Snapshot carries its particles' as ``translation_covariance``).
-        moves: K, the Metropolis–Hastings moves of every particle's pose after each resampling
+        moves: K, the Metropolis–Hastings moves of every particle after each resampling
             (0: none, the bootstrap filter; :meth:`move`).
-        move_scale: the moves' first step size, as a fraction of the size of the prior's own step
-            this frame (adapted between frames towards an acceptance rate of 0.2–0.5).
+        move: "random-walk" (default: the pose perturbed isotropically, the placements kept) or "langevin"
+            (MALA in the guided proposal's coordinates, pose and rotation, preconditioned by its linearised
+            posterior covariance; ``proposal="guided"``).
+        move_scale: the moves' first step size: for the random walk a fraction of the size of the prior's own
+            step this frame (adapted between frames towards an acceptance rate of 0.2–0.5); for Langevin moves
+            τ (adapted towards 0.4–0.8).
         proposal: "prior" (default: the bootstrap filter's draw from the transition) or "guided" (the
             linearised optimal proposal, per component of the prior's step, mixed with the prior, exact weights:
             :mod:`~priortrack.filters.proposal`; a prior whose step is Gaussian or a mixture of Gaussians,
@@ -118,7 +126,7 @@ class ParticleFilter(SequentialFilter):
 
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
                  ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", moves: int = 0,
-                 move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1, inflation: float = 1.0,
+                 move: str = "random-walk", move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1, inflation: float = 1.0,
                  seed: int = 0, device: str = "cpu", threads: int | None = None):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
@@ -136,9 +144,12 @@ class ParticleFilter(SequentialFilter):
             raise PriortrackError(f"moves must be at least 0 and move_scale in (0, 10]; got {moves} and {move_scale}")
         if proposal not in PROPOSALS:
             raise PriortrackError(f"proposal must be one of {', '.join(PROPOSALS)}, got {proposal!r}")
+        if move not in MOVES or (move == "langevin" and proposal != "guided"):
+            raise PriortrackError(f"move must be one of {', '.join(MOVES)}, the Langevin moves with proposal = "
+                                  f"'guided' (they move in its coordinates); got {move!r} with {proposal!r}")
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
             raise PriortrackError(f"threads must be a whole number ≥ 1 or None, got {threads!r}")
-        self.moves, self.move_step = int(moves), float(move_scale)
+        self.moves, self.move_kind, self.move_step = int(moves), move, float(move_scale)
         self.marginal = translation == "marginalised"
         #: The guided proposal (:mod:`~priortrack.filters.proposal`), or None: the prior's draw.
         self.proposal = GuidedProposal(model, self.marginal, defensive, inflation) if proposal == "guided" else None
@@ -374,20 +385,31 @@ class ParticleFilter(SequentialFilter):
         s' = ``model.perturb(s, σ)`` (x ⊞ ε, the placements kept) is symmetric, σ = ``move_step`` ×
         ``model.pose_step(s, parents)``, the size of the prior's own step this frame; s' is kept if
         log u < log π(s') − log π(s), u ~ U(0, 1). ``move_step`` is then adapted for the next frame:
-        × 1.5 above an acceptance of 0.5, ÷ 1.5 below 0.2.
+        × 1.5 above an acceptance of 0.5, ÷ 1.5 below 0.2. With ``move="langevin"`` the same π by
+        :func:`~priortrack.filters.langevin.langevin_moves` instead, in the guided proposal's coordinates (pose and
+        rotation), preconditioned by its linearised posterior covariance this frame (the prior's step covariance
+        where the frame's draw was the prior's).
 
         Args: z the frame's observation; s (P, A) the resampled particles as predicted (before the
         Kalman update); parents (P, A) their states at t − 1; parent_covariance (P, 6, 6) their
         translation covariances at t − 1 (None: the translation is sampled). Sets ``states`` (and
         ``covariance``); returns the acceptance rate.
         """
-        scale = self.model.pose_step(s, parents)
-
         def target(candidate: torch.Tensor):
             log_likelihood, pending = self.weigh(self.model.observe(candidate), z, parent_covariance)
             return (self.model.log_transition(candidate, parents).to(torch.float64)
                     + log_likelihood.to(torch.float64)), pending
 
+        if self.move_kind == "langevin":
+            proposal = self.proposal
+            M = proposal.covariance if proposal.covariance is not None else proposal.prior_covariance(s)
+            s, pending, rate = langevin_moves(target, proposal.retract, proposal.local, s, M, self.move_step,
+                                              self.moves, self.generator)
+            self.move_step = adapted(self.move_step, rate)
+            self.states = s
+            self.keep_update(pending)
+            return rate
+        scale = self.model.pose_step(s, parents)
         log_pi, pending = target(s)
         accepted = 0
         for _ in range(self.moves):

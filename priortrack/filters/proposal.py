@@ -113,6 +113,24 @@ class GuidedProposal:
         #: The tangent coordinates the proposal draws (pose, rotation, and the translation where it is sampled).
         self.drawn = torch.tensor(sorted(drawn))
         self.tangent_dim = n
+        #: The last frame's linearised posterior covariance (f, f) in the drawn coordinates, Σ_k Σ_k weighted by the
+        #: share of particles drawn from component k (None: that frame's draw was the prior's).
+        self.covariance: torch.Tensor | None = None
+
+    def retract(self, s: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """s (P, A) ⊞ v (P, f): the states reached by steps v in the drawn coordinates (0 elsewhere)."""
+        return self.form.boxplus(s, self._embedded(v).to(s.dtype))
+
+    def local(self, s: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
+        """s (P, A) ⊟ base (P, A) → (P, f), the drawn coordinates in the chart at base."""
+        return self.form.boxminus(s, base)[:, self.drawn.to(s.device)]
+
+    def prior_covariance(self, s: torch.Tensor) -> torch.Tensor:
+        """The transition's covariance Q (f, f) in the drawn coordinates at the mean of the states s (P, A)."""
+        m_bar = self.model.mean(s.to(torch.float64), torch.full((len(s),), 1.0 / len(s), dtype=torch.float64,
+                                                                 device=s.device))
+        drawn = self.drawn.to(s.device)
+        return self.form.process_covariance(m_bar).to(torch.float64)[drawn][:, drawn]
 
     def _embedded(self, v: torch.Tensor) -> torch.Tensor:
         """(P, f) drawn coordinates → (P, n) tangent vectors, 0 elsewhere."""
@@ -137,6 +155,7 @@ class GuidedProposal:
         form, dtype, device, f64 = self.form, parents.dtype, parents.device, torch.float64
         P = len(parents)
         if self.views(z) < MIN_VIEWS:
+            self.covariance = None
             return self._prior_draw(parents, generator), torch.zeros(P, dtype=f64, device=device)
         y, variances = form.measurement(z)
         y, variances = y.to(device), variances.to(device)
@@ -179,6 +198,8 @@ class GuidedProposal:
         u = torch.rand((P, 1), generator=generator, device=device, dtype=f64)
         slot = torch.clamp((torch.cumsum(torch.exp(log_choice), 1) < u).sum(1), max=keep - 1)
         chosen = torch.arange(P, device=device) * keep + slot
+        share = torch.bincount(component[chosen], minlength=len(Sigma)).to(f64) / P
+        self.covariance = (share[:, None, None] * 0.5 * (Sigma + Sigma.transpose(-1, -2))).sum(0)
         prior_rows = torch.rand(P, generator=generator, device=device, dtype=f64) < self.defensive
         v = torch.randn((P, f), generator=generator, device=device, dtype=f64)
         for k in torch.unique(component[chosen]).tolist():

@@ -308,7 +308,7 @@ class DirectionSpace(StateSpace):
             # rows one pass cost 17–32 ms (page faults on its temporaries), blocks 7–16 ms; at 10,000
             # rows 0.3 ms either way. It runs on every sampling step.
             ranges = torch.stack([torch.stack(torch.aminmax(b[:, 0::3] ** 2 + b[:, 1::3] ** 2 + b[:, 2::3] ** 2))
-                                  for b in x.split(CHECK_BLOCK)])
+                                  for b in x.detach().split(CHECK_BLOCK)])
             low, high = float(ranges[:, 0].min().sqrt()), float(ranges[:, 1].max().sqrt())
             if low < 1 - UNIT_TOLERANCE or high > 1 + UNIT_TOLERANCE:
                 raise PriortrackError(f"{name} is not on the spheres: its bone directions have norms in "
