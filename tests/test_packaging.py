@@ -38,7 +38,7 @@ def test_a_non_editable_install_lists_every_preset(tmp_path):
                             capture_output=True, text=True, cwd=tmp_path, env=env)
     assert listed.returncode == 0, listed.stderr
     names = {p["name"] for p in json.loads(listed.stdout)}
-    assert names == {p.stem for p in (ROOT / "filters").glob("*.toml")} and len(names) == 14
+    assert names == {p.stem for p in (ROOT / "filters").glob("*.toml")} and len(names) == 15
     where = subprocess.run([sys.executable, "-c", "import priortrack; print(priortrack.__file__)"],
                            capture_output=True, text=True, cwd=tmp_path, env=env).stdout
     assert where.startswith(str(target))                          # the installed copy ran, not the source
