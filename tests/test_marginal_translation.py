@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from priortrack import PriortrackError, load_walkjog
-from priortrack.filters.marginal_translation import kalman_update, predict_covariance
+from priortrack.filters.marginal_translation import broadcast_product, kalman_update, predict_covariance
 from priortrack.filters.particle import ParticleFilter
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
@@ -274,3 +274,13 @@ def test_translation_spread_is_the_mixture_covariance_and_is_logged_as_an_ellips
     R = Rotation.from_quat(column["Ellipsoids3D:quaternions"][0]).as_matrix()
     np.testing.assert_allclose(R @ np.diag(h ** 2) @ R.T, spread, atol=1e-6 * np.abs(spread).max())
     np.testing.assert_allclose(column["Ellipsoids3D:centers"][0], mean, atol=1e-6)
+
+
+def test_the_gpus_broadcast_product_is_matmul():
+    """The GPU's small-matrix product (:func:`broadcast_product`, its Kalman update's every product) equals matmul on
+    batches of the update's shapes, 3 × 3 by 3 × 1 and 6 × 3 by 3 × 6."""
+    g = torch.Generator().manual_seed(0)
+    for n, k, m in [(3, 3, 1), (3, 3, 3), (6, 3, 6)]:
+        a = torch.randn(50, n, k, generator=g, dtype=torch.float64)
+        b = torch.randn(50, k, m, generator=g, dtype=torch.float64)
+        torch.testing.assert_close(broadcast_product(a, b), a @ b, rtol=1e-14, atol=1e-14)

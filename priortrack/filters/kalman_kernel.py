@@ -1,7 +1,7 @@
 """The per-particle Kalman update of :mod:`priortrack.filters.marginal_translation` as one fused
 CPU kernel (numba), for CPU tensors of either float dtype.
 
-In torch the prediction and update are a dozen broadcast products of
+In torch the prediction and update are a dozen batched products of
 10⁴ tiny matrices (about 10 ms a step at 10⁴ particles); here each particle is one short loop,
 in the same order as the module's equations: C⁻ = F C Fᵀ + Q, the projection h = P X + p of each
 observed joint, its Jacobian J_j = (P_{0,1} − u_j P_2) / h_2 and residual r_j = z_j − u_j (and
