@@ -124,13 +124,23 @@ def test_a_particle_filter_tracks_on_the_gpu_as_on_the_cpu(priors, walk, name, t
     finite and the mean MPJPE within 25 % (+ 5 mm) of the CPU runs' (different random draws, the same
     filter; one seed's runs differed by a third, 99 against 134 mm)."""
     model, observations = _model(priors[name], walk)
+
+    def filter_on(device, seed):
+        return ParticleFilter(model, 2000, dtype="float32", translation=translation, seed=seed, device=device)
+
+    _tracks_as_on_the_cpu(filter_on, observations.uv, walk, seeds=3)
+
+
+def _tracks_as_on_the_cpu(filter_on, z, walk, seeds):
+    """Runs of ``filter_on(device, seed)`` over z for seeds 0…seeds−1 on the CPU and the GPU: every estimate finite,
+    the particles on their device, and the GPU's mean MPJPE within 25 % (+ 5 mm) of the CPU's."""
     truth = joint_positions(walk, "eval15")
     errors = {}
     for device in ("cpu", "cuda"):
         runs = []
-        for seed in range(3):
-            pf = ParticleFilter(model, 2000, dtype="float32", translation=translation, seed=seed, device=device)
-            run = pf.run(observations.uv, walk)
+        for seed in range(seeds):
+            pf = filter_on(device, seed)
+            run = pf.run(z, walk)
             assert np.isfinite(run.estimates).all() and pf.states.device.type == device
             runs.append(mpjpe(run.estimates[2:], truth[2:]).mean())
         errors[device] = float(np.mean(runs))
@@ -178,27 +188,25 @@ def test_a_guided_particle_filter_tracks_on_the_gpu_as_on_the_cpu(priors, walk, 
     particles, seeds 0–1: on the GPU every estimate is finite, some ratio p / q of the draw moved off zero (the
     guided branch ran), and the mean MPJPE is within 25 % (+ 5 mm) of the CPU runs'."""
     model, z = _ring_model(priors[name], walk)
-    truth = joint_positions(walk, "eval15")
-    errors = {}
-    for device in ("cpu", "cuda"):
-        runs = []
-        for seed in range(2):
-            pf = ParticleFilter(model, 1000, dtype="float32", translation="marginalised", proposal="guided",
-                                seed=seed, device=device)
-            ratios, draw = [], pf.proposal.draw
+    ratios = {}                                             # (device, seed) → that run's draws' log p / q
 
-            def spy(*args, **kwargs):
-                states, log_ratio = draw(*args, **kwargs)
-                ratios.append(log_ratio)
-                return states, log_ratio
+    def filter_on(device, seed):
+        pf = ParticleFilter(model, 1000, dtype="float32", translation="marginalised", proposal="guided", seed=seed,
+                            device=device)
+        draw, ratios[device, seed] = pf.proposal.draw, []
 
-            pf.proposal.draw = spy
-            run = pf.run(z, walk)
-            assert np.isfinite(run.estimates).all() and pf.states.device.type == device
-            assert all(r.device.type == device for r in ratios) and any(bool(r.abs().gt(0).any()) for r in ratios)
-            runs.append(mpjpe(run.estimates[2:], truth[2:]).mean())
-        errors[device] = float(np.mean(runs))
-    assert errors["cuda"] <= 1.25 * errors["cpu"] + 5.0, errors
+        def spy(*args, **kwargs):
+            states, log_ratio = draw(*args, **kwargs)
+            ratios[device, seed].append(log_ratio)
+            return states, log_ratio
+
+        pf.proposal.draw = spy
+        return pf
+
+    _tracks_as_on_the_cpu(filter_on, z, walk, seeds=2)
+    assert len(ratios) == 4
+    for (device, _), drawn in ratios.items():
+        assert all(r.device.type == device for r in drawn) and any(bool(r.abs().gt(0).any()) for r in drawn)
 
 
 @needs_cuda

@@ -25,7 +25,7 @@ from collections.abc import Callable
 import torch
 
 #: The acceptance rates between which τ is kept (MALA's optimal rate is 0.574: Roberts & Rosenthal, JRSS B 60,
-#: 1998); outside them τ is multiplied or divided by :data:`ADAPT` for the next frame.
+#: 1998); outside them τ is multiplied or divided by :data:`ADAPT` for the next frame (:func:`adapted`).
 ACCEPTANCE = (0.4, 0.8)
 ADAPT = 1.5
 
@@ -86,14 +86,21 @@ def langevin_moves(target: Target, retract: Callable, local: Callable, s: torch.
         s = torch.where(keep[:, None], proposal, s)
         log_pi = torch.where(keep, log_pi_new, log_pi)
         gradient = torch.where(keep[:, None], gradient_new, gradient)
-        if aux is not None:
-            aux = tuple(torch.where(keep.reshape((-1,) + (1,) * (new.dim() - 1)), new, old)
-                        for new, old in zip(aux_new, aux))
+        aux = kept(keep, aux_new, aux)
         accepted += int(keep.sum())
     return s, aux, accepted / (moves * len(s))
 
 
-def adapted(step: float, rate: float) -> float:
-    """τ for the next frame: × :data:`ADAPT` above the acceptance band, ÷ below it."""
-    low, high = ACCEPTANCE
+def kept(keep: torch.Tensor, new: tuple | None, old: tuple | None) -> tuple | None:
+    """Per row, the accepted (``keep`` (P,) True) state's companion tensors (each (P, …)): ``new``'s, else ``old``'s
+    (None: none). Shared with the random-walk move (:meth:`~priortrack.filters.particle.ParticleFilter.move`)."""
+    if old is None:
+        return None
+    return tuple(torch.where(keep.reshape((-1,) + (1,) * (n.dim() - 1)), n, o) for n, o in zip(new, old))
+
+
+def adapted(step: float, rate: float, band: tuple[float, float] = ACCEPTANCE) -> float:
+    """A move's step for the next frame: × :data:`ADAPT` above the acceptance ``band``, ÷ below it, else kept (the
+    Langevin moves' τ; the random walk's scale with its own band)."""
+    low, high = band
     return step * ADAPT if rate > high else step / ADAPT if rate < low else step

@@ -39,7 +39,7 @@ from priortrack.data.motion import Motion
 from priortrack.device import resolve_device
 from priortrack.errors import PriortrackError
 from priortrack.filters.driver import SequentialFilter
-from priortrack.filters.langevin import adapted, langevin_moves
+from priortrack.filters.langevin import ACCEPTANCE, adapted, kept, langevin_moves
 from priortrack.filters.backward_simulation import backward_indices, distinct
 from priortrack.filters.marginal_translation import kalman_update, predict_covariance, smooth_translation
 from priortrack.filters.proposal import GuidedProposal
@@ -64,6 +64,8 @@ TRANSLATIONS = ("sampled", "marginalised")
 PROPOSALS = ("prior", "guided")
 #: The resample-move kernels (``move``).
 MOVES = ("random-walk", "langevin")
+#: The random walk's acceptance band: its scale grows above it and shrinks below it between frames.
+RANDOM_WALK_ACCEPTANCE = (0.2, 0.5)
 #: Up to this many particles on the CPU a step runs on one torch thread (``threads=None``). Two idle cores:
 #: at 1000 particles one thread is as fast as two (bench pf, lie: 133k against 121k particle-steps/s), at 3000
 #: the same within noise, at 10⁴ two are 1.2–1.3× faster. With the other core busy (a second tracker, the test
@@ -126,8 +128,8 @@ class ParticleFilter(SequentialFilter):
 
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
                  ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", moves: int = 0,
-                 move: str = "random-walk", move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1, inflation: float = 1.0,
-                 seed: int = 0, device: str = "cpu", threads: int | None = None):
+                 move: str = "random-walk", move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1,
+                 inflation: float = 1.0, seed: int = 0, device: str = "cpu", threads: int | None = None):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
         if not 0.0 <= ess_threshold <= 1.0:
@@ -405,10 +407,18 @@ class ParticleFilter(SequentialFilter):
             M = proposal.covariance if proposal.covariance is not None else proposal.prior_covariance(s)
             s, pending, rate = langevin_moves(target, proposal.retract, proposal.local, s, M, self.move_step,
                                               self.moves, self.generator)
-            self.move_step = adapted(self.move_step, rate)
-            self.states = s
-            self.keep_update(pending)
-            return rate
+            band = ACCEPTANCE
+        else:
+            s, pending, rate = self._random_walk(target, s, parents)
+            band = RANDOM_WALK_ACCEPTANCE
+        self.move_step = adapted(self.move_step, rate, band)
+        self.states = s
+        self.keep_update(pending)
+        return rate
+
+    def _random_walk(self, target, s: torch.Tensor, parents: torch.Tensor) -> tuple[torch.Tensor, tuple | None, float]:
+        """:meth:`move`'s random-walk moves of the poses s (P, A) under ``target``: the moved states, their Kalman
+        updates (None: the translation is sampled) and the acceptance rate."""
         scale = self.model.pose_step(s, parents)
         log_pi, pending = target(s)
         accepted = 0
@@ -419,15 +429,9 @@ class ParticleFilter(SequentialFilter):
             keep = torch.log(u) < log_pi_new - log_pi                                      # NaN: rejected
             s = torch.where(keep[:, None], proposal, s)
             log_pi = torch.where(keep, log_pi_new, log_pi)
-            if pending is not None:
-                pending = tuple(torch.where(keep.reshape((-1,) + (1,) * (new.dim() - 1)), new, old)
-                                for new, old in zip(pending_new, pending))
+            pending = kept(keep, pending_new, pending)
             accepted += int(keep.sum())
-        rate = accepted / (self.moves * len(s))
-        self.move_step *= 1.5 if rate > 0.5 else 1 / 1.5 if rate < 0.2 else 1.0
-        self.states = s
-        self.keep_update(pending)
-        return rate
+        return s, pending, accepted / (self.moves * len(s))
 
     def select(self, ancestors: torch.Tensor) -> None:
         """Keep the particles ``ancestors`` (P,): their states and, marginalised, their covariances."""

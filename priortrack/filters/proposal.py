@@ -182,7 +182,8 @@ class GuidedProposal:
         L_S = torch.linalg.cholesky(S)
         gain = torch.linalg.solve(S, H @ Q).transpose(-1, -2)                        # Q_k Hᵀ S_k⁻¹ (K, f, m)
         Sigma = Q - gain @ S @ gain.transpose(-1, -2)
-        L_q = torch.linalg.cholesky(self.inflation * 0.5 * (Sigma + Sigma.transpose(-1, -2)))
+        Sigma = 0.5 * (Sigma + Sigma.transpose(-1, -2))
+        L_q = torch.linalg.cholesky(self.inflation * Sigma)
         # each particle's kept components: innovation, predictive density, updated mean (in the chart at m_i)
         innovation = torch.nan_to_num(y - form.measure(m)[:, seen].to(f64), nan=0.0)  # behind a camera: no pull
         component = index.reshape(-1)
@@ -199,7 +200,7 @@ class GuidedProposal:
         slot = torch.clamp((torch.cumsum(torch.exp(log_choice), 1) < u).sum(1), max=keep - 1)
         chosen = torch.arange(P, device=device) * keep + slot
         share = torch.bincount(component[chosen], minlength=len(Sigma)).to(f64) / P
-        self.covariance = (share[:, None, None] * 0.5 * (Sigma + Sigma.transpose(-1, -2))).sum(0)
+        self.covariance = (share[:, None, None] * Sigma).sum(0)
         prior_rows = torch.rand(P, generator=generator, device=device, dtype=f64) < self.defensive
         v = torch.randn((P, f), generator=generator, device=device, dtype=f64)
         for k in torch.unique(component[chosen]).tolist():
