@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from priortrack import PriortrackError, load_walkjog
+from priortrack.cli.main import main
 from priortrack.experiments.benchmarks.pf import PHASES, bench_pf
 from priortrack.priors import Diffusion
 from priortrack.priors.gpdm import GPDM
@@ -68,3 +69,16 @@ def test_bad_arguments(priors):
     slow = Diffusion.fit(list(load_walkjog().walks("train"))[:2], fps=15.0)
     with pytest.raises(PriortrackError, match="fps"):
         bench_pf(particles=8, steps=1, priors={"diffusion": slow})
+
+
+def test_the_command_refuses_bad_view_settings_before_fitting(capsys, monkeypatch):
+    """`bench pf --proposal guided` with one camera, or `--cameras 9`: one line, exit 2, before any prior is fitted."""
+    import priortrack.experiments.benchmarks.pf as pf
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the priors were fitted before the settings were checked")
+
+    monkeypatch.setattr(pf, "bench_priors", no_fit)
+    for arguments in (["--proposal", "guided"], ["--cameras", "9"]):
+        assert main(["bench", "pf", *arguments]) == 2
+        assert "guided proposal with 2 or more" in capsys.readouterr().err

@@ -47,9 +47,10 @@ def _bench_ukf(args: argparse.Namespace) -> None:
 
 def _bench_pf(args: argparse.Namespace) -> None:
     from priortrack.device import resolve_device
-    from priortrack.experiments.benchmarks.pf import bench_pf, bench_priors
+    from priortrack.experiments.benchmarks.pf import bench_pf, bench_priors, check_views
 
     resolve_device(args.device)                      # a missing GPU is said before the priors are fitted
+    check_views(args.cameras, args.proposal)         # and settings that cannot run
     priors = bench_priors(args.seed)                 # fitted once for every particle count
     runs = [bench_pf(particles=p, steps=args.steps, seed=args.seed, threads=args.threads, dtype=args.dtype,
                      translation=args.translation, device=args.device, priors=priors, cameras=args.cameras,

@@ -70,6 +70,13 @@ def bench_priors(seed: int = 0, gpdm_frames: int = 100) -> dict[str, TransitionM
             "lie": LiePrior.fit(train, seed=seed)}
 
 
+def check_views(cameras: int, proposal: str) -> None:
+    """A PriortrackError unless ``cameras`` is in [1, 8] and ``proposal`` one of PROPOSALS, "guided" with 2 or more."""
+    if proposal not in PROPOSALS or not 1 <= cameras <= 8 or (proposal == "guided" and cameras < 2):
+        raise PriortrackError(f"bench pf: proposal must be one of {', '.join(PROPOSALS)} and cameras in [1, 8], the "
+                              f"guided proposal with 2 or more (got {proposal!r} with {cameras})")
+
+
 def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: int = 2, warmup: int = 2,
              gpdm_frames: int = 100, dtype: str = "float32", translation: str = "marginalised",
              priors: dict[str, TransitionModel] | None = None, device: str = "cpu", cameras: int = 1,
@@ -111,9 +118,7 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
                               f"(got {particles}, {steps}, {threads}, {warmup})")
     if dtype not in DTYPES:
         raise PriortrackError(f"bench pf: dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
-    if proposal not in PROPOSALS or not 1 <= cameras <= 8 or (proposal == "guided" and cameras < 2):
-        raise PriortrackError(f"bench pf: proposal must be one of {', '.join(PROPOSALS)} and cameras in [1, 8], the "
-                              f"guided proposal with 2 or more (got {proposal!r} with {cameras})")
+    check_views(cameras, proposal)
     device = resolve_device(device)
     walk = load_walkjog().walks("test")[0]
     if warmup + steps > len(walk) - 2:
