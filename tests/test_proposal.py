@@ -6,7 +6,7 @@ import torch
 
 from priortrack import PriortrackError
 from priortrack.filters.particle import ParticleFilter
-from priortrack.filters.proposal import GuidedProposal
+from priortrack.filters.proposal import GuidedProposal, _log_normal
 
 from linear_gaussian import LinearGaussian, LinearMixture, kalman
 
@@ -115,6 +115,21 @@ def test_guided_filter_posterior_is_the_kalman_posterior(sharp, defensive, infla
             assert np.all(np.abs(mean - m) < 5 * se), (mean, m, se)
             np.testing.assert_allclose(cov, P, atol=0.08 * np.abs(P).max())
     assert ess["guided"] > 20 * ess["prior"], ess
+
+
+
+def test_log_normal_per_component_is_the_multivariate_normal_density():
+    """The draw's per-row density under each row's component factor, against torch's MultivariateNormal."""
+    g = torch.Generator().manual_seed(3)
+    K, d, N = 3, 5, 40
+    A = torch.randn((K, d, d), generator=g, dtype=torch.float64)
+    covariances = A @ A.transpose(-1, -2) + 0.1 * torch.eye(d, dtype=torch.float64)
+    factors = torch.linalg.cholesky(covariances)
+    component = torch.tensor([0, 2] * (N // 2))                    # component 1 absent: no row of it
+    r = torch.randn((N, d), generator=g, dtype=torch.float64)
+    expected = torch.distributions.MultivariateNormal(torch.zeros(d, dtype=torch.float64),
+                                                      scale_tril=factors[component]).log_prob(r)
+    torch.testing.assert_close(_log_normal(factors, component, r), expected, rtol=1e-12, atol=1e-12)
 
 
 def test_guided_settings_are_checked(sharp):

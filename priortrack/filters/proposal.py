@@ -59,6 +59,7 @@ import math
 import torch
 
 from priortrack.errors import PriortrackError
+from priortrack.geometry.linalg import whitening
 from priortrack.models.tracking import GLOBAL_DIM, TrackingModel
 
 #: The central difference's step (tangent units: radians, metres) of the pixels' Jacobian.
@@ -71,11 +72,12 @@ TOP_COMPONENTS = 4
 
 def _log_normal(factors: torch.Tensor, component: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
     """log N(r_i; 0, L_k L_kᵀ) (N,) of residuals r (N, d), row i under the Cholesky factor ``factors`` (K, d, d) of its
-    ``component`` (N,) k: one triangular solve per component present."""
+    ``component`` (N,) k: ‖L_k⁻¹ r_i‖² with L_k⁻¹ formed once (:func:`whitening`), one product per component present."""
+    white_k = whitening(factors)
     out = torch.empty(len(residual), dtype=residual.dtype, device=residual.device)
     for k in torch.unique(component).tolist():
         rows = component == k
-        white = torch.linalg.solve_triangular(factors[k], residual[rows].T, upper=False).T
+        white = residual[rows] @ white_k[k].T
         out[rows] = -0.5 * (white * white).sum(-1) - torch.log(torch.diagonal(factors[k])).sum()
     return out - 0.5 * residual.shape[1] * math.log(2 * math.pi)
 

@@ -1,4 +1,5 @@
-"""Cholesky factors with a jitter that grows on failure (DESIGN.md: Cholesky solves, never inverses)."""
+"""Cholesky factors with a jitter that grows on failure (DESIGN.md: Cholesky solves, never inverses), and the
+whitening L⁻¹ of a factor for batches whose right-hand sides are too many for a solve each."""
 
 from __future__ import annotations
 
@@ -31,3 +32,13 @@ def jittered_cholesky(K: torch.Tensor, what: str, start: float, stop: float) -> 
         jitter *= 10
     raise PriortrackError(f"{what} is not positive definite (Cholesky fails even with a jitter of {stop:g} × its "
                           f"mean diagonal)")
+
+
+def whitening(factor: torch.Tensor) -> torch.Tensor:
+    """L⁻¹ (..., n, n) of lower Cholesky factors L (..., n, n), a triangular solve against I: |L⁻¹ d|² = dᵀ Σ⁻¹ d.
+
+    For many residuals d under one factor, d @ L⁻ᵀ is a plain product; a triangular solve with that many
+    right-hand sides is not always one (on CUDA, cuBLAS's solve against 10⁶ columns took 40 s where the
+    product takes milliseconds)."""
+    eye = torch.eye(factor.shape[-1], dtype=factor.dtype, device=factor.device)
+    return torch.linalg.solve_triangular(factor, eye.expand_as(factor), upper=False)

@@ -82,7 +82,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry.sphere import clamped_cosine, karcher_mean, log_map, theta_over_sin, transport
 from priortrack.geometry.tangent_basis import tangent_basis, to_coordinates
-from priortrack.geometry.linalg import jittered_cholesky
+from priortrack.geometry.linalg import jittered_cholesky, whitening
 from priortrack.priors.base import DEFAULT_FPS, TransitionModel, prepare_motions
 from priortrack.priors.spaces import DirectionSpace
 from priortrack.randomness import standard_normal
@@ -125,12 +125,6 @@ def _cholesky(matrices: torch.Tensor, what: str) -> torch.Tensor:
     """Lower Cholesky factors of a batch of symmetric matrices (..., n, n): :func:`jittered_cholesky`
     with a jitter from 1e-12 to 1e-6 times the mean diagonal."""
     return jittered_cholesky(matrices, what, 1e-12, 1e-6)
-
-
-def _whitening(factor: torch.Tensor) -> torch.Tensor:
-    """L⁻¹ (..., n, n) of lower Cholesky factors L (a triangular solve against I): |L⁻¹ d|² = dᵀ Σ⁻¹ d."""
-    eye = torch.eye(factor.shape[-1], dtype=factor.dtype, device=factor.device)
-    return torch.linalg.solve_triangular(factor, eye.expand_as(factor), upper=False)
 
 
 def _block_diagonal(blocks: torch.Tensor) -> torch.Tensor:
@@ -330,8 +324,8 @@ class GeodesicMixture:
         self._log_norm_c = -half_log_det_c - b * _LOG_2PI                              # (K,)
         # Row-vector block matrices: (a_flat @ M)_b = M_b a_b for a_flat (N, 2B).
         self._frames = _frame_matrix(self.means)                                       # (K, 3B, 3B)
-        self._white_xx = _block_diagonal(_whitening(chol_xx).transpose(-1, -2))       # (K, 2B, 2B)
-        self._white_c = _block_diagonal(_whitening(chol_c).transpose(-1, -2))
+        self._white_xx = _block_diagonal(whitening(chol_xx).transpose(-1, -2))       # (K, 2B, 2B)
+        self._white_c = _block_diagonal(whitening(chol_c).transpose(-1, -2))
         self._regress = _block_diagonal(self.regression.transpose(-1, -2))
         self._vel_flat = self.velocity_means.reshape(self.components, 2 * b)
 
@@ -429,7 +423,7 @@ class GeodesicMixture:
         """The :class:`_Hot` constants (computed in float64, then cast)."""
         basis, mu = self.basis, self.means
         k, b = self.components, self.bones
-        g = _whitening(self._chol_xx) @ basis                                           # (K, B, 2, 3)
+        g = whitening(self._chol_xx) @ basis                                           # (K, B, 2, 3)
         pi_w = torch.cat([mu, g[:, :, 0], g[:, :, 1]]).transpose(0, 1)                  # (B, 3K, 3)
         basis_t = basis.transpose(-1, -2)                                               # Eᵀ (K, B, 3, 2)
         regress = basis_t @ self.regression @ basis / scale                             # Eᵀ R E / s (K, B, 3, 3)
@@ -730,7 +724,7 @@ class _MessageLengthEM:
         """ln N(z_ik; (0, m_k), Σ_k) (N,) from the coordinates (a, b) at component k."""
         d = torch.cat([a, bv - self.vel[k]], dim=-1).reshape(self.n, 4 * self.b)
         factor = _cholesky(self.cov[k], f"covariance of component {k}")                 # (B, 4, 4)
-        white = d @ _block_diagonal(_whitening(factor).transpose(-1, -2))
+        white = d @ _block_diagonal(whitening(factor).transpose(-1, -2))
         half_log_det = torch.log(factor.diagonal(dim1=-2, dim2=-1)).sum()
         return -0.5 * (white * white).sum(dim=-1) - half_log_det - 2 * self.b * _LOG_2PI
 
