@@ -38,7 +38,12 @@ squared pixel error of the projected joints, scaled by (depth / f)² to metres a
 body is the template scaled to a given standing height; the start's root sits on the ray through
 the detected pelvis at the depth where the body's size matches its image (f × neck-to-ankles
 length / its length in pixels; for a body whose legs are never seen, the least such depth over the upper
-body's lengths, which foreshortening can only lengthen).
+body's lengths, which foreshortening can only lengthen). A pixel fixes a joint to its ray, so each limb has
+two depth branches at the elbow or knee and two at the wrist or ankle (:mod:`priortrack.geometry.depth_branches`):
+the fit from rest lands on whichever its start is nearest, so the fit is then started again from each limb's
+other three branches (:meth:`OneCameraFit.over_branches`) and the least objective kept. A tracker's start
+weighs the pixels by its robust likelihood's Student-t as well (:meth:`OneCameraFit.reweight`), so that a
+detector's outlier does not bend the start.
 """
 
 from __future__ import annotations
@@ -57,6 +62,7 @@ from priortrack.data.eval15 import EVAL15_PARENTS
 from priortrack.data.motion import Motion
 from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
+from priortrack.geometry.depth_branches import LIMBS, limb_branches
 from priortrack.threads import torch_threads
 
 log = logging.getLogger(__name__)
@@ -70,6 +76,8 @@ SPREAD_FLOOR = 0.05
 SMOOTHNESS = 1e-2
 #: Root headings tried for the start.
 HEADINGS = 12
+#: Rounds of reweighting of a robust one-camera fit (:meth:`OneCameraFit.reweight`).
+REWEIGHTS = 3
 #: torch threads of a fit: its tensors are small (a frame's ~30 joints × T), and with a second process on a
 #: 2-core machine two threads took 40–308 s for a 120-frame fit that one thread does in 4–5 s (both threads
 #: spin-waiting for a core the other process holds).
@@ -194,18 +202,29 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
     skeleton = skeleton or fitted_skeleton(template, X, M)
     pelvis = X[:, 0].copy()                      # where it is unseen, the mean of the joints seen (those rows only)
     pelvis[~seen[:, 0]] = np.nanmean(X[~seen[:, 0]], axis=1)
-
-    def residual(part: slice):
-        """The residual closure of the frames ``part`` (their targets built here: a chunk's, not the run's)."""
-        target = torch.as_tensor(np.where(seen[part, :, None], X[part], 0.0))
-        mask = torch.as_tensor(seen[part], dtype=torch.float64)[..., None]
-        return lambda joints, frames: ((joints - target[frames]) * mask[frames]).flatten(-2)
-
     channels = np.empty((len(X), skeleton.num_channels))
     for start in range(0, len(X), CHUNK):
         part = slice(start, min(start + CHUNK, len(X)))
-        channels[part] = _fit(skeleton, part.stop - part.start, residual(part), pelvis[part], M, pose)
+        channels[part] = _fit(skeleton, part.stop - part.start, _joint_residuals(X[part]), pelvis[part], M, pose)
     return Motion(skeleton, channels, float(fps), name)
+
+
+def refit_to_joints(X: np.ndarray, theta: np.ndarray, skeleton: Skeleton, joint_map: np.ndarray | None = None,
+                    pose: PoseSpread | None = None) -> np.ndarray:
+    """Channels (T, C) of ``skeleton`` whose eval15 joints (through ``joint_map`` M) best match X (T, 15, 3)
+    (NaN = unknown), from channels ``theta`` (T, C) near them: :func:`inverse_kinematics`'s objective without
+    its search for a start (one chunk: T ≤ ``CHUNK``)."""
+    X = np.asarray(X, dtype=np.float64)
+    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+    return _fit(skeleton, len(X), _joint_residuals(X), X[:, 0], M, pose, theta)
+
+
+def _joint_residuals(X: np.ndarray):
+    """The residual closure (joints, frames) → r of joint targets X (F, 15, 3), NaN rows left out."""
+    seen = np.isfinite(X).all(axis=-1)
+    target = torch.as_tensor(np.where(seen[..., None], X, 0.0))
+    mask = torch.as_tensor(seen, dtype=torch.float64)[..., None]
+    return lambda joints, frames: ((joints - target[frames]) * mask[frames]).flatten(-2)
 
 
 def check_height(height: float) -> None:
@@ -231,36 +250,100 @@ ANKLE_HEIGHT = 0.07
 
 def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: float, skeleton: Skeleton,
                           joint_map: np.ndarray | None = None, name: str = "ik",
-                          pose: PoseSpread | None = None) -> Motion:
+                          pose: PoseSpread | None = None, robust: tuple[float, float] | None = None) -> Motion:
     """A Motion of ``skeleton`` whose eval15 joints (through ``joint_map`` M) project through ``camera``
     (a Y-up world) onto uv (T, 15, 2) pixels, weighted by ``weights`` (T, 15) (0 = unseen); the pull to rest
-    is ``pose``'s, if given."""
-    uv, weights = np.asarray(uv, dtype=np.float64), np.asarray(weights, dtype=np.float64)
-    seen = np.isfinite(uv).all(axis=-1) & (weights > 0)
-    if uv.ndim != 3 or uv.shape[1:] != (15, 2) or weights.shape != uv.shape[:2]:
-        raise PriortrackError(f"inverse kinematics: pixels {uv.shape} and weights {weights.shape}; expected "
-                              f"(T, 15, 2) and (T, 15)")
-    if (seen.sum(axis=1) < 6).any():
-        raise PriortrackError(f"inverse kinematics from one camera: frames {np.flatnonzero(seen.sum(axis=1) < 6).tolist()}"
-                              f" have fewer than 6 detected joints")
-    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-    index = eval15_indices(skeleton)
-    rest = M @ ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels))[index].numpy()
-    depth = camera.fx * _metres_per_pixel(rest, uv, seen)
-    K = camera.K.double().numpy()
-    R, t = camera.R.double().numpy(), camera.t.double().numpy()
-    centre = np.where(seen[:, :1], uv[:, 0], np.nanmean(np.where(seen[..., None], uv, np.nan), axis=1))
-    ray = np.linalg.solve(K, np.concatenate([centre, np.ones((len(uv), 1))], axis=1).T).T          # (T, 3)
-    pelvis = (ray * depth - t) @ R                                                 # R^T (X_c − t), per row
-    target = torch.as_tensor(np.where(seen[..., None], uv, 0.0))
-    w = torch.as_tensor(np.where(seen, weights, 0.0))[..., None] * (depth / camera.fx) ** 2
+    is ``pose``'s, if given: :class:`OneCameraFit` from the rest pose; with ``robust`` = (σ px, ν), reweighted
+    :data:`REWEIGHTS` times by that Student-t (:meth:`OneCameraFit.reweight`); then over the limbs' depth branches."""
+    fit = OneCameraFit(uv, weights, camera, skeleton, joint_map, pose)
+    theta = fit.fit()
+    if robust is not None:
+        for _ in range(REWEIGHTS):
+            fit.reweight(theta, *robust)
+            theta = fit.fit(theta)
+    return Motion(skeleton, fit.over_branches(theta), float(fps), name)
 
-    def residuals(joints: torch.Tensor, frames: slice) -> torch.Tensor:
-        projected, _ = camera.project(joints)
-        return (torch.where(torch.isfinite(projected), projected - target[frames], 0.0) * w[frames].sqrt()).flatten(-2)
 
-    channels = _fit(skeleton, len(uv), residuals, pelvis, M, pose)
-    return Motion(skeleton, channels, float(fps), name)
+class OneCameraFit:
+    """The one-camera problem of :func:`inverse_kinematics_2d` (module docstring): uv (T, 15, 2) pixels through
+    ``camera`` (a Y-up world), weighted by ``weights`` (T, 15) (0 = unseen), on ``skeleton`` through ``joint_map``
+    M, pulled to ``pose``'s spread; :meth:`fit` from rest or from given channels, :meth:`cost` its objective."""
+
+    def __init__(self, uv: np.ndarray, weights: np.ndarray, camera, skeleton: Skeleton,
+                 joint_map: np.ndarray | None = None, pose: PoseSpread | None = None):
+        uv, weights = np.asarray(uv, dtype=np.float64), np.asarray(weights, dtype=np.float64)
+        seen = np.isfinite(uv).all(axis=-1) & (weights > 0)
+        if uv.ndim != 3 or uv.shape[1:] != (15, 2) or weights.shape != uv.shape[:2]:
+            raise PriortrackError(f"inverse kinematics: pixels {uv.shape} and weights {weights.shape}; expected "
+                                  f"(T, 15, 2) and (T, 15)")
+        if (seen.sum(axis=1) < 6).any():
+            raise PriortrackError(f"inverse kinematics from one camera: frames "
+                                  f"{np.flatnonzero(seen.sum(axis=1) < 6).tolist()} have fewer than 6 detected joints")
+        self.M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+        self.skeleton, self.camera = skeleton, camera
+        index = eval15_indices(skeleton)
+        rest = self.M @ ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels))[index].numpy()
+        depth = camera.fx * _metres_per_pixel(rest, uv, seen)
+        K = camera.K.double().numpy()
+        R, t = camera.R.double().numpy(), camera.t.double().numpy()
+        centre = np.where(seen[:, :1], uv[:, 0], np.nanmean(np.where(seen[..., None], uv, np.nan), axis=1))
+        ray = np.linalg.solve(K, np.concatenate([centre, np.ones((len(uv), 1))], axis=1).T).T          # (T, 3)
+        self.pelvis = (ray * depth - t) @ R                                          # R^T (X_c − t), per row
+        self.target = torch.as_tensor(np.where(seen[..., None], uv, 0.0))
+        self.confidence = torch.as_tensor(np.where(seen, weights, 0.0))
+        self.rho = torch.ones_like(self.confidence)
+        scale = (depth / camera.fx) ** 2
+
+        def residuals(joints: torch.Tensor, frames: slice) -> torch.Tensor:
+            w = (self.confidence[frames] * self.rho[frames])[..., None] * scale
+            return (self.pixel_errors(joints, frames) * w.sqrt()).flatten(-2)
+
+        self.problem = _LevenbergMarquardt(skeleton, len(uv), residuals, self.M, pose)
+
+    def pixel_errors(self, joints: torch.Tensor, frames: slice = slice(None)) -> torch.Tensor:
+        """(..., F, 15, 2) the projected joints (..., F, 15, 3) of the frames ``frames`` less their pixels (0 behind
+        the camera; unseen joints are cancelled by their zero weight)."""
+        projected, _ = self.camera.project(joints)
+        return torch.where(torch.isfinite(projected), projected - self.target[frames], 0.0)
+
+    def reweight(self, theta: np.ndarray, sigma_px: float, nu: float) -> None:
+        """Each joint's weight times the Student-t's ρ_tj = (ν + 2) / (ν + ‖e_tj‖² / σ²) at the pixel errors e_tj of
+        channels θ (T, C), as the tracker's robust likelihood weighs a point (iteratively reweighted least
+        squares): a detector's outlier 50–150 px off bends the start's pose less towards it."""
+        e = self.pixel_errors(torch.as_tensor(self.joints(theta)))
+        self.rho = (nu + 2) / (nu + (e ** 2).sum(-1) / sigma_px ** 2)
+
+    def fit(self, theta: np.ndarray | None = None) -> np.ndarray:
+        """Channels θ (T, C) minimising the objective, from ``theta`` (T, C) or else from the rest pose at the
+        pelvis's ray (:meth:`_LevenbergMarquardt.start`)."""
+        with torch_threads(IK_THREADS):
+            return self.problem.fit(self.pelvis, theta)
+
+    def cost(self, theta: np.ndarray) -> float:
+        """The objective (module docstring) at channels θ (T, C)."""
+        with torch_threads(IK_THREADS):
+            return self.problem.objective(theta, self.problem.data(theta))
+
+    def joints(self, theta: np.ndarray) -> np.ndarray:
+        """(T, 15, 3) the joints M FK(θ) that the pixels are compared with, in the camera's world."""
+        return self.problem.joints(np.asarray(theta, dtype=np.float64)).numpy()
+
+    def over_branches(self, theta: np.ndarray) -> np.ndarray:
+        """The channels (T, C) of the least objective over the limbs' depth branches, from a fit θ (T, C): limb
+        by limb (:data:`~priortrack.geometry.depth_branches.LIMBS`), each of its other three branches
+        (:func:`~priortrack.geometry.depth_branches.limb_branches` of M FK(θ)) as 3D targets
+        (:func:`refit_to_joints` from θ), the one-camera fit from there, and θ ← the best of them where it lowers
+        the objective. From rest, the fit lands on whichever branch the pull meets first: on two held-out walks
+        through one real camera's view a start 125 and 105 mm off root-relative, 98 and 72 mm after this."""
+        centre = self.camera.center.double().numpy()
+        cost = self.cost(theta)
+        for limb in LIMBS:
+            for targets in limb_branches(self.joints(theta), centre, limb):
+                trial = self.fit(refit_to_joints(targets, theta, self.skeleton, self.M, self.problem.pose))
+                trial_cost = self.cost(trial)
+                if trial_cost < cost:
+                    theta, cost = trial, trial_cost
+        return theta
 
 
 #: The image lengths that give a body's depth from one camera, as eval15 joint pairs: neck to mid-ankles; else,
@@ -330,13 +413,14 @@ def pull(skeleton: Skeleton, pose: PoseSpread | None) -> tuple[np.ndarray, np.nd
 
 
 def _fit(skeleton: Skeleton, T: int, residuals, pelvis: np.ndarray, M: np.ndarray,
-         pose: PoseSpread | None) -> np.ndarray:
+         pose: PoseSpread | None, theta: np.ndarray | None = None) -> np.ndarray:
     """Channels θ (T, C) minimising |r(M FK(θ))|² + the regularisation and smoothness (module docstring),
-    from the root at ``pelvis`` (T, 3) turned to the best of HEADINGS headings, on IK_THREADS torch threads.
+    from ``theta`` (T, C) if given, else from the root at ``pelvis`` (T, 3) turned to the best of HEADINGS
+    headings, on IK_THREADS torch threads.
     ``residuals(joints, frames)`` maps joints (..., F, 15, 3) of the frames ``frames`` (a slice of the T) to their
     data residuals r (..., F, R)."""
     with torch_threads(IK_THREADS):
-        return _LevenbergMarquardt(skeleton, T, residuals, M, pose).fit(pelvis)
+        return _LevenbergMarquardt(skeleton, T, residuals, M, pose).fit(pelvis, theta)
 
 
 class _LevenbergMarquardt:
@@ -377,15 +461,18 @@ class _LevenbergMarquardt:
         self.index = eval15_indices(skeleton)
         self.M = torch.as_tensor(M)
         self.moving = moving_channels(skeleton, self.index)
+        self.pose = pose
         self.weights, self.centre = pull(skeleton, pose)                        # (C,) λ w_c, θ̄_c
         self.lam = self.weights[self.moving]
 
+    def joints(self, theta: np.ndarray) -> torch.Tensor:
+        """M FK(θ) (..., F, 15, 3) of channels θ (..., F, C)."""
+        joints = self.fk(torch.as_tensor(theta.reshape(-1, theta.shape[-1])), joints=self.index)
+        return torch.einsum("ij,bjk->bik", self.M, joints).reshape(*theta.shape[:-1], 15, 3)
+
     def data(self, theta: np.ndarray, frames: slice = slice(None)) -> np.ndarray:
         """r (..., F, R) of channels θ (..., F, C) of the frames ``frames``."""
-        shape = theta.shape[:-1]
-        joints = self.fk(torch.as_tensor(theta.reshape(-1, theta.shape[-1])), joints=self.index)
-        joints = torch.einsum("ij,bjk->bik", self.M, joints).reshape(*shape, 15, 3)
-        return self.residuals(joints, frames).numpy()
+        return self.residuals(self.joints(theta), frames).numpy()
 
     def objective(self, theta: np.ndarray, r: np.ndarray) -> float:
         return float((r ** 2).sum() + (self.weights * (theta - self.centre) ** 2).sum()
@@ -438,10 +525,11 @@ class _LevenbergMarquardt:
         delta = scipy.linalg.solveh_banded(bands, -g.ravel(), lower=True)
         return delta.reshape(T, K), float(-g.ravel() @ delta + nu * (delta * diagonal) @ delta)
 
-    def fit(self, pelvis: np.ndarray) -> np.ndarray:
-        """θ (T, C): Nielsen's damping update (ν × max(1/3, 1 − (2ρ − 1)³) on a step whose actual decrease is
-        ρ > 0 times the predicted one; else ν doubles its last growth) from ν = ``DAMPING``."""
-        theta = self.start(pelvis)
+    def fit(self, pelvis: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+        """θ (T, C) from ``theta`` (T, C), else from :meth:`start` at ``pelvis``: Nielsen's damping update
+        (ν × max(1/3, 1 − (2ρ − 1)³) on a step whose actual decrease is ρ > 0 times the predicted one; else ν
+        doubles its last growth) from ν = ``DAMPING``."""
+        theta = self.start(pelvis) if theta is None else np.array(theta, dtype=np.float64)
         moving, K = self.moving, len(self.moving)
         nu, growth = self.DAMPING, 2.0
         cost = self.objective(theta, self.data(theta))

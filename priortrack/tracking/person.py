@@ -15,7 +15,8 @@
    no frame and the prediction stands). ``frames`` of the result are the input frame numbers used.
    The motion is therefore played at its true speed whatever the data's rate.
 3. **Start without truth.** From one camera, the body is the template scaled to the person's
-   ``height`` and fitted to the first ticks' detections in 2D, its depth from its image size
+   ``height`` and fitted to the first ticks' detections in 2D, its depth from its image size, the pixels
+   weighed by the robust likelihood's Student-t and each limb's depth branches tried
    (:func:`priortrack.body.ik.inverse_kinematics_2d`). From several, each tick's joints are triangulated (confidence-weighted DLT through the
    lens distortion); the first two consecutive ticks with at least ``START_JOINTS`` joints
    triangulated (where the trial never shows as many, a person seated at a desk: the joints it shows in
@@ -539,16 +540,16 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
                     fitted_skeleton(template, X, M))
         unmeasured = () if single else tuple(unmeasured_measures(X))
     pose = pose_spread(preset, skeleton)
-    if single:
-        ticks = z[first:window][:, 0]
-        fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
-                                       pose=pose)
-    else:
-        fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton, pose=pose)
-    known = steady_start(fitted)
     # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
     observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind in UNSCENTED_KINDS else DEFAULT_NU,
                    **preset.observation}
+    if single:                                     # the start is robust whatever the filter's likelihood
+        ticks = z[first:window][:, 0]
+        fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
+                                       pose=pose, robust=(observation["sigma_px"], DEFAULT_NU))
+    else:
+        fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton, pose=pose)
+    known = steady_start(fitted)
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
     filt = preset.filter_for(model, config.seed, config.device)
@@ -775,7 +776,8 @@ def pose_spread(preset: Preset, skeleton: Skeleton) -> PoseSpread | None:
     start's and the fit-check's inverse kinematics pull the body to, whatever the prior's state: where it is
     the body's joint angles, the pull keeps only the channels its training moves (a start that turned the others,
     CMU 35's clavicles, lost them on entering the filter); for every prior, it is the start's pose prior. From one
-    camera a limb tilted towards it and one tilted away project alike, and the pull decides between them: a pull
+    camera a limb tilted towards it and one tilted away project alike, and the pull weighs between them (the fit
+tries each limb's branches, :meth:`~priortrack.body.ik.OneCameraFit.over_branches`): a pull
     to rest (zero angles) started pf-lie on people it never saw 185 mm root-relative off at its first tick (the
     ankles 240–290 mm: the legs on the wrong branch) where the walking poses' pull started it at 32 mm (issue 45).
     None (logged: a pull to rest) where the training motions do not share the skeleton's channels (a user's own
