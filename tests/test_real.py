@@ -252,17 +252,20 @@ def test_the_real_track_benchmark_runs_the_whole_command(capsys):
     assert "fps must be in [10, 120]" in capsys.readouterr().err
 
 
-def test_smoothing_real_format_input_lowers_the_error_and_the_jitter():
-    """4 cameras, 35_29 written as OpenPose JSON: the unscented RTS smoother's joints nearer the mocap
-    and less jittery than the filter's, from the same run."""
-    run = run_real_format("ukf-real", "walkjog:35_29", seed=0, smooth=True)
-    assert run["mpjpe_mm"] < 0.9 * run["filtered_mm"]
+@pytest.mark.parametrize("preset, ratio", [("ukf-real", 0.9), ("pf-lie-real", 0.98)])
+def test_smoothing_real_format_input_lowers_the_error_and_the_jitter(preset, ratio):
+    """4 cameras, 35_29 written as OpenPose JSON: the smoother's joints nearer the mocap and less jittery than
+    the filter's, from the same run: the unscented filter's posterior linearisation (7.8 against 9.8 mm); the
+    particle filter's clouds smoothed as Gaussians (5.7 against 6.1 mm, jitter 5.6 against 7.2 when measured;
+    backward simulation was 6.6 mm, jitter 8.0: its trajectories pass through one particle a frame)."""
+    run = run_real_format(preset, "walkjog:35_29", seed=0, smooth=True)
+    assert run["mpjpe_mm"] < ratio * run["filtered_mm"]
     assert run["jitter_mm"] < run["filtered_jitter_mm"] and run["truth_jitter_mm"] > 0
 
 
 def test_smoothed_detections_are_exported_beside_the_filtered(tmp_path):
-    """A particle smoother's joints are written beside the filter's (joints and spread), and lie within
-    the reach of the filter's own cloud at every tick: a smoothed trajectory's pose at tick t is one of
+    """A particle smoother's joints are written beside the filter's (joints and spread); backward simulation's
+    lie within the reach of the filter's own cloud at every tick: a smoothed trajectory's pose at tick t is one of
     the filter's particles there, with the translation Kalman-smoothed, so each smoothed joint is at
     most the farthest particle's distance from the filtered joint plus the translation's shift (bounded
     by 3 σ of the particles' largest translation variance). No tighter figure holds on every processor:
@@ -275,7 +278,7 @@ def test_smoothed_detections_are_exported_beside_the_filtered(tmp_path):
     from priortrack.viz.real import record_detections
 
     result = track_detections(read_detections(POSE, keypoints="body25b"), read_calibration(CALIB), "pf-gpdm",
-                              TrackConfig(fps=60, smooth=True, keep_snapshots=True))
+                              TrackConfig(fps=60, smooth=True, keep_snapshots=True, particle_smoother="backward"))
     assert result.summary()["smoothed"] is True
     with np.load(result.save(tmp_path / "s.npz")) as f:
         joints, filtered, spread = f["joints"], f["filtered_joints"], f["filtered_spread"]

@@ -103,6 +103,63 @@ def test_posterior_linearisation_smooths_the_data_the_filter_updated_with():
     assert np.abs(np.array(pulled) - reference).max() > 0.5
 
 
+def _sigma_cloud(m: np.ndarray, P: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """2n equally weighted points m ± √n L_j (L L^T = P): a cloud whose mean and covariance are exactly (m, P)."""
+    offsets = np.sqrt(len(m)) * np.linalg.cholesky(P).T
+    return torch.as_tensor(np.concatenate([m + offsets, m - offsets])), torch.full((2 * len(m),), 7.0, dtype=torch.float64)
+
+
+def test_the_cloud_smoother_is_the_kalman_rts_smoother_on_clouds_of_the_kalman_filters_gaussians():
+    """Clouds whose moments are the Kalman filter's (weights of any scale): their Gaussians are those moments and
+    the unscented RTS over them is the Kalman RTS smoother, to rounding."""
+    from linear_gaussian import kalman
+    from priortrack.filters.cloud_smoother import cloud_gaussian, cloud_rts
+    from priortrack.filters.posterior_linearisation import SMOOTHER_ALPHA
+
+    model = LinearGaussian(A, Q, H, R)
+    _, zs = _simulate(0)
+    filtered = [kalman(model, M0, P0, zs[:t + 1]) for t in range(STEPS)]
+    clouds = [_sigma_cloud(m, P) for m, P in filtered]
+    m, P = cloud_gaussian(model, *clouds[3])
+    np.testing.assert_allclose(m, filtered[3][0], atol=1e-12)
+    np.testing.assert_allclose(P, filtered[3][1], atol=1e-12)
+    points = ManifoldSigmaPoints(model, SMOOTHER_ALPHA, 2.0, 0.0)
+    means, covariances = cloud_rts(model, points, *zip(*clouds), [None] * STEPS)
+    reference_means, reference_covariances = kalman_rts(model, M0, P0, zs)
+    assert np.abs(np.array(means) - reference_means).max() < 1e-8
+    assert np.abs(covariances[:] - reference_covariances).max() < 1e-8
+
+
+@pytest.fixture(scope="module")
+def linear_particle_run():
+    """The linear model, its observations (gap 6–10) and a 2,000-particle filter's steps through them."""
+    model = LinearGaussian(A, Q, H, R)
+    _, zs = _simulate(0)
+    pf = ParticleFilter(model, 2000, seed=1)
+    generator = torch.Generator().manual_seed(2)
+    pf.initialise_states(torch.as_tensor(M0) + torch.randn((2000, 3), generator=generator, dtype=torch.float64)
+                         @ torch.linalg.cholesky(torch.as_tensor(P0)).T)
+    return model, zs, [pf.step(z) for z in zs]
+
+
+def test_the_cloud_smoother_of_a_particle_filter_is_near_the_kalman_rts_smoother(linear_particle_run):
+    """A 2,000-particle filter on the linear model, its clouds smoothed as Gaussians: the smoothed means 0.13 σ on
+    average from the RTS means when measured (0.57 σ at most; the filter's own means 1.4 σ), the smoothed σ 0.99
+    of the RTS σ on average."""
+    from priortrack.filters.cloud_smoother import cloud_rts
+    from priortrack.filters.posterior_linearisation import SMOOTHER_ALPHA
+
+    model, zs, snapshots = linear_particle_run
+    means, covariances = cloud_rts(model, ManifoldSigmaPoints(model, SMOOTHER_ALPHA, 2.0, 0.0),
+                                   [s.particles for s in snapshots], [s.weights for s in snapshots], [None] * STEPS)
+    reference_means, reference_covariances = kalman_rts(model, M0, P0, zs)
+    sigma = np.sqrt(np.diagonal(reference_covariances, axis1=1, axis2=2))
+    off = np.abs(np.array(means) - reference_means) / sigma
+    assert off.mean() < 0.3 and off.max() < 1.0
+    ratio = np.sqrt(np.diagonal(covariances[:], axis1=1, axis2=2)) / sigma
+    assert 0.8 < ratio.mean() < 1.2
+
+
 def test_smoothed_estimates_are_consistent():
     """NEES of the smoothed means over 100 runs: each step's run-average in the two-sided 99 % χ²(3 · 100)
     band on at least 90 % of the steps."""
@@ -121,18 +178,12 @@ def test_smoothed_estimates_are_consistent():
 
 
 @pytest.mark.parametrize("moves", [None, 0, 10])
-def test_backward_simulation_draws_the_smoothing_distribution(moves):
+def test_backward_simulation_draws_the_smoothing_distribution(moves, linear_particle_run):
     """500 trajectories drawn from a 2,000-particle filter, exactly (None) or by the MCMC kernel from
     the genealogy (0 or 10 moves): their mean 0.17, 0.33, 0.22 σ on average from the RTS mean (at most
     0.9–1.3 σ; the filter's own mean is 1.4 σ away on average, 7 σ at most, inside and after the gap),
     their spread within 20 % of the RTS σ."""
-    model = LinearGaussian(A, Q, H, R)
-    _, zs = _simulate(0)
-    pf = ParticleFilter(model, 2000, seed=1)
-    generator = torch.Generator().manual_seed(2)
-    pf.initialise_states(torch.as_tensor(M0) + torch.randn((2000, 3), generator=generator, dtype=torch.float64)
-                         @ torch.linalg.cholesky(torch.as_tensor(P0)).T)
-    snapshots = [pf.step(z) for z in zs]
+    model, zs, snapshots = linear_particle_run
     indices = backward_indices(model.log_transition, [s.particles for s in snapshots],
                                [torch.log(s.weights) for s in snapshots], 500, torch.Generator().manual_seed(3),
                                None if moves is None else [s.ancestors for s in snapshots], moves or 0)

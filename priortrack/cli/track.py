@@ -9,6 +9,7 @@ from dataclasses import replace
 
 from priortrack.cli.common import Progress, print_json
 from priortrack.errors import PriortrackError
+from priortrack.filters.smoothing import PARTICLE_SMOOTHERS
 from priortrack.output import output_path
 
 log = logging.getLogger(__name__)
@@ -54,13 +55,14 @@ def _track(args: argparse.Namespace) -> None:
 
 
 def _smoothing(args: argparse.Namespace) -> dict:
-    """track's smoothing arguments: --smooth, or a --lag (which implies it), and --trajectories."""
+    """track's smoothing arguments: --smooth, or a --lag (which implies it), --particle-smoother and --trajectories."""
     if args.lag is not None and args.lag < 0:
         raise PriortrackError(f"--lag must be a whole number of frames ≥ 0, got {args.lag}")
     if args.trajectories is not None and args.trajectories < 1:
         raise PriortrackError(f"--trajectories must be positive, got {args.trajectories}")
     chosen = {"trajectories": args.trajectories} if args.trajectories is not None else {}
-    return {"smooth": args.smooth or args.lag is not None, "lag": args.lag, **chosen}
+    return {"smooth": args.smooth or args.lag is not None, "lag": args.lag,
+            "particle_smoother": args.particle_smoother, **chosen}
 
 
 def _skeleton(path: str):
@@ -265,8 +267,11 @@ def add_parsers(verbs) -> None:
     track.add_argument("--smooth", action="store_true",
                        help="also smooth the run: each frame's estimate given every frame (outputs the smoothed joints)")
     track.add_argument("--lag", type=int, help="fixed-lag smoothing: frame t − LAG estimated at frame t (implies --smooth)")
+    track.add_argument("--particle-smoother", choices=PARTICLE_SMOOTHERS, default=PARTICLE_SMOOTHERS[0],
+                       help="a particle filter's smoother: the unscented RTS over its clouds as Gaussians, or backward "
+                            "simulation, which keeps a multimodal cloud's modes (default %(default)s)")
     track.add_argument("--trajectories", type=int,
-                       help="smoothed trajectories a particle smoother draws (default 100)")
+                       help="smoothed trajectories backward simulation draws (default 100)")
     track.add_argument("--memory", help="whole-run --smooth of --detections: the filter's steps held "
                                                        "in memory (e.g. 500MB, 2GB; default 1GB), the rest spilled to a "
                                                        "temporary folder and read back by the smoother; the unscented "

@@ -30,7 +30,7 @@ from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import error_2d, mean_std, mpjpe, mpjpe_root_relative
 from priortrack.tracking.presets import Preset, load_preset
-from priortrack.filters.smoothing import TRAJECTORIES, Smoothed, smooth as smooth_run
+from priortrack.filters.smoothing import PARTICLE_SMOOTHERS, TRAJECTORIES, Smoothed, smooth as smooth_run
 from priortrack.filters.snapshot import KNOWN_FRAMES, Track
 from priortrack.observation.synthetic import Observations, default_camera, parse_scenario, synthesize
 from priortrack.body.fk import joint_positions
@@ -84,12 +84,13 @@ def _errors(estimates: np.ndarray, truth: np.ndarray, camera) -> dict[str, float
 def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", seed: int = 0,
           keep_snapshots: bool = False, progress: Callable[[int, int], None] | None = None,
           cache=None, frames: int | None = None, smooth: bool = False, lag: int | None = None,
-          trajectories: int = TRAJECTORIES, device: str = "cpu") -> TrackingRun:
+          trajectories: int = TRAJECTORIES, device: str = "cpu", particle_smoother: str = PARTICLE_SMOOTHERS[0]
+          ) -> TrackingRun:
     """Track ``motion`` with ``preset`` under ``scenario`` ("NAME" or "NAME:key=value,...").
 
     ``frames`` keeps only the first frames (at the prior's rate) of the motion. ``smooth`` also
-    smooths the run (with a fixed ``lag`` in frames, or over the whole run; ``trajectories`` drawn
-    by a particle smoother). ``device``: where a particle filter's particles live ("cpu", "cuda";
+    smooths the run (with a fixed ``lag`` in frames, or over the whole run; a particle filter's by
+    ``particle_smoother``, "gaussian" or "backward", the latter drawing ``trajectories``). ``device``: where a particle filter's particles live ("cpu", "cuda";
     :meth:`Preset.filter_for`).
 
     Returns the result {"filter", "motion", "scenario", "frames", "mpjpe_mm", "mpjpe_root_rel_mm",
@@ -112,7 +113,8 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
     torch.manual_seed(seed)
     filt = preset.build(camera, seed=seed, cache=cache, device=device)
     result_track = filt.run(observations.uv, motion, keep_snapshots=keep_snapshots or smooth, progress=progress)
-    smoothed = smooth_run(filt, result_track, observations.uv, trajectories, lag, seed) if smooth else None
+    smoothed = smooth_run(filt, result_track, observations.uv, trajectories, lag, seed,
+                          method=particle_smoother) if smooth else None
     truth = X[KNOWN_FRAMES:]
     filtered = _errors(result_track.estimates[KNOWN_FRAMES:], truth, camera)
     result = {

@@ -44,9 +44,13 @@ from priortrack.filters.backward_simulation import backward_indices, distinct
 from priortrack.filters.marginal_translation import kalman_update, predict_covariance, smooth_translation
 from priortrack.filters.proposal import GuidedProposal
 from priortrack.filters.resampling import resampler
-from priortrack.filters.smoothing import blockwise_spread
+from priortrack.filters.cloud_smoother import cloud_rts
+from priortrack.filters.posterior_linearisation import FRAMES_AT_ONCE, SMOOTHER_ALPHA
+from priortrack.filters.smoothing import blockwise_spread, gaussian_joints
 from priortrack.filters.snapshot import Snapshot
-from priortrack.filters.step_store import Column
+from priortrack.filters.step_store import Column, StepStore
+from priortrack.filters.ukf import ALPHA, BETA, KAPPA, ManifoldSigmaPoints, unscented_form
+from priortrack.models.protocols import GaussianTransition
 from priortrack.models.tracking import TrackingModel
 from priortrack.threads import torch_threads
 
@@ -455,13 +459,18 @@ class ParticleFilter(SequentialFilter):
         return log_weights - total
 
     def smooth_window(self, snapshots: list[Snapshot], observations, generator: torch.Generator,
-                      trajectories: int, moves: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Backward simulation over these steps (:mod:`priortrack.filters.smoothing`): the mean
-        (W, J, 3) of ``trajectories`` smoothed trajectories' joints, their spread (W, J) and the
-        number of distinct particles they pass through at each frame (W,); with ``moves`` K the
-        MCMC backward kernel started on the genealogy, None the exact draw."""
+                      trajectories: int, moves: int | None, method: str = "gaussian"
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The smoothed joints (W, J, 3) of these steps, their spread (W, J) and, for backward simulation, the
+        number of distinct particles its trajectories pass through at each frame (W,) (:mod:`priortrack.filters.smoothing`).
+        ``method`` "gaussian": the unscented RTS smoother over the moment-matched clouds
+        (:mod:`~priortrack.filters.cloud_smoother`; no trajectories to count). "backward": backward simulation, the
+        mean of ``trajectories`` smoothed trajectories' joints; with ``moves`` K the MCMC backward kernel started on
+        the genealogy, None the exact draw."""
         if not isinstance(self.model, TrackingModel):
             raise PriortrackError(f"smoothing decodes joints: it needs a TrackingModel, not {type(self.model).__name__}")
+        if method == "gaussian":
+            return self._gaussian_smoothed(snapshots)
         if not callable(getattr(self.model.prior, "log_prob", None)):
             raise PriortrackError(f"the {type(self.model.prior).__name__} prior has no transition density log_prob: "
                                   f"it cannot be smoothed by backward simulation")
@@ -486,3 +495,21 @@ class ParticleFilter(SequentialFilter):
 
         centre, spread = blockwise_spread(W, max(1, SMOOTH_JOINT_ROWS // M), decode)
         return centre, spread, distinct(indices).numpy()
+
+    def _gaussian_smoothed(self, snapshots: list[Snapshot]) -> tuple[np.ndarray, np.ndarray, None]:
+        """:meth:`smooth_window`'s "gaussian" method: the clouds smoothed with the unscented filters' sigma points
+        (the smoother's at ``SMOOTHER_ALPHA``, the spread's at the filter's α)."""
+        if not isinstance(self.model.prior, GaussianTransition):
+            raise PriortrackError(f"the Gaussian particle smoother needs a prior with a Gaussian transition (a mean step "
+                                  f"and a noise covariance); the {type(self.model.prior).__name__} prior has none: "
+                                  f"smooth it by backward simulation (method 'backward', --particle-smoother backward)")
+        form = unscented_form(self.model, robust=True)
+        memory = snapshots.memory if isinstance(snapshots, StepStore) else None
+        means, covariances = cloud_rts(form, ManifoldSigmaPoints(form, SMOOTHER_ALPHA, BETA, KAPPA),
+                                       Column(snapshots, "particles"), Column(snapshots, "weights"),
+                                       Column(snapshots, "translation_covariance"), memory)
+        try:
+            return *gaussian_joints(form, ManifoldSigmaPoints(form, ALPHA, BETA, KAPPA), means, covariances,
+                                    FRAMES_AT_ONCE), None
+        finally:
+            covariances.close()

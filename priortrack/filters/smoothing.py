@@ -1,12 +1,17 @@
 """Smoothing: each frame's estimate given every frame of a finished run (or, with a lag L, the
 frames up to L after it), from the filter's stored steps.
 
-- The particle filter: forward-filtering backward-simulation of M trajectories
+- The particle filter, by default (``method="gaussian"``): the unscented RTS smoother over each frame's
+  cloud moment-matched to a Gaussian (:mod:`priortrack.filters.cloud_smoother`); the estimate is the
+  joints of the smoothed mean, the spread as the unscented filter's below. With ``method="backward"``:
+  forward-filtering backward-simulation of M trajectories
   (:mod:`priortrack.filters.backward_simulation`) with the tracking model's transition density;
   with the translation integrated out, the pose and rotation are drawn and each trajectory's
   translation is Kalman-smoothed given them (Rao–Blackwellised:
   :func:`~priortrack.filters.marginal_translation.smooth_translation`). The estimate is the mean of
-  the trajectories' joints, the spread their RMS distance from it.
+  the trajectories' joints, the spread their RMS distance from it. Backward simulation keeps a
+  multimodal cloud's modes, but where the transition is narrow next to the cloud its trajectories
+  follow one particle a frame (below); the Gaussian smoother averages the cloud as the filter does.
 - The unscented filter: the iterated posterior-linearisation smoother
   (:mod:`priortrack.filters.posterior_linearisation`, whose first pass is the unscented RTS smoother
   of :mod:`priortrack.filters.unscented_rts`); the estimate is the joints of the smoothed mean, the
@@ -14,7 +19,7 @@ frames up to L after it), from the filter's stored steps.
 - Refused: the annealed particle filter (its tempered weights are not a posterior) and the MAP
   tracker (itself a sliding-window smoother, keeping no distribution).
 
-**Rounding.** Where the filter's cloud collapses (ESS a few particles of 1000, as a learned prior in a
+**Rounding** (backward simulation). Where the filter's cloud collapses (ESS a few particles of 1000, as a learned prior in a
 particle filter under several sharp cameras), the backward trajectories pass through one or two particles a
 frame (the warning below): which ones follows the last bits of the weights, so the smoothed joints of the
 same run differ from one processor's floating point to another's by as much as the cloud's reach (the
@@ -33,6 +38,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +55,8 @@ COALESCED = 0.1
 TRAJECTORIES = 100
 #: Metropolis–Hastings moves per frame of the particle smoother's backward kernel, by default.
 MOVES = 10
+#: A particle filter's smoothers (module docstring), the default first.
+PARTICLE_SMOOTHERS = ("gaussian", "backward")
 
 
 @dataclass
@@ -91,13 +99,27 @@ def blockwise_spread(frames: int, block: int, decode) -> tuple[np.ndarray, np.nd
     return np.concatenate(centres), np.concatenate(spreads)
 
 
+def gaussian_joints(form, points, means: Sequence[np.ndarray], covariances, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """The joints (W, J, 3) of W smoothed Gaussians' means (A,) and their spread (W, J) over each Gaussian's
+    sigma points (``points``, weights Wc; covariances (n, n) indexable by frame), decoded by the unscented form
+    ``form`` ``block`` frames at a time."""
+    Wc = torch.from_numpy(points.Wc)
+
+    def decode(frames: slice):
+        sigmas = torch.from_numpy(np.stack([points.sigma_points(m, P) for m, P in zip(means[frames], covariances[frames])]))
+        joints = form.observe(sigmas.flatten(0, 1)).reshape(sigmas.shape[:2] + (-1, 3)).transpose(0, 1)
+        return joints, form.observe(torch.from_numpy(np.stack(means[frames]))), Wc
+
+    return blockwise_spread(len(means), block, decode)
+
+
 def draws_for(filt, seed: int) -> torch.Generator:
     """The smoother's own generator, seeded, on the filter's device (a particle filter's particles may
     live on a GPU; the unscented filter's sigma points on the CPU)."""
     return torch.Generator(device=getattr(filt, "device", "cpu")).manual_seed(seed)
 
 
-def _check(filt, trajectories: int, moves: int | None, lag: int | None) -> None:
+def _check(filt, trajectories: int, moves: int | None, lag: int | None, method: str = PARTICLE_SMOOTHERS[0]) -> None:
     """Refuse a filter without a smoother and malformed smoothing arguments, naming them."""
     if not hasattr(filt, "smooth_window"):
         raise PriortrackError(f"{type(filt).__name__} has no smoother (the particle filters and the unscented filter "
@@ -108,6 +130,8 @@ def _check(filt, trajectories: int, moves: int | None, lag: int | None) -> None:
         raise PriortrackError(f"moves must be a whole number ≥ 0 or None (the exact draw), got {moves!r}")
     if lag is not None and (isinstance(lag, bool) or not isinstance(lag, int) or lag < 0):
         raise PriortrackError(f"lag must be a whole number of frames ≥ 0, got {lag!r}")
+    if method not in PARTICLE_SMOOTHERS:
+        raise PriortrackError(f"a particle smoother is one of {', '.join(PARTICLE_SMOOTHERS)}, got {method!r}")
 
 
 class FixedLagSmoother:
@@ -119,14 +143,15 @@ class FixedLagSmoother:
     Args:
         filt: the running filter (a ParticleFilter or UnscentedFilter).
         lag: L, in frames (≥ 0).
-        trajectories, seed, moves: as :func:`smooth`.
+        trajectories, seed, moves, method: as :func:`smooth`.
     """
 
-    def __init__(self, filt, lag: int, trajectories: int = TRAJECTORIES, seed: int = 0, moves: int | None = MOVES):
-        _check(filt, trajectories, moves, lag)
+    def __init__(self, filt, lag: int, trajectories: int = TRAJECTORIES, seed: int = 0, moves: int | None = MOVES,
+                 method: str = PARTICLE_SMOOTHERS[0]):
+        _check(filt, trajectories, moves, lag, method)
         if lag is None:
             raise PriortrackError("a fixed-lag smoother needs a lag (whole frames ≥ 0)")
-        self.filt, self.lag, self.trajectories, self.moves = filt, lag, trajectories, moves
+        self.filt, self.lag, self.trajectories, self.moves, self.method = filt, lag, trajectories, moves, method
         self.generator = draws_for(filt, seed)
         self.window: deque = deque(maxlen=lag + 1)             # (snapshot, observation) of the last L + 1 frames
         self.released: list[tuple] = []                       # per released frame: (estimate, spread, distinct)
@@ -137,7 +162,7 @@ class FixedLagSmoother:
         start = time.perf_counter()
         snapshots, data = zip(*self.window)
         part = self.filt.smooth_window(list(snapshots), np.stack(data), self.generator,
-                                       trajectories=self.trajectories, moves=self.moves)
+                                       trajectories=self.trajectories, moves=self.moves, method=self.method)
         self.seconds += time.perf_counter() - start
         return part
 
@@ -179,7 +204,7 @@ def _assembled(known: np.ndarray, estimates: np.ndarray, spread: np.ndarray, dis
 
 
 def smooth(filt, track: Track, observations, trajectories: int = TRAJECTORIES, lag: int | None = None,
-           seed: int = 0, moves: int | None = MOVES) -> Smoothed:
+           seed: int = 0, moves: int | None = MOVES, method: str = PARTICLE_SMOOTHERS[0]) -> Smoothed:
     """The smoothed estimates of a finished run (module docstring); with a ``lag``, by
     :class:`FixedLagSmoother` over the run's steps.
 
@@ -194,8 +219,10 @@ def smooth(filt, track: Track, observations, trajectories: int = TRAJECTORIES, l
         moves: the particle smoother's backward kernel: K Metropolis–Hastings moves from the
             genealogy's ancestor, (K + 1) M densities a frame; None: the exact draw, M N densities
             a frame (:mod:`priortrack.filters.backward_simulation`).
+        method: a particle filter's smoother, "gaussian" or "backward" (module docstring; trajectories and
+            moves are backward simulation's).
     """
-    _check(filt, trajectories, moves, lag)
+    _check(filt, trajectories, moves, lag, method)
     if track.snapshots is None:
         raise PriortrackError("smoothing needs the filter's steps: run it with keep_snapshots=True")
     snapshots = track.snapshots
@@ -205,12 +232,12 @@ def smooth(filt, track: Track, observations, trajectories: int = TRAJECTORIES, l
                               f"{KNOWN_FRAMES + len(snapshots)} frames")
     known = track.estimates[:KNOWN_FRAMES]
     if lag is not None:
-        online = FixedLagSmoother(filt, lag, trajectories, seed, moves)
+        online = FixedLagSmoother(filt, lag, trajectories, seed, moves, method)
         for snapshot, z in zip(snapshots, observations[KNOWN_FRAMES:]):
             online.push(snapshot, z)
         return online.result(known)
     start = time.perf_counter()
     estimates, spread, distinct = filt.smooth_window(snapshots, observations[KNOWN_FRAMES:],
                                                      draws_for(filt, seed),
-                                                     trajectories=trajectories, moves=moves)
+                                                     trajectories=trajectories, moves=moves, method=method)
     return _assembled(known, estimates, spread, distinct, None, time.perf_counter() - start, trajectories)

@@ -788,7 +788,7 @@ class UnscentedFilter(SequentialFilter):
         lend the smoother their memory budget for its own per-frame matrices too."""
         from priortrack.filters.posterior_linearisation import (FRAMES_AT_ONCE, SMOOTHER_ALPHA,
                                                                 posterior_linearisation)
-        from priortrack.filters.smoothing import blockwise_spread
+        from priortrack.filters.smoothing import gaussian_joints
         from priortrack.filters.step_store import Column, StepStore
 
         points = self.kf.points_fn
@@ -798,15 +798,7 @@ class UnscentedFilter(SequentialFilter):
                                                      held_out=Column(snapshots, "held_out"),
                                                      swapped=Column(snapshots, "swapped"),
                                                      memory=snapshots.memory if isinstance(snapshots, StepStore) else None)
-        Wc = torch.from_numpy(points.Wc)
-
-        def decode(frames: slice):
-            sigmas = torch.from_numpy(np.stack([points.sigma_points(m, P)
-                                                for m, P in zip(means[frames], covariances[frames])]))
-            joints = self.unscented.observe(sigmas.flatten(0, 1)).reshape(sigmas.shape[:2] + (-1, 3)).transpose(0, 1)
-            return joints, self.unscented.observe(torch.from_numpy(np.stack(means[frames]))), Wc
-
         try:
-            return *blockwise_spread(len(means), FRAMES_AT_ONCE, decode), None
+            return *gaussian_joints(self.unscented, points, means, covariances, FRAMES_AT_ONCE), None
         finally:
             covariances.close()

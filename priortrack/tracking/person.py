@@ -76,7 +76,8 @@ from priortrack.data.detections import Detections
 from priortrack.data.motion import Motion
 from priortrack.data.skeleton import Skeleton
 from priortrack.data.trc import write_trc
-from priortrack.filters.smoothing import TRAJECTORIES, FixedLagSmoother, joint_spread, smooth as smooth_run
+from priortrack.filters.smoothing import (PARTICLE_SMOOTHERS, TRAJECTORIES, FixedLagSmoother, joint_spread,
+                                         smooth as smooth_run)
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
@@ -436,8 +437,8 @@ class TrackConfig:
         seed: seeds the filter.
         height: the person's standing height, metres: the body's size and depth from one camera.
         smooth: also smooth the run (:mod:`priortrack.filters.smoothing`) and give the smoothed joints;
-            lag: with a fixed lag of that many ticks (None: over the whole run); trajectories: the
-            particle smoother's backward trajectories.
+            lag: with a fixed lag of that many ticks (None: over the whole run); particle_smoother: a
+            particle filter's, "gaussian" or "backward"; trajectories: backward simulation's.
         keep_snapshots: keep the filter's steps (a recording's particle clouds), every ``snapshot_every``-th
             tick's.
         interruptible: Ctrl-C during the filter's run ends it there; the result holds the ticks tracked
@@ -456,6 +457,7 @@ class TrackConfig:
     height: float = 1.7
     smooth: bool = False
     lag: int | None = None
+    particle_smoother: str = PARTICLE_SMOOTHERS[0]
     trajectories: int = TRAJECTORIES
     keep_snapshots: bool = False
     snapshot_every: int = 1
@@ -595,7 +597,8 @@ class PersonRun:
         config = self.config
         self.spread = np.full((len(self.z), 15), np.nan)
         self.whole = config.smooth and config.lag is None     # the whole run's smoother: what it needs of every step
-        self.online = (FixedLagSmoother(self.filt, config.lag, config.trajectories, config.seed)
+        self.online = (FixedLagSmoother(self.filt, config.lag, config.trajectories, config.seed,
+                                        method=config.particle_smoother)
                        if config.smooth and config.lag is not None else None)
         self.for_smoother = StepStore(config.memory) if self.whole else None
 
@@ -632,7 +635,8 @@ class PersonRun:
                 log.info("smoothing %d ticks, %d of them read back from disk", len(self.for_smoother), self.for_smoother.spilled)
             try:
                 smoothed = smooth_run(self.filt, replace(run, snapshots=self.for_smoother), z[:len(run.estimates)],
-                                      self.config.trajectories, None, self.config.seed)
+                                      self.config.trajectories, None, self.config.seed,
+                                      method=self.config.particle_smoother)
             finally:
                 self.for_smoother.close()                    # the smoother has them; let them go
         else:
