@@ -114,7 +114,6 @@ def test_the_cloud_smoother_is_the_kalman_rts_smoother_on_clouds_of_the_kalman_f
     the unscented RTS over them is the Kalman RTS smoother, to rounding."""
     from linear_gaussian import kalman
     from priortrack.filters.cloud_smoother import cloud_gaussian, cloud_rts
-    from priortrack.filters.posterior_linearisation import SMOOTHER_ALPHA
 
     model = LinearGaussian(A, Q, H, R)
     _, zs = _simulate(0)
@@ -123,8 +122,7 @@ def test_the_cloud_smoother_is_the_kalman_rts_smoother_on_clouds_of_the_kalman_f
     m, P = cloud_gaussian(model, *clouds[3])
     np.testing.assert_allclose(m, filtered[3][0], atol=1e-12)
     np.testing.assert_allclose(P, filtered[3][1], atol=1e-12)
-    points = ManifoldSigmaPoints(model, SMOOTHER_ALPHA, 2.0, 0.0)
-    means, covariances = cloud_rts(model, points, *zip(*clouds), [None] * STEPS)
+    means, covariances = cloud_rts(model, *zip(*clouds), [None] * STEPS)
     reference_means, reference_covariances = kalman_rts(model, M0, P0, zs)
     assert np.abs(np.array(means) - reference_means).max() < 1e-8
     assert np.abs(covariances[:] - reference_covariances).max() < 1e-8
@@ -147,11 +145,10 @@ def test_the_cloud_smoother_of_a_particle_filter_is_near_the_kalman_rts_smoother
     average from the RTS means when measured (0.57 σ at most; the filter's own means 1.4 σ), the smoothed σ 0.99
     of the RTS σ on average."""
     from priortrack.filters.cloud_smoother import cloud_rts
-    from priortrack.filters.posterior_linearisation import SMOOTHER_ALPHA
 
     model, zs, snapshots = linear_particle_run
-    means, covariances = cloud_rts(model, ManifoldSigmaPoints(model, SMOOTHER_ALPHA, 2.0, 0.0),
-                                   [s.particles for s in snapshots], [s.weights for s in snapshots], [None] * STEPS)
+    means, covariances = cloud_rts(model, [s.particles for s in snapshots], [s.weights for s in snapshots],
+                                   [None] * STEPS)
     reference_means, reference_covariances = kalman_rts(model, M0, P0, zs)
     sigma = np.sqrt(np.diagonal(reference_covariances, axis1=1, axis2=2))
     off = np.abs(np.array(means) - reference_means) / sigma

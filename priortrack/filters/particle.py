@@ -45,7 +45,7 @@ from priortrack.filters.marginal_translation import kalman_update, predict_covar
 from priortrack.filters.proposal import GuidedProposal
 from priortrack.filters.resampling import resampler
 from priortrack.filters.cloud_smoother import cloud_rts
-from priortrack.filters.posterior_linearisation import FRAMES_AT_ONCE, SMOOTHER_ALPHA
+from priortrack.filters.posterior_linearisation import FRAMES_AT_ONCE
 from priortrack.filters.smoothing import blockwise_spread, gaussian_joints
 from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.step_store import Column, StepStore
@@ -497,17 +497,16 @@ class ParticleFilter(SequentialFilter):
         return centre, spread, distinct(indices).numpy()
 
     def _gaussian_smoothed(self, snapshots: list[Snapshot]) -> tuple[np.ndarray, np.ndarray, None]:
-        """:meth:`smooth_window`'s "gaussian" method: the clouds smoothed with the unscented filters' sigma points
-        (the smoother's at ``SMOOTHER_ALPHA``, the spread's at the filter's α)."""
+        """:meth:`smooth_window`'s "gaussian" method: the clouds smoothed, the spread over the smoothed Gaussians'
+        sigma points at the unscented filter's α."""
         if not isinstance(self.model.prior, GaussianTransition):
             raise PriortrackError(f"the Gaussian particle smoother needs a prior with a Gaussian transition (a mean step "
                                   f"and a noise covariance); the {type(self.model.prior).__name__} prior has none: "
                                   f"smooth it by backward simulation (method 'backward', --particle-smoother backward)")
         form = unscented_form(self.model, robust=True)
         memory = snapshots.memory if isinstance(snapshots, StepStore) else None
-        means, covariances = cloud_rts(form, ManifoldSigmaPoints(form, SMOOTHER_ALPHA, BETA, KAPPA),
-                                       Column(snapshots, "particles"), Column(snapshots, "weights"),
-                                       Column(snapshots, "translation_covariance"), memory)
+        means, covariances = cloud_rts(form, Column(snapshots, "particles"), Column(snapshots, "weights"),
+                                       Column(snapshots, "translation_covariance"), memory, self.model.mean)
         try:
             return *gaussian_joints(form, ManifoldSigmaPoints(form, ALPHA, BETA, KAPPA), means, covariances,
                                     FRAMES_AT_ONCE), None

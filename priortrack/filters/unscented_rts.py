@@ -38,21 +38,34 @@ def unscented_rts(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray
     :class:`~priortrack.filters.step_store.RecordArray` within ``memory`` bytes (None: in memory)."""
     if len(means) != len(covariances) or not len(means):
         raise PriortrackError(f"{len(means)} means and {len(covariances)} covariances: expected as many, at least one")
-    T = len(means)
-    smoothed_means = [None] * T
-    smoothed_covariances = RecordArray(T, covariances[-1].shape, memory)
-    smoothed_means[-1], smoothed_covariances[-1] = means[-1], covariances[-1]
     Wm, Wc = torch.from_numpy(points.Wm), points.Wc
-    for k in range(T - 2, -1, -1):
+
+    def prediction(k: int):
         m, P = means[k], covariances[k]
-        m_t = torch.from_numpy(m)
         chi = torch.from_numpy(points.sigma_points(m, P))
         chi_next = model.mean_step(chi)
         m_pred = model.sigma_mean(chi_next, Wm)
         r_next = model.boxminus(chi_next, m_pred).numpy()
-        r = model.boxminus(chi, m_t).numpy()
-        P_pred = (r_next.T * Wc) @ r_next + model.process_covariance(m_t).numpy()
-        D = (r.T * Wc) @ r_next
+        r = model.boxminus(chi, torch.from_numpy(m)).numpy()
+        P_pred = (r_next.T * Wc) @ r_next + model.process_covariance(torch.from_numpy(m)).numpy()
+        return m, P, m_pred, P_pred, (r.T * Wc) @ r_next
+
+    return rts_backwards(model, len(means), prediction, memory)
+
+
+def rts_backwards(model, T: int, prediction, memory: int | None = None) -> tuple[list[np.ndarray], RecordArray]:
+    """The RTS recursion of the module docstring over T frames, from the last: ``prediction(k)`` gives frame k's
+    filtered (m_k (A,), P_k (n, n)), its prediction (m⁻ (A,) tensor, P⁻ (n, n)) and the cross-covariance D (n, n)
+    (however they were computed: sigma points here, a particle cloud in
+    :mod:`~priortrack.filters.cloud_smoother`); of the last frame only m and P are read. The smoothed covariances
+    are a :class:`~priortrack.filters.step_store.RecordArray` within ``memory`` bytes (None: in memory)."""
+    smoothed_means = [None] * T
+    m_last, P_last = prediction(T - 1)[:2]
+    smoothed_covariances = RecordArray(T, P_last.shape, memory)
+    smoothed_means[-1], smoothed_covariances[-1] = m_last, P_last
+    for k in range(T - 2, -1, -1):
+        m, P, m_pred, P_pred, D = prediction(k)
+        m_t = torch.from_numpy(m)
         G = np.linalg.solve(P_pred.T, D.T).T
         m_s_next = torch.from_numpy(smoothed_means[k + 1])
         into_pred = model.transport(m_s_next, m_pred).numpy()
