@@ -52,6 +52,10 @@ def _modules_after(code: str) -> set[str]:
 
 def test_the_help_and_argument_errors_do_not_import_torch():
     assert "torch" not in _modules_after("from priortrack.cli.main import build_parser; build_parser()")
+    from priortrack.cli import track
+    from priortrack.filters import smoothing
+
+    assert track.PARTICLE_SMOOTHERS == smoothing.PARTICLE_SMOOTHERS           # the CLI's copy, kept free of torch
     for argv in (["--help"], ["fit", "no-such-kind", "--train", "x", "--out", "y.npz"]):
         modules = _modules_after(f"from priortrack.cli.main import main\ntry:\n    main({argv!r})\n"
                                  f"except SystemExit:\n    pass")

@@ -9,7 +9,6 @@ from dataclasses import replace
 
 from priortrack.cli.common import Progress, print_json
 from priortrack.errors import PriortrackError
-from priortrack.filters.smoothing import PARTICLE_SMOOTHERS
 from priortrack.output import output_path
 
 log = logging.getLogger(__name__)
@@ -52,6 +51,10 @@ def _track(args: argparse.Namespace) -> None:
           f"{1000 * r['seconds_per_frame']:.0f} ms/frame"
           + (f", mean ESS {r['mean_ess']:.0f}" if r["mean_ess"] is not None else "")
           + (f"; wrote {args.rrd}" if args.rrd else ""))
+
+
+#: :data:`priortrack.filters.smoothing.PARTICLE_SMOOTHERS`, named here so that the help does not import torch.
+PARTICLE_SMOOTHERS = ("gaussian", "backward")
 
 
 def _smoothing(args: argparse.Namespace) -> dict:
