@@ -280,7 +280,7 @@ class OneCameraFit:
             raise PriortrackError(f"inverse kinematics from one camera: frames "
                                   f"{np.flatnonzero(seen.sum(axis=1) < 6).tolist()} have fewer than 6 detected joints")
         self.M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-        self.skeleton, self.camera = skeleton, camera
+        self.skeleton, self.camera, self.pose = skeleton, camera, pose
         index = eval15_indices(skeleton)
         rest = self.M @ ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels))[index].numpy()
         depth = camera.fx * _metres_per_pixel(rest, uv, seen)
@@ -339,7 +339,7 @@ class OneCameraFit:
         cost = self.cost(theta)
         for limb in LIMBS:
             for targets in limb_branches(self.joints(theta), centre, limb):
-                trial = self.fit(refit_to_joints(targets, theta, self.skeleton, self.M, self.problem.pose))
+                trial = self.fit(refit_to_joints(targets, theta, self.skeleton, self.M, self.pose))
                 trial_cost = self.cost(trial)
                 if trial_cost < cost:
                     theta, cost = trial, trial_cost
@@ -461,7 +461,6 @@ class _LevenbergMarquardt:
         self.index = eval15_indices(skeleton)
         self.M = torch.as_tensor(M)
         self.moving = moving_channels(skeleton, self.index)
-        self.pose = pose
         self.weights, self.centre = pull(skeleton, pose)                        # (C,) λ w_c, θ̄_c
         self.lam = self.weights[self.moving]
 

@@ -271,8 +271,8 @@ def add_parsers(verbs) -> None:
                        help="also smooth the run: each frame's estimate given every frame (outputs the smoothed joints)")
     track.add_argument("--lag", type=int, help="fixed-lag smoothing: frame t − LAG estimated at frame t (implies --smooth)")
     track.add_argument("--particle-smoother", choices=PARTICLE_SMOOTHERS, default=PARTICLE_SMOOTHERS[0],
-                       help="a particle filter's smoother: the unscented RTS over its clouds as Gaussians, or backward "
-                            "simulation, which keeps a multimodal cloud's modes (default %(default)s)")
+                       help="a particle filter's smoother: the RTS recursion on each frame's cloud moments, or "
+                            "backward simulation, which keeps a multimodal cloud's modes (default %(default)s)")
     track.add_argument("--trajectories", type=int,
                        help="smoothed trajectories backward simulation draws (default 100)")
     track.add_argument("--memory", help="whole-run --smooth of --detections: the filter's steps held "

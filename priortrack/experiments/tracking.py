@@ -90,8 +90,8 @@ def track(motion: Motion | str, preset: Preset | str, scenario: str = "clean", s
 
     ``frames`` keeps only the first frames (at the prior's rate) of the motion. ``smooth`` also
     smooths the run (with a fixed ``lag`` in frames, or over the whole run; a particle filter's by
-    ``particle_smoother``, "gaussian" or "backward", the latter drawing ``trajectories``). ``device``: where a particle filter's particles live ("cpu", "cuda";
-    :meth:`Preset.filter_for`).
+    ``particle_smoother``, "gaussian" or "backward", the latter drawing ``trajectories``). ``device``: where a
+    particle filter's particles live ("cpu", "cuda"; :meth:`Preset.filter_for`).
 
     Returns the result {"filter", "motion", "scenario", "frames", "mpjpe_mm", "mpjpe_root_rel_mm",
     "err2d_px", "seconds_per_frame", "mean_ess"} with the run behind it; smoothed, the errors are

@@ -58,7 +58,9 @@ class _Cloud:
         self.s = particles.detach().cpu().to(torch.float64)
         w = weights.detach().cpu().to(torch.float64)
         self.w = w / w.sum()
-        self.m = (form.sigma_mean if mean is None else mean)(self.s, self.w)
+        #: The weighted mean of states (N, A) under these weights: ``mean``, else the form's ``sigma_mean``.
+        self.average = form.sigma_mean if mean is None else mean
+        self.m = self.average(self.s, self.w)
         self.r = form.boxminus(self.s, self.m)
         self.C = (None if translation_covariance is None else
                   torch.einsum("p,pij->ij", self.w, translation_covariance.detach().cpu().to(torch.float64)))
@@ -83,10 +85,10 @@ def cloud_gaussian(form, particles: torch.Tensor, weights: torch.Tensor,
     return cloud.m.numpy(), repaired_covariance(cloud.covariance(form).numpy())[0]
 
 
-def _prediction(form, cloud: _Cloud, mean):
+def _prediction(form, cloud: _Cloud):
     """(m_t, P_t, m⁻, P⁻, D) of the module docstring for one frame's cloud."""
     f = form.mean_step(cloud.s)
-    m_pred = (form.sigma_mean if mean is None else mean)(f, cloud.w)
+    m_pred = cloud.average(f, cloud.w)
     r_next = form.boxminus(f, m_pred)
     P = cloud.covariance(form)
     P_pred = (r_next.T * cloud.w) @ r_next + form.process_covariance(cloud.m)
@@ -110,6 +112,8 @@ def cloud_rts(form, particles: Sequence[torch.Tensor], weights: Sequence[torch.T
     within ``memory`` bytes) of W frames' clouds (module docstring; ``mean`` as :func:`cloud_gaussian`'s), each
     frame read once, from the last (a spilled run's steps come from disk one at a time)."""
     def prediction(k: int):
-        return _prediction(form, _Cloud(form, particles[k], weights[k], translation_covariances[k], mean), mean)
+        return _prediction(form, _Cloud(form, particles[k], weights[k], translation_covariances[k], mean))
 
-    return rts_backwards(form, len(particles), prediction, memory)
+    T = len(particles)
+    last = cloud_gaussian(form, particles[T - 1], weights[T - 1], translation_covariances[T - 1], mean)
+    return rts_backwards(form, T, last, prediction, memory)

@@ -463,7 +463,7 @@ class ParticleFilter(SequentialFilter):
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The smoothed joints (W, J, 3) of these steps, their spread (W, J) and, for backward simulation, the
         number of distinct particles its trajectories pass through at each frame (W,) (:mod:`priortrack.filters.smoothing`).
-        ``method`` "gaussian": the unscented RTS smoother over the moment-matched clouds
+        ``method`` "gaussian": the RTS recursion on each frame's cloud moments
         (:mod:`~priortrack.filters.cloud_smoother`; no trajectories to count). "backward": backward simulation, the
         mean of ``trajectories`` smoothed trajectories' joints; with ``moves`` K the MCMC backward kernel started on
         the genealogy, None the exact draw."""

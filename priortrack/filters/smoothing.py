@@ -1,9 +1,9 @@
 """Smoothing: each frame's estimate given every frame of a finished run (or, with a lag L, the
 frames up to L after it), from the filter's stored steps.
 
-- The particle filter, by default (``method="gaussian"``): the unscented RTS smoother over each frame's
-  cloud moment-matched to a Gaussian (:mod:`priortrack.filters.cloud_smoother`); the estimate is the
-  joints of the smoothed mean, the spread as the unscented filter's below. With ``method="backward"``:
+- The particle filter, by default (``method="gaussian"``): the RTS recursion with each frame's mean,
+  covariance and prediction taken from its cloud (:mod:`priortrack.filters.cloud_smoother`); the estimate
+  is the joints of the smoothed mean, the spread as the unscented filter's below. With ``method="backward"``:
   forward-filtering backward-simulation of M trajectories
   (:mod:`priortrack.filters.backward_simulation`) with the tracking model's transition density;
   with the translation integrated out, the pose and rotation are drawn and each trajectory's

@@ -50,17 +50,18 @@ def unscented_rts(model, points: ManifoldSigmaPoints, means: Sequence[np.ndarray
         P_pred = (r_next.T * Wc) @ r_next + model.process_covariance(torch.from_numpy(m)).numpy()
         return m, P, m_pred, P_pred, (r.T * Wc) @ r_next
 
-    return rts_backwards(model, len(means), prediction, memory)
+    return rts_backwards(model, len(means), (means[-1], covariances[-1]), prediction, memory)
 
 
-def rts_backwards(model, T: int, prediction, memory: int | None = None) -> tuple[list[np.ndarray], RecordArray]:
-    """The RTS recursion of the module docstring over T frames, from the last: ``prediction(k)`` gives frame k's
-    filtered (m_k (A,), P_k (n, n)), its prediction (m⁻ (A,) tensor, P⁻ (n, n)) and the cross-covariance D (n, n)
-    (however they were computed: sigma points here, a particle cloud in
-    :mod:`~priortrack.filters.cloud_smoother`); of the last frame only m and P are read. The smoothed covariances
-    are a :class:`~priortrack.filters.step_store.RecordArray` within ``memory`` bytes (None: in memory)."""
+def rts_backwards(model, T: int, last: tuple[np.ndarray, np.ndarray], prediction,
+                  memory: int | None = None) -> tuple[list[np.ndarray], RecordArray]:
+    """The RTS recursion of the module docstring over T frames, from the ``last`` frame's filtered (m (A,), P (n, n)):
+    ``prediction(k)``, k < T − 1, gives frame k's filtered (m_k (A,), P_k (n, n)), its prediction (m⁻ (A,) tensor,
+    P⁻ (n, n)) and the cross-covariance D (n, n) (however they were computed: sigma points here, a particle cloud in
+    :mod:`~priortrack.filters.cloud_smoother`). The smoothed covariances are a
+    :class:`~priortrack.filters.step_store.RecordArray` within ``memory`` bytes (None: in memory)."""
     smoothed_means = [None] * T
-    m_last, P_last = prediction(T - 1)[:2]
+    m_last, P_last = last
     smoothed_covariances = RecordArray(T, P_last.shape, memory)
     smoothed_means[-1], smoothed_covariances[-1] = m_last, P_last
     for k in range(T - 2, -1, -1):
