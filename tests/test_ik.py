@@ -303,3 +303,17 @@ def test_a_robust_one_camera_fit_is_bent_less_by_outliers(one_camera):
     robust_mm = _relative_mm(fit.joints(theta), X)
     assert float(fit.rho[1, 5]) < 0.2 and float(fit.rho[4, 7]) < 0.2 and float(fit.rho[0].min()) > 0.5
     assert bent_mm > clean_mm + 10 and robust_mm < bent_mm - 8, (clean_mm, bent_mm, robust_mm)
+
+
+def test_bad_pixels_for_one_camera_are_named(one_camera):
+    """The one-camera fit refuses pixels of the wrong shape and frames with fewer than 6 detected joints."""
+    from priortrack.body.ik import OneCameraFit
+
+    X, cameras, skeleton, spread = one_camera
+    uv = cameras[0].project(X)[0]
+    with pytest.raises(PriortrackError, match=r"pixels \(8, 15, 3\) and weights \(8, 15\); expected"):
+        OneCameraFit(np.concatenate([uv, uv[..., :1]], -1), np.ones(X.shape[:2]), cameras[0], skeleton)
+    weights = np.ones(X.shape[:2])
+    weights[2, 5:] = 0.0
+    with pytest.raises(PriortrackError, match=r"frames \[2\] have fewer than 6 detected joints"):
+        OneCameraFit(uv, weights, cameras[0], skeleton, pose=spread)

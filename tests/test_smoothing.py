@@ -318,6 +318,8 @@ def test_what_cannot_be_smoothed_says_why(tmp_path):
         smooth(filt, track, z, trajectories=0)
     with pytest.raises(PriortrackError, match="7 frames of observations for a run of 8"):
         smooth(filt, track, z[:7])
+    with pytest.raises(PriortrackError, match="a particle smoother is one of gaussian, backward, got 'rts'"):
+        smooth(filt, track, z, method="rts")
     apf, apf_track = _filter("apf-diffusion-local", run, tmp_path)
     with pytest.raises(PriortrackError, match="tempered"):
         smooth(apf, apf_track, z)
