@@ -100,3 +100,68 @@ def triangulate(cameras: Sequence[PinholeCamera], uv: np.ndarray, weights: np.nd
     points = np.concatenate([_dlt(cameras, uv[:, s:s + CHUNK], weights[:, s:s + CHUNK])
                              for s in range(0, N, CHUNK)]) if N else np.zeros((0, 3))
     return points.reshape(shape + (3,))
+
+
+#: Gauss–Newton rounds of :func:`robust_triangulate` after its start, and the central difference's step (metres) of
+#: the projection's Jacobian in them.
+ROBUST_ROUNDS, JACOBIAN_STEP = 6, 1e-6
+
+
+def robust_triangulate(cameras: Sequence[PinholeCamera], uv: np.ndarray, weights: np.ndarray | None,
+                       sigma_px: float, nu: float) -> np.ndarray:
+    """:func:`triangulate` under the trackers' Student-t pixel noise (scale ``sigma_px``, ``nu`` degrees of freedom):
+    a detection thrown far off (a detector's outlier) no longer drags the point towards its ray.
+
+    Each point X minimises the Student-t's negative log-likelihood
+
+        E(X) = Σ_c w_c ln(1 + d_c² / (ν σ²)),   d_c = ‖u_c − π_c(X)‖ (pixels, through camera c's distortion),
+
+    w_c the detection's confidence. The start is the best, by E, of the DLT by every camera and, where three or more
+    see the point, of each DLT leaving one camera out (a single outlier's camera is one of them); then
+    :data:`ROBUST_ROUNDS` rounds of iteratively reweighted Gauss–Newton, each solving
+    (Σ_c ρ_c J_cᵀ J_c) δ = Σ_c ρ_c J_cᵀ r_c with ρ_c = w_c / (ν σ² + d_c²) the Student-t's weight (Lange, Little &
+    Taylor, JASA 84, 1989) and J_c = ∂π_c/∂X, a step kept only where it lowers E. Shapes as :func:`triangulate`."""
+    uv = np.asarray(uv, dtype=np.float64)
+    C = len(cameras)
+    weights = np.ones(uv.shape[:-1]) if weights is None else np.asarray(weights, dtype=np.float64)
+    if not (sigma_px > 0 and nu > 0):
+        raise PriortrackError(f"robust triangulation needs sigma_px > 0 and nu > 0, got {sigma_px} and {nu}")
+    points = triangulate(cameras, uv, weights)                                     # checks the shapes
+    seen = np.isfinite(uv).all(axis=-1) & (weights > 0)                             # (C, ...)
+    w = np.where(seen, weights, 0.0)
+    scale = nu * sigma_px ** 2
+
+    def projected(X: np.ndarray) -> np.ndarray:                                    # (C, ..., 2), NaN behind
+        return np.stack([camera.project(np.nan_to_num(X)[..., None, :])[0][..., 0, :] for camera in cameras])
+
+    def residuals(X: np.ndarray) -> np.ndarray:                                    # (C, ..., 2), 0 where unseen
+        return np.where(seen[..., None], uv - projected(X), 0.0)
+
+    def cost(X: np.ndarray) -> np.ndarray:
+        d2 = np.nan_to_num((residuals(X) ** 2).sum(-1), nan=np.inf)
+        return np.where(np.isfinite(X).all(-1), (w * np.log1p(d2 / scale)).sum(0), np.inf)
+
+    best = cost(points)
+    if C >= 3:
+        for c in range(C):
+            others = [k for k in range(C) if k != c]
+            X = triangulate([cameras[k] for k in others], uv[others], weights[others])
+            trial = cost(X)
+            better = trial < best
+            points[better], best[better] = X[better], trial[better]
+    steps = np.eye(3) * JACOBIAN_STEP
+    for _ in range(ROBUST_ROUNDS):
+        r = residuals(points)
+        rho = np.nan_to_num(w / (scale + (r ** 2).sum(-1)))                          # (C, ...)
+        J = np.stack([(projected(points + e) - projected(points - e)) / (2 * JACOBIAN_STEP) for e in steps], -1)
+        J, r = np.nan_to_num(J), np.nan_to_num(r)                                  # behind a camera: no pull
+        A = np.einsum("c...,c...ki,c...kj->...ij", rho, J, J)
+        b = np.einsum("c...,c...ki,c...k->...i", rho, J, r)
+        solvable = np.isfinite(points).all(-1) & (np.linalg.det(A) > 1e-12 * np.abs(A).max(axis=(-1, -2)) ** 3)
+        delta = np.zeros_like(points)
+        delta[solvable] = np.linalg.solve(A[solvable], b[solvable][..., None])[..., 0]
+        X = points + delta
+        trial = cost(X)
+        better = trial < best
+        points[better], best[better] = X[better], trial[better]
+    return points

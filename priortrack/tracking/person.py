@@ -17,8 +17,9 @@
 3. **Start without truth.** From one camera, the body is the template scaled to the person's
    ``height`` and fitted to the first ticks' detections in 2D, its depth from its image size, the pixels
    weighed by the robust likelihood's Student-t and each limb's depth branches tried
-   (:func:`priortrack.body.ik.inverse_kinematics_2d`). From several, each tick's joints are triangulated (confidence-weighted DLT through the
-   lens distortion); the first two consecutive ticks with at least ``START_JOINTS`` joints
+   (:func:`priortrack.body.ik.inverse_kinematics_2d`). From several, each tick's joints are triangulated (confidence-weighted, through the
+   lens distortion, under the likelihood's Student-t: :func:`~priortrack.geometry.triangulation.robust_triangulate`,
+   a detector's outlier does not drag a joint); the first two consecutive ticks with at least ``START_JOINTS`` joints
    triangulated (where the trial never shows as many, a person seated at a desk: the joints it shows in
    most ticks, :func:`start_joints`), each reprojecting into every camera about as well as the trial's typical tick
    (:func:`start_ticks`: not a tick where one camera swapped left and right), start the filter: the body (the prior's skeleton, or CMU subject 35's) is scaled to
@@ -87,7 +88,7 @@ from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.filters.step_store import DEFAULT_MEMORY, StepStore
 from priortrack.geometry.camera import PinholeCamera, pixel_errors
 from priortrack.geometry.frames import in_working_frame, to_y_up, up_from_person, up_vector
-from priortrack.geometry.triangulation import triangulate
+from priortrack.geometry.triangulation import robust_triangulate, triangulate
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation.ticks import BLOCK_TICKS, TickObservations
 from priortrack.observation.multiview import DEFAULT_NU, DEFAULT_SIGMA_PX, MultiViewLikelihood
@@ -344,7 +345,7 @@ def schedule(frames: np.ndarray, data_fps: float, prior_fps: float) -> np.ndarra
 
 
 def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple[str, ...], source: str,
-                 min_confidence: float) -> tuple[np.ndarray | None, np.ndarray, np.ndarray | None, np.ndarray]:
+                 min_confidence: float, noise: tuple[float, float]) -> tuple[np.ndarray | None, np.ndarray, np.ndarray | None, np.ndarray]:
     """One pass over the run's ticks z, a block at a time (module docstring, step 3): each tick's
     triangulation X (T, 15, 3) in the working frame after the cross-view check (None with one camera),
     the joints seen (T, 15) (triangulated; one camera: detected), each tick's worst camera's median
@@ -361,14 +362,14 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
     for start, block in z.blocks(raw=True):
         ticks = slice(start, start + len(block))
         shown |= (np.nan_to_num(block[..., 2]) > 0).any(axis=(0, 2))
-        every = None if single else triangulated(cameras, block)                         # by every camera
+        every = None if single else triangulated(cameras, block, noise)                  # by every camera
         behind += _behind(cameras, block, every)
         left_out[ticks] = cross_view_check(cameras, block)
         if single:
             seen[ticks] = (np.nan_to_num(block[:, 0, :, 2]) > 0) & np.isfinite(block[:, 0, :, 0])
             continue
         again = left_out[ticks].any(axis=1)                  # the ticks a camera was left out of, by the others
-        every[again] = triangulated(cameras, block[again])
+        every[again] = triangulated(cameras, block[again], noise)
         X[ticks] = every
         seen[ticks] = np.isfinite(X[ticks]).all(axis=-1)
         residual[ticks] = np.stack([np.nan_to_num(median_reprojection(camera, X[ticks], block[:, c]), nan=-np.inf)
@@ -387,9 +388,11 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
     return X, seen, residual, left_out
 
 
-def triangulated(cameras: list[PinholeCamera], block: np.ndarray) -> np.ndarray:
-    """(T, 15, 3) each tick's confidence-weighted triangulation of observations block (T, C, 15, 3)."""
-    return triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(block[..., 2]).transpose(1, 0, 2))
+def triangulated(cameras: list[PinholeCamera], block: np.ndarray, noise: tuple[float, float]) -> np.ndarray:
+    """(T, 15, 3) each tick's confidence-weighted triangulation of observations block (T, C, 15, 3), robust to a
+    detector's outliers under the Student-t pixel noise ``noise`` = (σ px, ν) (:func:`robust_triangulate`)."""
+    return robust_triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(block[..., 2]).transpose(1, 0, 2),
+                              *noise)
 
 
 def _behind(cameras: list[PinholeCamera], z: np.ndarray, X: np.ndarray | None) -> np.ndarray:
@@ -518,8 +521,12 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     index = schedule(detections.frames, data_fps, prior.fps)
     z = TickObservations(detections, index, config.min_confidence)     # (T, C, 15, 3), read a block at a time
     single = len(cameras) == 1
+    # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
+    observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind in UNSCENTED_KINDS else DEFAULT_NU,
+                   **preset.observation}
+    # the start is robust whatever the filter's likelihood (one camera: its fit; several: the triangulation)
     X, seen, residual, z.left_out = _whole_trial(cameras, z, detections.camera_names, calibration.source,
-                                                 config.min_confidence)
+                                                 config.min_confidence, (observation["sigma_px"], DEFAULT_NU))
     rejected = int(z.left_out.sum())
     counts = seen.sum(axis=-1)
     needed = start_joints(seen, single)
@@ -542,10 +549,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
                     fitted_skeleton(template, X, M))
         unmeasured = () if single else tuple(unmeasured_measures(X))
     pose = pose_spread(preset, skeleton)
-    # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
-    observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind in UNSCENTED_KINDS else DEFAULT_NU,
-                   **preset.observation}
-    if single:                                     # the start is robust whatever the filter's likelihood
+    if single:
         ticks = z[first:window][:, 0]
         fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
                                        pose=pose, robust=(observation["sigma_px"], DEFAULT_NU))
@@ -623,7 +627,8 @@ class PersonRun:
         self.detections = detections
         self.z = TickObservations(detections, self.index, self.config.min_confidence)
         if self.X is not None:
-            self.X = np.concatenate([triangulated(self.cameras, block) for _, block in self.z.blocks()])
+            noise = (self.model.likelihood.sigma_px, DEFAULT_NU)
+            self.X = np.concatenate([triangulated(self.cameras, block, noise) for _, block in self.z.blocks()])
 
     def finished(self, run) -> DetectionTrack:
         """The result (:class:`DetectionTrack`) of the filter's run (a :class:`~priortrack.filters.snapshot.Track`):
