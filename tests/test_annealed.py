@@ -8,7 +8,8 @@ import torch
 
 from priortrack import PriortrackError, load_walkjog
 from priortrack.experiments.metrics import mpjpe
-from priortrack.filters.annealed import AnnealedParticleFilter, annealing_exponent, survival
+from priortrack.filters.annealed import AnnealedParticleFilter
+from priortrack.filters.tempering import annealing_exponent, survival
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation import default_camera, synthesize
 from priortrack.observation.likelihood import JointLikelihood

@@ -301,38 +301,8 @@ def test_a_robust_one_camera_fit_is_bent_less_by_outliers(one_camera):
         fit.reweight(theta, 10.0, 4.0)
         theta = fit.fit(theta)
     robust_mm = _relative_mm(fit.joints(theta), X)
-    assert float(fit.rho[0, 1, 5]) < 0.2 and float(fit.rho[0, 4, 7]) < 0.2 and float(fit.rho[0, 0].min()) > 0.5
+    assert float(fit.rho[1, 5]) < 0.2 and float(fit.rho[4, 7]) < 0.2 and float(fit.rho[0].min()) > 0.5
     assert bent_mm > clean_mm + 10 and robust_mm < bent_mm - 8, (clean_mm, bent_mm, robust_mm)
-
-
-def test_a_start_refitted_to_the_pixels_is_bent_less_by_outliers_two_cameras_cannot_tell(one_camera):
-    """The walk through two of the cameras, four pixels thrown 100–140 px off, each in one camera: a point two cameras
-    see cannot be told from its outlier by triangulation, and inverse kinematics of the triangulation bends towards
-    them; refitted to the pixels of both cameras under the tracker's Student-t (σ = 5 px, ν = 4) the thrown pixels
-    lose their pull. On the clean pixels the refit changes nothing that matters."""
-    from priortrack.body.ik import refit_to_pixels
-    from priortrack.geometry.triangulation import triangulate
-
-    X, cameras, _, spread = one_camera
-    views = cameras[:2]
-    uv = np.stack([c.project(X)[0] for c in views])                               # (2, 8, 15, 2)
-    thrown = uv.copy()
-    for v, t, j, shift in ((0, 1, 5, (100, 40)), (1, 3, 11, (-90, 100)), (0, 4, 7, (120, -60)), (1, 6, 14, (-140, 0))):
-        thrown[v, t, j] += shift
-    w = np.ones(uv.shape[:3])
-    skeleton = fitted_skeleton(cmu_skeleton("35"), X)
-
-    def world_mm(motion):
-        return 1000 * np.linalg.norm(joint_positions(motion) - X, axis=-1).mean()
-
-    clean = inverse_kinematics(triangulate(views, uv, w), 30.0, skeleton=skeleton, pose=spread)
-    bent = inverse_kinematics(triangulate(views, thrown, w), 30.0, skeleton=skeleton, pose=spread)
-    refit = refit_to_pixels(bent, thrown, w, views, None, spread, (5.0, 4.0))
-    again = refit_to_pixels(clean, uv, w, views, None, spread, (5.0, 4.0))
-    assert world_mm(bent) > world_mm(clean) + 5 and world_mm(refit) < world_mm(clean) + 2
-    assert world_mm(again) < world_mm(clean) + 1
-    with pytest.raises(PriortrackError, match=r"pixels \(1, 8, 15, 2\) and weights \(2, 8, 15\); expected \(2, T, 15, 2\)"):
-        refit_to_pixels(clean, uv[:1], w, views, None, spread, (5.0, 4.0))
 
 
 def test_bad_pixels_for_one_camera_are_named(one_camera):

@@ -44,11 +44,6 @@ the fit from rest lands on whichever its start is nearest, so the fit is then st
 other three branches (:meth:`OneCameraFit.over_branches`) and the least objective kept. A tracker's start
 weighs the pixels by its robust likelihood's Student-t as well (:meth:`OneCameraFit.reweight`), so that a
 detector's outlier does not bend the start.
-
-**From several cameras** a tracker's start fits the triangulation, then the pixels of every camera under the same
-Student-t (:func:`refit_to_pixels`, :class:`PixelFit`: the one-camera data term summed over the cameras, each at the
-body's depth there): an outlier in a joint that only two cameras see moves the triangulated point wherever it lies
-along the rays, and the fit to 3D points cannot tell it, the fit to pixels down-weights the one pixel.
 """
 
 from __future__ import annotations
@@ -61,7 +56,7 @@ import numpy as np
 import scipy.linalg
 import torch
 
-from priortrack.body.fk import ForwardKinematics, joint_positions
+from priortrack.body.fk import ForwardKinematics
 from priortrack.body.layout import eval15_indices
 from priortrack.data.eval15 import EVAL15_PARENTS
 from priortrack.data.motion import Motion
@@ -269,93 +264,10 @@ def inverse_kinematics_2d(uv: np.ndarray, weights: np.ndarray, camera, fps: floa
     return Motion(skeleton, fit.over_branches(theta), float(fps), name)
 
 
-def refit_to_pixels(motion: Motion, uv: np.ndarray, weights: np.ndarray, cameras, joint_map: np.ndarray | None,
-                    pose: PoseSpread | None, robust: tuple[float, float]) -> Motion:
-    """``motion`` (say :func:`inverse_kinematics` of a triangulation, on its skeleton) fitted again to the pixels the
-    triangulation came from, uv (V, T, 15, 2) through ``cameras`` (a Y-up world), weighted by ``weights`` (V, T, 15)
-    (0 = unseen), reweighted :data:`REWEIGHTS` times by the Student-t ``robust`` = (σ px, ν) (:class:`PixelFit`): a
-    detector's outlier that a triangulation from two cameras cannot tell from the truth bends the pose less."""
-    X, theta = joint_positions(motion), motion.channels
-    depths = [float(np.median((X @ c.R.double().numpy().T + c.t.double().numpy())[..., 2])) for c in cameras]
-    fit = PixelFit(uv, weights, cameras, motion.skeleton, joint_map, pose, depths)
-    for _ in range(REWEIGHTS):
-        fit.reweight(theta, *robust)
-        theta = fit.fit(theta)
-    return replace(motion, channels=theta)
-
-
-class PixelFit:
-    """The pixels' problem: channels θ (T, C) of ``skeleton`` whose eval15 joints (through ``joint_map`` M) project
-    through ``cameras`` (a Y-up world) onto uv (V, T, 15, 2), weighted by ``weights`` (V, T, 15) (0 = unseen). The
-    objective is the module docstring's with the data term
-
-        Σ_v (d_v / f_v)² Σ_tj w_vtj ρ_vtj |π_v((M FK(θ_t))_j) − u_vtj|²,
-
-    each camera's squared pixels in metres at the body's depth d_v in it (``depths``, (V,)), ρ the Student-t's
-    weights (1 until :meth:`reweight`); pulled to ``pose``'s spread. :meth:`fit` from given channels, or from rest
-    with the root at ``pelvis`` (T, 3)."""
-
-    def __init__(self, uv: np.ndarray, weights: np.ndarray, cameras, skeleton: Skeleton, joint_map: np.ndarray | None,
-                 pose: PoseSpread | None, depths, pelvis: np.ndarray | None = None):
-        uv, weights = np.asarray(uv, dtype=np.float64), np.asarray(weights, dtype=np.float64)
-        if uv.ndim != 4 or uv.shape[0] != len(cameras) or uv.shape[2:] != (15, 2) or weights.shape != uv.shape[:3]:
-            raise PriortrackError(f"inverse kinematics: pixels {uv.shape} and weights {weights.shape}; expected "
-                                  f"({len(cameras)}, T, 15, 2) and ({len(cameras)}, T, 15)")
-        seen = np.isfinite(uv).all(axis=-1) & (weights > 0)
-        self.M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-        self.skeleton, self.cameras, self.pose, self.pelvis = skeleton, list(cameras), pose, pelvis
-        self.target = torch.as_tensor(np.where(seen[..., None], uv, 0.0))
-        self.confidence = torch.as_tensor(np.where(seen, weights, 0.0))
-        #: The Student-t's weights ρ (V, T, 15) of :meth:`reweight` (ones until then).
-        self.rho = torch.ones_like(self.confidence)
-        scale = torch.tensor([(float(d) / float(c.fx)) ** 2 for d, c in zip(depths, self.cameras)], dtype=torch.float64)
-
-        def residuals(joints: torch.Tensor, frames: slice) -> torch.Tensor:
-            w = (self.confidence[:, frames] * self.rho[:, frames]) * scale[:, None, None]         # (V, F, 15)
-            w = w.reshape(w.shape[:1] + (1,) * (joints.dim() - 3) + w.shape[1:] + (1,))
-            return torch.movedim(self.pixel_errors(joints, frames) * w.sqrt(), 0, -3).flatten(-3)
-
-        self.problem = _LevenbergMarquardt(skeleton, uv.shape[1], residuals, self.M, pose)
-
-    def pixel_errors(self, joints: torch.Tensor, frames: slice = slice(None)) -> torch.Tensor:
-        """(V, ..., F, 15, 2) the joints (..., F, 15, 3) of the frames ``frames`` projected through each camera, less
-        its pixels (0 behind the camera; unseen joints are cancelled by their zero weight)."""
-        out = []
-        for v, camera in enumerate(self.cameras):
-            projected, _ = camera.project(joints)
-            out.append(torch.where(torch.isfinite(projected), projected - self.target[v, frames], 0.0))
-        return torch.stack(out)
-
-    def reweight(self, theta: np.ndarray, sigma_px: float, nu: float) -> None:
-        """Each point's weight times the Student-t's ρ_vtj = (ν + 2) / (ν + ‖e_vtj‖² / σ²) at the pixel errors e of
-        channels θ (T, C), as the tracker's robust likelihood weighs a point (iteratively reweighted least
-        squares): a detector's outlier 50–150 px off bends the start's pose less towards it."""
-        e = self.pixel_errors(torch.as_tensor(self.joints(theta)))
-        self.rho = (nu + 2) / (nu + (e ** 2).sum(-1) / sigma_px ** 2)
-
-    def fit(self, theta: np.ndarray | None = None) -> np.ndarray:
-        """Channels θ (T, C) minimising the objective, from ``theta`` (T, C) or else from the rest pose at the
-        pelvis (:meth:`_LevenbergMarquardt.start`)."""
-        if theta is None and self.pelvis is None:
-            raise PriortrackError("inverse kinematics: a fit to pixels needs channels or a pelvis to start from")
-        with torch_threads(IK_THREADS):
-            return self.problem.fit(self.pelvis, theta)
-
-    def cost(self, theta: np.ndarray) -> float:
-        """The objective (module docstring) at channels θ (T, C)."""
-        with torch_threads(IK_THREADS):
-            return self.problem.objective(theta, self.problem.data(theta))
-
-    def joints(self, theta: np.ndarray) -> np.ndarray:
-        """(T, 15, 3) the joints M FK(θ) that the pixels are compared with, in the cameras' world."""
-        return self.problem.joints(np.asarray(theta, dtype=np.float64)).numpy()
-
-
-class OneCameraFit(PixelFit):
+class OneCameraFit:
     """The one-camera problem of :func:`inverse_kinematics_2d` (module docstring): uv (T, 15, 2) pixels through
     ``camera`` (a Y-up world), weighted by ``weights`` (T, 15) (0 = unseen), on ``skeleton`` through ``joint_map``
-    M, pulled to ``pose``'s spread, the body's depth from its image size; :meth:`fit` from rest or from given
-    channels, :meth:`cost` its objective, :meth:`over_branches` the limbs' depth branches."""
+    M, pulled to ``pose``'s spread; :meth:`fit` from rest or from given channels, :meth:`cost` its objective."""
 
     def __init__(self, uv: np.ndarray, weights: np.ndarray, camera, skeleton: Skeleton,
                  joint_map: np.ndarray | None = None, pose: PoseSpread | None = None):
@@ -367,17 +279,54 @@ class OneCameraFit(PixelFit):
         if (seen.sum(axis=1) < 6).any():
             raise PriortrackError(f"inverse kinematics from one camera: frames "
                                   f"{np.flatnonzero(seen.sum(axis=1) < 6).tolist()} have fewer than 6 detected joints")
-        M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+        self.M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+        self.skeleton, self.camera, self.pose = skeleton, camera, pose
         index = eval15_indices(skeleton)
-        rest = M @ ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels))[index].numpy()
+        rest = self.M @ ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels))[index].numpy()
         depth = camera.fx * _metres_per_pixel(rest, uv, seen)
         K = camera.K.double().numpy()
         R, t = camera.R.double().numpy(), camera.t.double().numpy()
         centre = np.where(seen[:, :1], uv[:, 0], np.nanmean(np.where(seen[..., None], uv, np.nan), axis=1))
         ray = np.linalg.solve(K, np.concatenate([centre, np.ones((len(uv), 1))], axis=1).T).T          # (T, 3)
-        super().__init__(uv[None], weights[None], [camera], skeleton, M, pose, [depth],
-                         pelvis=(ray * depth - t) @ R)                               # R^T (X_c − t), per row
-        self.camera = camera
+        self.pelvis = (ray * depth - t) @ R                                          # R^T (X_c − t), per row
+        self.target = torch.as_tensor(np.where(seen[..., None], uv, 0.0))
+        self.confidence = torch.as_tensor(np.where(seen, weights, 0.0))
+        self.rho = torch.ones_like(self.confidence)
+        scale = (depth / camera.fx) ** 2
+
+        def residuals(joints: torch.Tensor, frames: slice) -> torch.Tensor:
+            w = (self.confidence[frames] * self.rho[frames])[..., None] * scale
+            return (self.pixel_errors(joints, frames) * w.sqrt()).flatten(-2)
+
+        self.problem = _LevenbergMarquardt(skeleton, len(uv), residuals, self.M, pose)
+
+    def pixel_errors(self, joints: torch.Tensor, frames: slice = slice(None)) -> torch.Tensor:
+        """(..., F, 15, 2) the projected joints (..., F, 15, 3) of the frames ``frames`` less their pixels (0 behind
+        the camera; unseen joints are cancelled by their zero weight)."""
+        projected, _ = self.camera.project(joints)
+        return torch.where(torch.isfinite(projected), projected - self.target[frames], 0.0)
+
+    def reweight(self, theta: np.ndarray, sigma_px: float, nu: float) -> None:
+        """Each joint's weight times the Student-t's ρ_tj = (ν + 2) / (ν + ‖e_tj‖² / σ²) at the pixel errors e_tj of
+        channels θ (T, C), as the tracker's robust likelihood weighs a point (iteratively reweighted least
+        squares): a detector's outlier 50–150 px off bends the start's pose less towards it."""
+        e = self.pixel_errors(torch.as_tensor(self.joints(theta)))
+        self.rho = (nu + 2) / (nu + (e ** 2).sum(-1) / sigma_px ** 2)
+
+    def fit(self, theta: np.ndarray | None = None) -> np.ndarray:
+        """Channels θ (T, C) minimising the objective, from ``theta`` (T, C) or else from the rest pose at the
+        pelvis's ray (:meth:`_LevenbergMarquardt.start`)."""
+        with torch_threads(IK_THREADS):
+            return self.problem.fit(self.pelvis, theta)
+
+    def cost(self, theta: np.ndarray) -> float:
+        """The objective (module docstring) at channels θ (T, C)."""
+        with torch_threads(IK_THREADS):
+            return self.problem.objective(theta, self.problem.data(theta))
+
+    def joints(self, theta: np.ndarray) -> np.ndarray:
+        """(T, 15, 3) the joints M FK(θ) that the pixels are compared with, in the camera's world."""
+        return self.problem.joints(np.asarray(theta, dtype=np.float64)).numpy()
 
     def over_branches(self, theta: np.ndarray) -> np.ndarray:
         """The channels (T, C) of the least objective over the limbs' depth branches, from a fit θ (T, C): limb

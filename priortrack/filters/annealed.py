@@ -27,38 +27,9 @@ import torch
 
 from priortrack.errors import PriortrackError
 from priortrack.filters.particle import ParticleFilter
+from priortrack.filters.tempering import annealing_exponent
 from priortrack.models.tracking import TrackingModel
 from priortrack.priors.global_motion import GlobalMotion
-
-#: Bisection steps for β (the survival rate is matched to about 2^-40 in β).
-BISECTION_STEPS = 40
-
-
-def survival(log_lik: torch.Tensor, beta: float) -> float:
-    """α(β) = ESS / P of the weights ∝ exp(β ℓ) for log-likelihoods ℓ (P,)."""
-    log_w = beta * log_lik
-    log_w = log_w - torch.logsumexp(log_w, 0)
-    return float(torch.exp(-torch.logsumexp(2 * log_w, 0)) / len(log_lik))
-
-
-def annealing_exponent(log_lik: torch.Tensor, target: float, lower: float = 0.0, upper: float = 1.0) -> float:
-    """The β in [lower, upper] with α(β) = target (α falls as β grows), by bisection.
-
-    Returns ``upper`` if even β = upper keeps more than the target alive (the likelihood is flat
-    over the set), ``lower`` if β = lower already keeps fewer.
-    """
-    if survival(log_lik, upper) >= target:
-        return upper
-    if survival(log_lik, lower) <= target:
-        return lower
-    for _ in range(BISECTION_STEPS):
-        middle = 0.5 * (lower + upper)
-        if survival(log_lik, middle) > target:
-            lower = middle
-        else:
-            upper = middle
-    return 0.5 * (lower + upper)
-
 
 class AnnealedParticleFilter(ParticleFilter):
     """A particle filter whose update is L annealing layers (see the module docstring).

@@ -49,6 +49,7 @@ from priortrack.filters.posterior_linearisation import FRAMES_AT_ONCE
 from priortrack.filters.smoothing import blockwise_spread, gaussian_joints
 from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.step_store import Column, StepStore
+from priortrack.filters.tempering import MAX_STAGES, annealing_exponent
 from priortrack.filters.ukf import ALPHA, BETA, KAPPA, ManifoldSigmaPoints, unscented_form
 from priortrack.models.protocols import GaussianTransition
 from priortrack.models.tracking import TrackingModel
@@ -118,6 +119,11 @@ class ParticleFilter(SequentialFilter):
             ``step_components``, and a likelihood that projects; with fewer than two cameras, the prior's draw).
         defensive: the guided proposal's share of the prior itself, δ (default 0.1).
         inflation: the guided proposal's factor on its linearised covariance, γ (default 1).
+        tempering: 0 (default) or the ESS share α ∈ (0, 1) of adaptive tempering within each frame
+            (:meth:`tempered_update`, :mod:`~priortrack.filters.tempering`: from the draw to the posterior in stages
+            that each keep an ESS of α P, the particles resampled and moved by ``max(moves, 1)`` random-walk moves
+            between them, exact weights; a frame whose draw keeps α P in one update has no stage). The moves are
+            then the stages' (none after the frame's resampling).
         seed: seeds the filter's own torch.Generator (on ``device``: a GPU draws other numbers than
             the CPU from the same seed).
         device: where the particles live and every step computes ("cpu", "cuda", "cuda:N";
@@ -133,7 +139,8 @@ class ParticleFilter(SequentialFilter):
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
                  ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", moves: int = 0,
                  move: str = "random-walk", move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1,
-                 inflation: float = 1.0, seed: int = 0, device: str = "cpu", threads: int | None = None):
+                 inflation: float = 1.0, tempering: float = 0.0, seed: int = 0, device: str = "cpu",
+                 threads: int | None = None):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
         if not 0.0 <= ess_threshold <= 1.0:
@@ -153,9 +160,14 @@ class ParticleFilter(SequentialFilter):
         if move not in MOVES or (move == "langevin" and proposal != "guided"):
             raise PriortrackError(f"move must be one of {', '.join(MOVES)}, the Langevin moves with proposal = "
                                   f"'guided' (they move in its coordinates); got {move!r} with {proposal!r}")
+        if not 0.0 <= tempering < 1.0:
+            raise PriortrackError(f"tempering must be in [0, 1) (the ESS share each stage keeps; 0: none), got {tempering}")
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
             raise PriortrackError(f"threads must be a whole number ≥ 1 or None, got {threads!r}")
         self.moves, self.move_kind, self.move_step = int(moves), move, float(move_scale)
+        #: The ESS share each tempering stage keeps (0: Bayes' rule in one update; :mod:`~priortrack.filters.tempering`).
+        self.tempering = float(tempering)
+        self._from_prior = True
         self.marginal = translation == "marginalised"
         #: The guided proposal (:mod:`~priortrack.filters.proposal`), or None: the prior's draw.
         self.proposal = GuidedProposal(model, self.marginal, defensive, inflation) if proposal == "guided" else None
@@ -224,6 +236,7 @@ class ParticleFilter(SequentialFilter):
             raise PriortrackError("the filter is not initialised: call initialise(motion) first")
         self._parents = (self.states, self.covariance)
         self._observed, self._log_ratio, self._predict_seconds = None, None, 0.0
+        self._from_prior = True
         if self.proposal is None:
             self._prior_draw(self.states)
 
@@ -247,6 +260,7 @@ class ParticleFilter(SequentialFilter):
             predicted_covariance = predict_covariance(covariance, motion.sigma[:3], motion.velocity)
         self.states, self._log_ratio = self.proposal.draw(parents, torch.exp(self.log_weights), z, self.generator,
                                                           predicted_covariance)
+        self._from_prior = self.proposal.covariance is None                  # fewer than two views: the prior's draw
         self._observed = None
         self._predict_seconds += time.perf_counter() - t0
 
@@ -312,7 +326,8 @@ class ParticleFilter(SequentialFilter):
         t1 = time.perf_counter()
         predicted = self.states
         if torch.isfinite(z).any():
-            joints = self.update(z, flags)
+            joints = (self.tempered_update(z, parents, parent_covariance, flags) if self.tempering
+                      else self.update(z, flags))
         else:
             flags.append("no-observation")
             joints = self.predicted_joints()
@@ -330,7 +345,7 @@ class ParticleFilter(SequentialFilter):
             ancestors = self.resample(weights, self.generator)
             self.select(ancestors)
             self.log_weights = torch.full_like(self.log_weights, -math.log(self.P))
-            if self.moves and torch.isfinite(z).any() and "weights-underflow" not in flags:
+            if self.moves and not self.tempering and torch.isfinite(z).any() and "weights-underflow" not in flags:
                 rate = self.move(z, predicted[ancestors], parents[ancestors],
                                  None if parent_covariance is None else parent_covariance[ancestors])
                 flags.append(f"moved:{rate:.2f}")
@@ -354,6 +369,70 @@ class ParticleFilter(SequentialFilter):
             self._log_ratio = None
         self.log_weights = self.normalised(self.log_weights + log_likelihood, flags)
         return joints
+
+    def tempered_update(self, z: torch.Tensor, parents: torch.Tensor, parent_covariance: torch.Tensor | None,
+                        flags: list[str]) -> torch.Tensor:
+        """Bayes' rule on the predicted particles in stages (:mod:`~priortrack.filters.tempering`), from the draw's
+        proposal q to the posterior through π_φ ∝ q^{1−φ} (p(s | s_{t−1}) p(z | s))^φ: log w += Δ_k (log p(z | s) +
+        log p(s | s_{t−1}) − log q(s)) with Δ_k keeping an ESS of ``tempering`` · P, then (while Σ Δ_k < 1)
+        resampling and ``max(moves, 1)`` random-walk moves invariant for π_{φ_k}, at most
+        :data:`~priortrack.filters.tempering.MAX_STAGES` stages. From the prior's draw q = p, and π_φ ∝ p p(z | s)^φ.
+        ``parents`` (P, A) the particles' states at t − 1, ``parent_covariance`` their translation covariances (None:
+        sampled). Returns the particles' observed joints; appends "tempered:k" (k stages of moves) to ``flags``."""
+        guided = self.proposal is not None and not self._from_prior
+        s, log_w, phi, stages = self.states, self.log_weights, 0.0, 0
+        rows = torch.arange(self.P, device=s.device)                     # each particle's parent in the draw
+
+        def densities(candidate: torch.Tensor, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            if guided:
+                return self.proposal.log_density(candidate, rows)
+            log_p = self.model.log_transition(candidate, parents[rows]).to(torch.float64)
+            return log_p, log_p
+
+        log_q, log_p = densities(s, rows)
+        while True:
+            log_lik, pending = self.weigh(self.model.observe(s), z, parent_covariance)
+            log_r = log_lik.to(torch.float64) + log_p - log_q
+            finite = torch.isfinite(log_r)
+            if not finite.any():
+                log_w = self.normalised(log_w + log_r, flags)                       # "weights-underflow", uniform
+                break
+            log_r = torch.where(finite, log_r, log_r[finite].min() - 1e6)          # impossible particles die first
+            delta = 1.0 - phi if stages == MAX_STAGES else annealing_exponent(log_r - log_r.max(), self.tempering,
+                                                                               0.0, 1.0 - phi, log_w)
+            log_w, phi = self.normalised(log_w + delta * log_r, flags), phi + delta
+            if phi >= 1.0:
+                break
+            ancestors = self.resample(torch.exp(log_w), self.generator)
+            s, rows = s[ancestors], rows[ancestors]
+            parent_covariance = None if parent_covariance is None else parent_covariance[ancestors]
+            log_w = torch.full_like(log_w, -math.log(self.P))
+
+            def target(candidate: torch.Tensor, rows=rows, phi=phi, covariance=parent_covariance):
+                likelihood, kalman = self.weigh(self.model.observe(candidate), z, covariance)
+                q, p = densities(candidate, rows)
+                return (1.0 - phi) * q + phi * (p + likelihood.to(torch.float64)), kalman
+
+            s, _, rate = self._random_walk(target, s, parents[rows], max(self.moves, 1))
+            self.move_step = adapted(self.move_step, rate, RANDOM_WALK_ACCEPTANCE)
+            log_q, log_p = densities(s, rows)
+            stages += 1
+        flags.append(f"tempered:{stages}")
+        self._log_ratio = None                                                       # applied above
+        self.states, self.log_weights, self._observed = s, log_w, None
+        if self.marginal:
+            self.covariance = parent_covariance
+        return self.keep_update(pending, self.predicted_joints())
+
+    def _target(self, z: torch.Tensor, parents: torch.Tensor, parent_covariance: torch.Tensor | None,
+                power: float = 1.0):
+        """log π_φ(s) = log p(s | s_{t−1}) + φ log p(z | s, z_{1:t−1}) of candidate states (P, A) with parents (P, A)
+        (the translation integrated out as in :meth:`weigh`), and the Kalman update that goes with it."""
+        def target(candidate: torch.Tensor):
+            log_likelihood, pending = self.weigh(self.model.observe(candidate), z, parent_covariance)
+            return (self.model.log_transition(candidate, parents).to(torch.float64)
+                    + power * log_likelihood.to(torch.float64)), pending
+        return target
 
     def weigh(self, joints: torch.Tensor, z: torch.Tensor,
               covariance: torch.Tensor | None = None) -> tuple[torch.Tensor, tuple | None]:
@@ -401,11 +480,7 @@ class ParticleFilter(SequentialFilter):
         translation covariances at t − 1 (None: the translation is sampled). Sets ``states`` (and
         ``covariance``); returns the acceptance rate.
         """
-        def target(candidate: torch.Tensor):
-            log_likelihood, pending = self.weigh(self.model.observe(candidate), z, parent_covariance)
-            return (self.model.log_transition(candidate, parents).to(torch.float64)
-                    + log_likelihood.to(torch.float64)), pending
-
+        target = self._target(z, parents, parent_covariance)
         if self.move_kind == "langevin":
             proposal = self.proposal
             M = proposal.covariance if proposal.covariance is not None else proposal.prior_covariance(s)
@@ -413,20 +488,21 @@ class ParticleFilter(SequentialFilter):
                                               self.moves, self.generator)
             band = ACCEPTANCE
         else:
-            s, pending, rate = self._random_walk(target, s, parents)
+            s, pending, rate = self._random_walk(target, s, parents, self.moves)
             band = RANDOM_WALK_ACCEPTANCE
         self.move_step = adapted(self.move_step, rate, band)
         self.states = s
         self.keep_update(pending)
         return rate
 
-    def _random_walk(self, target, s: torch.Tensor, parents: torch.Tensor) -> tuple[torch.Tensor, tuple | None, float]:
-        """:meth:`move`'s random-walk moves of the poses s (P, A) under ``target``: the moved states, their Kalman
-        updates (None: the translation is sampled) and the acceptance rate."""
+    def _random_walk(self, target, s: torch.Tensor, parents: torch.Tensor,
+                     moves: int) -> tuple[torch.Tensor, tuple | None, float]:
+        """``moves`` random-walk moves (:meth:`move`) of the poses s (P, A) under ``target``: the moved states, their
+        Kalman updates (None: the translation is sampled) and the acceptance rate."""
         scale = self.model.pose_step(s, parents)
         log_pi, pending = target(s)
         accepted = 0
-        for _ in range(self.moves):
+        for _ in range(moves):
             proposal = self.model.perturb(s, self.move_step * scale, self.generator)
             log_pi_new, pending_new = target(proposal)
             u = torch.rand(len(s), generator=self.generator, dtype=torch.float64, device=s.device)
@@ -435,7 +511,7 @@ class ParticleFilter(SequentialFilter):
             log_pi = torch.where(keep, log_pi_new, log_pi)
             pending = kept(keep, pending_new, pending)
             accepted += int(keep.sum())
-        return s, pending, accepted / (self.moves * len(s))
+        return s, pending, accepted / (moves * len(s))
 
     def select(self, ancestors: torch.Tensor) -> None:
         """Keep the particles ``ancestors`` (P,): their states and, marginalised, their covariances."""

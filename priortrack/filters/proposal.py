@@ -55,6 +55,7 @@ perturbations η, the global motion's density over heading and tilt: their volum
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 
@@ -80,6 +81,20 @@ def _log_normal(factors: torch.Tensor, component: torch.Tensor, residual: torch.
         white = residual[rows] @ white_k[k].T
         out[rows] = -0.5 * (white * white).sum(-1) - torch.log(torch.diagonal(factors[k])).sum()
     return out - 0.5 * residual.shape[1] * math.log(2 * math.pi)
+
+
+@dataclass(frozen=True)
+class _Draw:
+    """What :meth:`GuidedProposal.log_density` needs of the last draw: the parents (P, A), their mean steps m (P, A),
+    each kept component's updated mean μ (P, keep, f), index (P, keep) and log share (P, keep), and the Cholesky
+    factors of the components' γ Σ_k (K, f, f); all but the parents None where the draw was the prior's."""
+
+    parents: torch.Tensor
+    m: torch.Tensor | None = None
+    mu: torch.Tensor | None = None
+    component: torch.Tensor | None = None
+    log_choice: torch.Tensor | None = None
+    factors: torch.Tensor | None = None
 
 
 class GuidedProposal:
@@ -118,6 +133,7 @@ class GuidedProposal:
         #: The last frame's linearised posterior covariance (f, f) in the drawn coordinates, Σ_k Σ_k weighted by the
         #: share of particles drawn from component k (None: that frame's draw was the prior's).
         self.covariance: torch.Tensor | None = None
+        self._last: _Draw | None = None
 
     def retract(self, s: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         """s (P, A) ⊞ v (P, f): the states reached by steps v in the drawn coordinates (0 elsewhere)."""
@@ -157,7 +173,7 @@ class GuidedProposal:
         form, dtype, device, f64 = self.form, parents.dtype, parents.device, torch.float64
         P = len(parents)
         if self.views(z) < MIN_VIEWS:
-            self.covariance = None
+            self.covariance, self._last = None, _Draw(parents)
             return self._prior_draw(parents, generator), torch.zeros(P, dtype=f64, device=device)
         y, variances = form.measurement(z)
         y, variances = y.to(device), variances.to(device)
@@ -211,13 +227,30 @@ class GuidedProposal:
         s = form.boxplus(m, self._embedded(v).to(dtype))
         if bool(prior_rows.any()):
             s[prior_rows] = self._prior_draw(parents[prior_rows], generator)
-            v[prior_rows] = form.boxminus(s[prior_rows], m[prior_rows]).to(f64)[:, drawn]
-        # q_i(s) = Σ_k q̃_ik N(s ⊟ m_i; μ_ik, γ Σ_k) over the kept components, with the prior's share
-        log_gauss = torch.logsumexp(log_choice + _log_normal(L_q, component, v[particle] - mu).reshape(P, keep), 1)
-        log_prior = self._log_transition(s, parents).to(f64)
+        self._last = _Draw(parents, m, mu.reshape(P, keep, f), component.reshape(P, keep), log_choice, L_q)
+        log_q, log_prior = self.log_density(s, torch.arange(P, device=device))
+        return s, log_prior - log_q
+
+    def log_density(self, s: torch.Tensor, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """log q_i(s) and log p(s | s_{t−1}^i) (P,) in float64 of states s (P, A) under the last draw's proposal of its
+        parents ``rows`` (P,) (each state's parent's index in that draw; a tempered update moves the states and
+        evaluates them again): q_i(s) = (1 − δ) Σ_k q̃_ik N(s ⊟ m_i; μ_ik, γ Σ_k) + δ p(s | s_{t−1}^i) over the kept
+        components. A frame drawn from the prior: q = p."""
+        last = self._last
+        if last is None:
+            raise PriortrackError("the guided proposal has drawn nothing yet")
+        parents = last.parents[rows]
+        log_prior = self._log_transition(s, parents).to(torch.float64)
+        if last.mu is None:
+            return log_prior, log_prior
+        P, keep, f = last.mu[rows].shape
+        v = self.form.boxminus(s, last.m[rows]).to(torch.float64)[:, self.drawn.to(s.device)]
+        particle = torch.arange(P, device=s.device).repeat_interleave(keep)
+        white = _log_normal(last.factors, last.component[rows].reshape(-1), v[particle] - last.mu[rows].reshape(-1, f))
+        log_gauss = torch.logsumexp(last.log_choice[rows] + white.reshape(P, keep), 1)
         log_q = log_gauss if self.defensive == 0 else torch.logaddexp(
             math.log1p(-self.defensive) + log_gauss, math.log(self.defensive) + log_prior)
-        return s, log_prior - log_q
+        return log_q, log_prior
 
     def _components(self, parents: torch.Tensor, m: torch.Tensor, m_bar: torch.Tensor):
         """The transition's Gaussian steps (``step_weights`` and ``step_components`` of a tracking model's prior, or of

@@ -28,10 +28,7 @@
    some frames, and to a first second where the person is half in view; reported as the summary's
    ``bones_m``; a bone no tick measures scaled as the measured ones, named in ``bones_unmeasured``), and fitted to the two ticks by
    inverse kinematics over ``START_TICKS`` ticks (:mod:`priortrack.body.ik`; pulled to the preset's
-   training poses, :func:`pose_spread`), then again to the ticks' pixels in every camera under the likelihood's
-   Student-t (:func:`~priortrack.body.ik.refit_to_pixels`: a detector's outlier in a joint only two cameras see,
-   which no triangulation can tell, no longer bends the start: a held-out walk's start went from 45 and 65 mm to 22
-   and 16 mm), both in the detector's joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
+   training poses, :func:`pose_spread`), both in the detector's joint definitions (:func:`~priortrack.data.keypoints.detector_map`: its pelvis is the mid-hips,
    its neck the mid-shoulders), which the observation model uses too. The two start frames are
    steadied (:func:`steady_start`): the root's translation on the least-squares line through the
    fitted ticks (a velocity from eight noisy frames, not two), its rotation the same in both (no
@@ -73,7 +70,7 @@ import numpy as np
 import torch
 
 from priortrack.body.ik import (PoseSpread, body_measures, check_height, fitted_skeleton, inverse_kinematics,
-                                inverse_kinematics_2d, refit_to_pixels, scaled_to_height, unmeasured_measures)
+                                inverse_kinematics_2d, scaled_to_height, unmeasured_measures)
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -365,17 +362,19 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
     for start, block in z.blocks(raw=True):
         ticks = slice(start, start + len(block))
         shown |= (np.nan_to_num(block[..., 2]) > 0).any(axis=(0, 2))
-        every = None if single else triangulated(cameras, block, noise)                  # by every camera
+        every = None if single else triangulated(cameras, block)                         # by every camera
         behind += _behind(cameras, block, every)
         left_out[ticks] = cross_view_check(cameras, block)
         if single:
             seen[ticks] = (np.nan_to_num(block[:, 0, :, 2]) > 0) & np.isfinite(block[:, 0, :, 0])
             continue
         again = left_out[ticks].any(axis=1)                  # the ticks a camera was left out of, by the others
-        every[again] = triangulated(cameras, block[again], noise)
-        X[ticks] = every
+        every[again] = triangulated(cameras, block[again])
+        X[ticks] = triangulated(cameras, block, noise)
         seen[ticks] = np.isfinite(X[ticks]).all(axis=-1)
-        residual[ticks] = np.stack([np.nan_to_num(median_reprojection(camera, X[ticks], block[:, c]), nan=-np.inf)
+        # the DLT spreads a camera's disagreement (a swap) over every camera's reprojection, where the robust
+        # triangulation may follow the swapped camera's joints: the start's consistency is judged on the DLT
+        residual[ticks] = np.stack([np.nan_to_num(median_reprojection(camera, every, block[:, c]), nan=-np.inf)
                                     for c, camera in enumerate(cameras)]).max(axis=0)
     for c in np.flatnonzero(~shown):
         raise PriortrackError(f"camera {names[c]} sees none of the detections (no joint above confidence "
@@ -391,11 +390,11 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
     return X, seen, residual, left_out
 
 
-def triangulated(cameras: list[PinholeCamera], block: np.ndarray, noise: tuple[float, float]) -> np.ndarray:
-    """(T, 15, 3) each tick's confidence-weighted triangulation of observations block (T, C, 15, 3), robust to a
-    detector's outliers under the Student-t pixel noise ``noise`` = (σ px, ν) (:func:`robust_triangulate`)."""
-    return robust_triangulate(cameras, block[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(block[..., 2]).transpose(1, 0, 2),
-                              *noise)
+def triangulated(cameras: list[PinholeCamera], block: np.ndarray, noise: tuple[float, float] | None = None) -> np.ndarray:
+    """(T, 15, 3) each tick's confidence-weighted triangulation of observations block (T, C, 15, 3): the DLT, or with
+    ``noise`` = (σ px, ν) robust to a detector's outliers under that Student-t (:func:`robust_triangulate`)."""
+    uv, confidence = block[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(block[..., 2]).transpose(1, 0, 2)
+    return triangulate(cameras, uv, confidence) if noise is None else robust_triangulate(cameras, uv, confidence, *noise)
 
 
 def _behind(cameras: list[PinholeCamera], z: np.ndarray, X: np.ndarray | None) -> np.ndarray:
@@ -557,10 +556,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
         fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
                                        pose=pose, robust=(observation["sigma_px"], DEFAULT_NU))
     else:
-        ticks = z[first:window]
-        fitted = refit_to_pixels(inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton, pose=pose),
-                                 ticks[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(ticks[..., 2]).transpose(1, 0, 2),
-                                 cameras, M, pose, (observation["sigma_px"], DEFAULT_NU))
+        fitted = inverse_kinematics(X[first:window], prior.fps, joint_map=M, skeleton=skeleton, pose=pose)
     known = steady_start(fitted)
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
