@@ -187,3 +187,18 @@ class LinearComponent(LinearGaussian):
 
     def process_covariance(self, s):
         return self.mixture.Qs[self.k]
+
+
+def sharp_model() -> LinearGaussian:
+    """A constant-velocity state seen through a likelihood far narrower than the transition's step."""
+    return LinearGaussian([[1, 1.0, 0], [0, 1, 0], [0, 0, 0.9]], np.diag([0.04, 0.04, 0.09]),
+                          [[1.0, 0, 0], [0, 0, 1.0]], np.diag([0.001, 0.002]))
+
+
+def sharp_frames(model):
+    """Six frames z (6, 2) of ``model`` (one entry missing), the start's mean and covariance, and the Kalman filter's
+    posterior mean and covariance after them."""
+    zs = np.random.default_rng(0).normal(0, 1, (6, 2))
+    zs[3, 0] = np.nan
+    m0, P0 = np.array([0.5, -0.2, 1.0]), np.diag([0.3, 0.2, 0.5])
+    return zs, m0, P0, *kalman(model, m0, P0, zs)

@@ -8,17 +8,12 @@ from priortrack import PriortrackError
 from priortrack.filters.particle import ParticleFilter
 from priortrack.filters.proposal import GuidedProposal, _log_normal
 
-from linear_gaussian import LinearGaussian, LinearMixture, kalman
+from linear_gaussian import LinearMixture, sharp_frames, sharp_model
 
 
 @pytest.fixture
 def sharp():
-    """A constant-velocity state seen through a likelihood far narrower than the transition's step."""
-    A = [[1, 1.0, 0], [0, 1, 0], [0, 0, 0.9]]
-    Q = np.diag([0.04, 0.04, 0.09])
-    H = [[1.0, 0, 0], [0, 0, 1.0]]
-    R = np.diag([0.001, 0.002])
-    return LinearGaussian(A, Q, H, R)
+    return sharp_model()
 
 
 def test_optimal_proposal_weight_is_the_predictive_likelihood(sharp):
@@ -91,11 +86,7 @@ def test_guided_filter_posterior_is_the_kalman_posterior(sharp, defensive, infla
     180 1889 with the optimal proposal, 297 629 4 3478 731 1889 with the defaults, 203 388 3 2214 121 1250
     inflated, γ = 2; bootstrap 7 37 1 1 1 84; the guided filter's own dips are the parents' spread in the
     unobserved velocity, which no proposal can undo)."""
-    rng = np.random.default_rng(0)
-    zs = rng.normal(0, 1, (6, 2))
-    zs[3, 0] = np.nan
-    m0, P0 = np.array([0.5, -0.2, 1.0]), np.diag([0.3, 0.2, 0.5])
-    m, P = kalman(sharp, m0, P0, zs)
+    zs, m0, P0, m, P = sharp_frames(sharp)
     n = 4000
     g = torch.Generator().manual_seed(2)
     start = torch.as_tensor(m0) + torch.randn(n, 3, generator=g, dtype=torch.float64) @ torch.linalg.cholesky(

@@ -10,14 +10,12 @@ from priortrack import PriortrackError
 from priortrack.filters.particle import ParticleFilter
 from priortrack.filters.tempering import annealing_exponent, survival
 
-from linear_gaussian import LinearGaussian, kalman
+from linear_gaussian import LinearGaussian, sharp_frames, sharp_model
 
 
 @pytest.fixture
 def sharp():
-    """A constant-velocity state seen through a likelihood far narrower than the transition's step."""
-    return LinearGaussian([[1, 1.0, 0], [0, 1, 0], [0, 0, 0.9]], np.diag([0.04, 0.04, 0.09]),
-                          [[1.0, 0, 0], [0, 0, 1.0]], np.diag([0.001, 0.002]))
+    return sharp_model()
 
 
 def test_the_exponent_keeps_the_target_ess_from_weighted_particles():
@@ -41,11 +39,7 @@ def test_the_tempered_filter_reaches_the_kalman_posterior(sharp, proposal):
     The last seed's particles' variances of the observed coordinates within 10 % of the Kalman filter's; the unobserved
     velocity's is under-represented (measured 0.036 against 0.066 from the prior's draw): each stage resamples the
     parents as well, and the moves, which keep the parent, cannot renew them (path degeneracy)."""
-    rng = np.random.default_rng(0)
-    zs = rng.normal(0, 1, (6, 2))
-    zs[3, 0] = np.nan
-    m0, P0 = np.array([0.5, -0.2, 1.0]), np.diag([0.3, 0.2, 0.5])
-    m, P = kalman(sharp, m0, P0, zs)
+    zs, m0, P0, m, P = sharp_frames(sharp)
     n = 2000
     errors = {0.5: [], 0.0: []}
     for seed in range(5):
