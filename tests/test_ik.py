@@ -305,6 +305,41 @@ def test_a_robust_one_camera_fit_is_bent_less_by_outliers(one_camera):
     assert bent_mm > clean_mm + 10 and robust_mm < bent_mm - 8, (clean_mm, bent_mm, robust_mm)
 
 
+def test_the_start_reweighs_an_outlier_two_cameras_cannot_tell(one_camera):
+    """The walk through two of the cameras (2 px noise), four pixels thrown 100–140 px off, each in one camera: two
+    cameras' triangulation puts each thrown joint wherever their rays pass, and inverse kinematics bends towards it;
+    the tracker's start (person.robust_start) reweighs each point by the Student-t (σ = 5 px, ν = 4) at its
+    reprojection and is bent less (measured 11.0 mm clean, 18.9 bent, 13.9 reweighed). On the clean pixels it
+    changes nothing that matters."""
+    from priortrack.geometry.triangulation import triangulate
+    from priortrack.tracking.person import robust_start
+
+    X, cameras, _, spread = one_camera
+    views = cameras[:2]
+    rng = np.random.default_rng(0)
+    uv = np.stack([c.project(X)[0] for c in views]) + rng.normal(0, 2.0, (2,) + X.shape[:2] + (2,))
+    thrown = uv.copy()
+    for v, t, j, shift in ((0, 1, 5, (100, 40)), (1, 3, 11, (-90, 100)), (0, 4, 7, (120, -60)), (1, 6, 14, (-140, 0))):
+        thrown[v, t, j] += shift
+    skeleton = fitted_skeleton(cmu_skeleton("35"), X)
+    M = np.eye(15)
+
+    def world_mm(motion):
+        return 1000 * np.linalg.norm(joint_positions(motion) - X, axis=-1).mean()
+
+    def z(pixels):                                                                  # (T, C, 15, 3), confidence 1
+        return np.concatenate([pixels, np.ones(pixels.shape[:-1] + (1,))], -1).transpose(1, 0, 2, 3)
+
+    clean, bent = (triangulate(views, pixels) for pixels in (uv, thrown))
+    plain = inverse_kinematics(clean, 30.0, skeleton=skeleton, pose=spread)
+    bent_mm = world_mm(inverse_kinematics(bent, 30.0, skeleton=skeleton, pose=spread))
+    robust_mm = world_mm(robust_start(bent, z(thrown), views, 30.0, M, skeleton, spread, (5.0, 4.0)))
+    assert bent_mm > world_mm(plain) + 5 and robust_mm < bent_mm - 0.5 * (bent_mm - world_mm(plain)), (
+        world_mm(plain), bent_mm, robust_mm)
+    again = robust_start(clean, z(uv), views, 30.0, M, skeleton, spread, (5.0, 4.0))
+    assert world_mm(again) < world_mm(plain) + 1
+
+
 def test_bad_pixels_for_one_camera_are_named(one_camera):
     """The one-camera fit refuses pixels of the wrong shape and frames with fewer than 6 detected joints."""
     from priortrack.body.ik import OneCameraFit

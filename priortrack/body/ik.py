@@ -181,9 +181,10 @@ def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | N
 
 def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = None, name: str = "ik",
                        joint_map: np.ndarray | None = None, skeleton: Skeleton | None = None,
-                       pose: PoseSpread | None = None) -> Motion:
+                       pose: PoseSpread | None = None, weights: np.ndarray | None = None) -> Motion:
     """A Motion whose eval15 joints (through ``joint_map`` M, if given) best match X (T, 15, 3) metres in
-    a Y-up world (NaN = unknown), on ``skeleton``, or else the template (default: CMU subject 35)
+    a Y-up world (NaN = unknown), each joint's squared error times its weight (``weights`` (T, 15), None: 1; m_tj of
+    the module docstring), on ``skeleton``, or else the template (default: CMU subject 35)
     scaled to X (:func:`fitted_skeleton`); the pull to rest is ``pose``'s, if given (module docstring)."""
     if template is None:
         from priortrack.data.bundled import cmu_skeleton
@@ -205,7 +206,8 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
     channels = np.empty((len(X), skeleton.num_channels))
     for start in range(0, len(X), CHUNK):
         part = slice(start, min(start + CHUNK, len(X)))
-        channels[part] = _fit(skeleton, part.stop - part.start, _joint_residuals(X[part]), pelvis[part], M, pose)
+        channels[part] = _fit(skeleton, part.stop - part.start,
+                              _joint_residuals(X[part], None if weights is None else weights[part]), pelvis[part], M, pose)
     return Motion(skeleton, channels, float(fps), name)
 
 
@@ -219,11 +221,12 @@ def refit_to_joints(X: np.ndarray, theta: np.ndarray, skeleton: Skeleton, joint_
     return _fit(skeleton, len(X), _joint_residuals(X), X[:, 0], M, pose, theta)
 
 
-def _joint_residuals(X: np.ndarray):
-    """The residual closure (joints, frames) → r of joint targets X (F, 15, 3), NaN rows left out."""
+def _joint_residuals(X: np.ndarray, weights: np.ndarray | None = None):
+    """The residual closure (joints, frames) → r of joint targets X (F, 15, 3), NaN rows left out, each row times the
+    square root of its weight (``weights`` (F, 15), None: 1)."""
     seen = np.isfinite(X).all(axis=-1)
     target = torch.as_tensor(np.where(seen[..., None], X, 0.0))
-    mask = torch.as_tensor(seen, dtype=torch.float64)[..., None]
+    mask = torch.as_tensor(np.where(seen, 1.0 if weights is None else np.sqrt(np.maximum(weights, 0.0)), 0.0))[..., None]
     return lambda joints, frames: ((joints - target[frames]) * mask[frames]).flatten(-2)
 
 
