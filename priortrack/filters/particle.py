@@ -167,7 +167,6 @@ class ParticleFilter(SequentialFilter):
         self.moves, self.move_kind, self.move_step = int(moves), move, float(move_scale)
         #: The ESS share each tempering stage keeps (0: Bayes' rule in one update; :mod:`~priortrack.filters.tempering`).
         self.tempering = float(tempering)
-        self._from_prior = True
         self.marginal = translation == "marginalised"
         #: The guided proposal (:mod:`~priortrack.filters.proposal`), or None: the prior's draw.
         self.proposal = GuidedProposal(model, self.marginal, defensive, inflation) if proposal == "guided" else None
@@ -236,7 +235,6 @@ class ParticleFilter(SequentialFilter):
             raise PriortrackError("the filter is not initialised: call initialise(motion) first")
         self._parents = (self.states, self.covariance)
         self._observed, self._log_ratio, self._predict_seconds = None, None, 0.0
-        self._from_prior = True
         if self.proposal is None:
             self._prior_draw(self.states)
 
@@ -260,7 +258,6 @@ class ParticleFilter(SequentialFilter):
             predicted_covariance = predict_covariance(covariance, motion.sigma[:3], motion.velocity)
         self.states, self._log_ratio = self.proposal.draw(parents, torch.exp(self.log_weights), z, self.generator,
                                                           predicted_covariance)
-        self._from_prior = self.proposal.covariance is None                  # fewer than two views: the prior's draw
         self._observed = None
         self._predict_seconds += time.perf_counter() - t0
 
@@ -379,20 +376,20 @@ class ParticleFilter(SequentialFilter):
         :data:`~priortrack.filters.tempering.MAX_STAGES` stages. From the prior's draw q = p, and π_φ ∝ p p(z | s)^φ.
         ``parents`` (P, A) the particles' states at t − 1, ``parent_covariance`` their translation covariances (None:
         sampled). Returns the particles' observed joints; appends "tempered:k" (k stages of moves) to ``flags``."""
-        guided = self.proposal is not None and not self._from_prior
         s, log_w, phi, stages = self.states, self.log_weights, 0.0, 0
         rows = torch.arange(self.P, device=s.device)                     # each particle's parent in the draw
 
-        def densities(candidate: torch.Tensor, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            if guided:
-                return self.proposal.log_density(candidate, rows)
-            log_p = self.model.log_transition(candidate, parents[rows]).to(torch.float64)
-            return log_p, log_p
+        def log_ratio(candidate: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+            """log p(s | s_{t−1}) − log q(s) (0 without a guided proposal: its draw is the prior's)."""
+            if self.proposal is None:
+                return torch.zeros(len(candidate), dtype=torch.float64, device=candidate.device)
+            log_q, log_p = self.proposal.log_density(candidate, rows)
+            return log_p - log_q
 
-        log_q, log_p = densities(s, rows)
+        ratio = log_ratio(s, rows)
         while True:
             log_lik, pending = self.weigh(self.model.observe(s), z, parent_covariance)
-            log_r = log_lik.to(torch.float64) + log_p - log_q
+            log_r = log_lik.to(torch.float64) + ratio
             finite = torch.isfinite(log_r)
             if not finite.any():
                 log_w = self.normalised(log_w + log_r, flags)                       # "weights-underflow", uniform
@@ -407,15 +404,10 @@ class ParticleFilter(SequentialFilter):
             s, rows = s[ancestors], rows[ancestors]
             parent_covariance = None if parent_covariance is None else parent_covariance[ancestors]
             log_w = torch.full_like(log_w, -math.log(self.P))
-
-            def target(candidate: torch.Tensor, rows=rows, phi=phi, covariance=parent_covariance):
-                likelihood, kalman = self.weigh(self.model.observe(candidate), z, covariance)
-                q, p = densities(candidate, rows)
-                return (1.0 - phi) * q + phi * (p + likelihood.to(torch.float64)), kalman
-
+            target = self._target(z, parents[rows], parent_covariance, phi, rows if self.proposal is not None else None)
             s, _, rate = self._random_walk(target, s, parents[rows], max(self.moves, 1))
             self.move_step = adapted(self.move_step, rate, RANDOM_WALK_ACCEPTANCE)
-            log_q, log_p = densities(s, rows)
+            ratio = log_ratio(s, rows)
             stages += 1
         flags.append(f"tempered:{stages}")
         self._log_ratio = None                                                       # applied above
@@ -425,13 +417,18 @@ class ParticleFilter(SequentialFilter):
         return self.keep_update(pending, self.predicted_joints())
 
     def _target(self, z: torch.Tensor, parents: torch.Tensor, parent_covariance: torch.Tensor | None,
-                power: float = 1.0):
+                phi: float = 1.0, rows: torch.Tensor | None = None):
         """log π_φ(s) = log p(s | s_{t−1}) + φ log p(z | s, z_{1:t−1}) of candidate states (P, A) with parents (P, A)
-        (the translation integrated out as in :meth:`weigh`), and the Kalman update that goes with it."""
+        (the translation integrated out as in :meth:`weigh`), and the Kalman update that goes with it. With ``rows``,
+        the parents' indices in the guided proposal's last draw (:meth:`tempered_update`), log π_φ(s) =
+        (1 − φ) log q(s) + φ (log p(s | s_{t−1}) + log p(z | s)), p and q as ``GuidedProposal.log_density`` gives them."""
         def target(candidate: torch.Tensor):
             log_likelihood, pending = self.weigh(self.model.observe(candidate), z, parent_covariance)
-            return (self.model.log_transition(candidate, parents).to(torch.float64)
-                    + power * log_likelihood.to(torch.float64)), pending
+            log_likelihood = log_likelihood.to(torch.float64)
+            if rows is None:
+                return self.model.log_transition(candidate, parents).to(torch.float64) + phi * log_likelihood, pending
+            log_q, log_p = self.proposal.log_density(candidate, rows)
+            return (1.0 - phi) * log_q + phi * (log_p + log_likelihood), pending
         return target
 
     def weigh(self, joints: torch.Tensor, z: torch.Tensor,

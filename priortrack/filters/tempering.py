@@ -10,7 +10,9 @@ to the posterior through the targets
 each exponent's step Δ_k = φ_k − φ_{k−1} chosen by bisection so that the weights w_i ∝ w_i · p(z_t | s_i)^{Δ_k}
 keep an effective sample size of a fixed share of the particles (:func:`annealing_exponent`); between stages the
 particles are resampled and moved by Metropolis–Hastings moves that leave π_{φ_k} invariant (the particle filter's
-random walk, :meth:`~priortrack.filters.particle.ParticleFilter.move`). Each stage's incremental weight is exact, so
+random walk, :meth:`~priortrack.filters.particle.ParticleFilter.move`). From the guided proposal's draw q the path
+starts at q instead, π_φ ∝ q^{1−φ} (p(s_t | s_{t−1}) p(z_t | s_t))^φ, and each stage's weight is (p · likelihood / q)^{Δ_k}
+(:meth:`~priortrack.filters.particle.ParticleFilter.tempered_update`). Each stage's incremental weight is exact, so
 the last stage's weighted particles target the filtering distribution, as a single update's do (an SMC sampler),
 where the annealed particle filter's tempered weights (:mod:`~priortrack.filters.annealed`) do not. The annealed
 filter shares the exponent's bisection.

@@ -554,9 +554,10 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
     observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind in UNSCENTED_KINDS else DEFAULT_NU,
                    **preset.observation}
-    # the start is robust whatever the filter's likelihood (one camera: its fit; several: the triangulation)
+    # the start is robust whatever the filter's likelihood: the Student-t of the preset's σ
+    noise = (observation["sigma_px"], DEFAULT_NU)
     X, seen, residual, z.left_out = _whole_trial(cameras, z, detections.camera_names, calibration.source,
-                                                 config.min_confidence, (observation["sigma_px"], DEFAULT_NU))
+                                                 config.min_confidence, noise)
     rejected = int(z.left_out.sum())
     counts = seen.sum(axis=-1)
     needed = start_joints(seen, single)
@@ -582,10 +583,9 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     if single:
         ticks = z[first:window][:, 0]
         fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
-                                       pose=pose, robust=(observation["sigma_px"], DEFAULT_NU))
+                                       pose=pose, robust=noise)
     else:
-        fitted = robust_start(X[first:window], z[first:window], cameras, prior.fps, M, skeleton, pose,
-                              (observation["sigma_px"], DEFAULT_NU))
+        fitted = robust_start(X[first:window], z[first:window], cameras, prior.fps, M, skeleton, pose, noise)
     known = steady_start(fitted)
     model = TrackingModel.fitted(prior, preset.training_motions,
                                  MultiViewLikelihood(cameras, **observation, joint_map=M))
