@@ -340,6 +340,13 @@ def test_the_start_reweighs_an_outlier_two_cameras_cannot_tell(one_camera):
     assert world_mm(again) < world_mm(plain) + 1
 
 
+def test_bad_start_weights_are_named(walk):
+    """Per-joint weights of the wrong shape, negative or NaN are refused with the shape they must have."""
+    for weights in (np.ones((6, 14)), -np.ones((6, 15)), np.full((6, 15), np.nan)):
+        with pytest.raises(PriortrackError, match=r"weights must be finite, non-negative and of shape \(6, 15\)"):
+            inverse_kinematics(walk, 30.0, weights=weights)
+
+
 def test_bad_pixels_for_one_camera_are_named(one_camera):
     """The one-camera fit refuses pixels of the wrong shape and frames with fewer than 6 detected joints."""
     from priortrack.body.ik import OneCameraFit

@@ -87,3 +87,7 @@ def test_tempering_settings_are_checked(sharp):
     for bad in (-0.1, 1.0, 2.0):
         with pytest.raises(PriortrackError, match="tempering must be in"):
             ParticleFilter(sharp, 10, tempering=bad)
+    from priortrack.filters.proposal import GuidedProposal
+
+    with pytest.raises(PriortrackError, match="the guided proposal has drawn nothing yet"):
+        GuidedProposal(sharp).log_density(torch.zeros((2, 3), dtype=torch.float64), torch.arange(2))

@@ -195,6 +195,10 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
         raise PriortrackError(f"inverse kinematics: joints have shape {X.shape}; expected (T, 15, 3)")
     if np.isinf(X).any():
         raise PriortrackError("inverse kinematics: joints contain inf")
+    if weights is not None and (np.shape(weights) != X.shape[:2] or not np.all(np.isfinite(weights))
+                                or np.any(np.asarray(weights) < 0)):
+        raise PriortrackError(f"inverse kinematics: weights must be finite, non-negative and of shape {X.shape[:2]} "
+                              f"(one per joint and frame), got shape {np.shape(weights)}")
     seen = np.isfinite(X).all(axis=-1)
     if (seen.sum(axis=1) < 6).any():
         raise PriortrackError(f"inverse kinematics: frames {np.flatnonzero(seen.sum(axis=1) < 6).tolist()} have "
@@ -226,7 +230,7 @@ def _joint_residuals(X: np.ndarray, weights: np.ndarray | None = None):
     square root of its weight (``weights`` (F, 15), None: 1)."""
     seen = np.isfinite(X).all(axis=-1)
     target = torch.as_tensor(np.where(seen[..., None], X, 0.0))
-    mask = torch.as_tensor(np.where(seen, 1.0 if weights is None else np.sqrt(np.maximum(weights, 0.0)), 0.0))[..., None]
+    mask = torch.as_tensor(np.where(seen, 1.0 if weights is None else np.sqrt(weights), 0.0))[..., None]
     return lambda joints, frames: ((joints - target[frames]) * mask[frames]).flatten(-2)
 
 
