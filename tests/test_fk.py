@@ -172,3 +172,50 @@ def test_float64_positions_by_the_fused_kernel_match_the_torch_path(name):
     assert (fused - reference).abs().max().item() < 1e-12
     assert torch.equal(fk(channels, joints=[0, 7, 20]), fused[:, [0, 7, 20]])
     assert torch.equal(fk(channels[3]), fused[3])
+
+
+_INTERPRETED = """
+import json, sys
+import numpy as np, torch
+from priortrack.body.fk import ForwardKinematics
+from priortrack.body.fk_triton import Skeleton, positions
+from priortrack.data.bundled import load_bundled
+
+motion = load_bundled(sys.argv[1])
+rng = np.random.default_rng(0)
+channels = motion.channels[rng.integers(0, len(motion), 300)].copy()
+channels[:, 3:] += rng.normal(0, 0.5, (300, motion.skeleton.num_channels - 3))
+errors = {}
+for dtype in (torch.float32, torch.float64):
+    rows = torch.as_tensor(channels, dtype=dtype)
+    reference, _ = ForwardKinematics(motion.skeleton, dtype=dtype)(rows, rotations=True)
+    skeleton = Skeleton(motion.skeleton, torch.device("cpu"), dtype)
+    J = motion.skeleton.num_joints
+    every = positions(rows, skeleton, torch.arange(J))
+    chosen = torch.tensor([J - 1, 0, 4])
+    errors[str(dtype)] = [(every - reference).abs().max().item(),
+                          (positions(rows, skeleton, chosen) - reference[:, chosen]).abs().max().item(),
+                          list(positions(rows[:0], skeleton, chosen).shape)]
+print(json.dumps(errors))
+"""
+
+
+@pytest.mark.parametrize("name", ["cmu:07_01", "cmu:49_18"])
+def test_the_gpu_kernel_in_tritons_interpreter_gives_the_torch_paths_positions(name):
+    """priortrack.body.fk_triton's kernel (what a CUDA GPU runs) executed on the CPU by Triton's interpreter
+    (TRITON_INTERPRET=1, set before Triton is imported: a fresh process): every joint and a selection in any
+    order equal the torch path's positions to the dtype's rounding, and no rows give none. This checks the
+    kernel's arithmetic and indexing; tests/test_cuda.py checks the compiled kernel on a GPU."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    pytest.importorskip("triton", reason="Triton (the dev extra's, on Linux) is not installed")
+    env = dict(os.environ, TRITON_INTERPRET="1")
+    out = subprocess.run([sys.executable, "-c", _INTERPRETED, name], capture_output=True, text=True, env=env,
+                         check=True).stdout
+    errors = json.loads(out)
+    for dtype, tolerance in (("torch.float32", 2e-5), ("torch.float64", 1e-12)):
+        every, chosen, empty = errors[dtype]
+        assert every < tolerance and chosen < tolerance and empty == [0, 3, 3]

@@ -27,11 +27,14 @@ operation runs over the contiguous batch.
 Positions on the CPU in float32 or float64 (no rotations asked, no gradient needed) are computed
 instead by the fused kernel of :mod:`priortrack.body.fk_kernel`, joint by joint in one pass over
 the rows (about 5× this path's speed at 10⁴ float32 rows; for the unscented filter's 125 float64
-sigma points, the torch path's per-operation overhead is most of its time); this path is its
-reference in the tests.
+sigma points, the torch path's per-operation overhead is most of its time), and on a CUDA GPU by
+the Triton kernel of :mod:`priortrack.body.fk_triton`, the same recursion (where Triton imports);
+this path is their reference in the tests.
 """
 
 from __future__ import annotations
+
+import logging
 
 import numpy as np
 import torch
@@ -41,6 +44,8 @@ from priortrack.data.motion import Motion
 from priortrack.data.skeleton import SLOTS, Skeleton, check_channels
 from priortrack.errors import PriortrackError
 from priortrack.threads import split_rows
+
+log = logging.getLogger(__name__)
 
 #: An axis within this (max-norm) of a signed frame column rotates about that column.
 _ALIGNED = 1e-12
@@ -154,13 +159,22 @@ class ForwardKinematics:
         self._trans_used = as_t((skeleton.trans_channels >= 0)[:, :, None], dtype=dtype)   # (J, 3, 1)
         self._position_node = as_t(row[first] + place[first])                      # (J,) rows of all nodes
         self._frame_node = as_t(frame_row[last])                                   # (J,) rows of kept H
-        # positions on the CPU: the fused kernel of priortrack.body.fk_kernel, on these arrays
-        self._kernel = None
+        # positions in one pass: on the CPU the numba kernel of priortrack.body.fk_kernel, on these arrays;
+        # on a CUDA GPU the Triton kernel of priortrack.body.fk_triton, where Triton imports
+        self._kernel = self._gpu = None
         if self.dtype in (torch.float32, torch.float64) and self.device.type == "cpu":
             real = np.float32 if self.dtype == torch.float32 else np.float64
             self._kernel = (skeleton.parents.astype(np.int64), skeleton.offsets.astype(real),
                             skeleton.rot_axes.astype(real), skeleton.rot_channels.astype(np.int64),
                             skeleton.trans_channels.astype(np.int64))
+        elif self.dtype in (torch.float32, torch.float64) and self.device.type == "cuda":
+            try:
+                from priortrack.body import fk_triton
+            except ImportError:
+                log.info("Triton does not import: forward kinematics on %s takes the torch path", self.device)
+            else:
+                self._gpu = fk_triton.Skeleton(skeleton, self.device, self.dtype)
+        self._wanted: dict[bytes, torch.Tensor] = {}       # the GPU kernel's joint indices, per selection
 
     def _as_batch(self, channels) -> torch.Tensor:
         channels = torch.as_tensor(channels, dtype=self.dtype, device=self.device)
@@ -228,7 +242,7 @@ class ForwardKinematics:
         single = torch.as_tensor(channels).dim() == 1
         channels = self._as_batch(channels[None] if single else channels)
         chosen = self._chosen(joints)
-        if self._kernel is not None and not rotations and not channels.requires_grad:
+        if not rotations and not channels.requires_grad and (self._kernel is not None or self._gpu is not None):
             positions = self._fused(channels, chosen)
             return positions[0] if single else positions
         p, frames = self._world(channels)
@@ -241,9 +255,17 @@ class ForwardKinematics:
         return positions, (G[0] if single else G)
 
     def _fused(self, channels: torch.Tensor, chosen: np.ndarray) -> torch.Tensor:
-        """Positions (B, K, 3) of the ``chosen`` joints by :func:`priortrack.body.fk_kernel.positions`
-        (float32 or float64, CPU): the same FK in one pass, equal to the torch path to the dtype's rounding; with
-        torch on T > 1 threads, the rows are split among T workers (:func:`priortrack.threads.split_rows`)."""
+        """Positions (B, K, 3) of the ``chosen`` joints in one pass (float32 or float64), equal to the torch path
+        to the dtype's rounding: on a CUDA GPU by :func:`priortrack.body.fk_triton.positions`; on the CPU by
+        :func:`priortrack.body.fk_kernel.positions`, with torch on T > 1 threads the rows split among T workers
+        (:func:`priortrack.threads.split_rows`)."""
+        if self._gpu is not None:
+            key = chosen.tobytes()
+            if key not in self._wanted:
+                self._wanted[key] = torch.as_tensor(chosen, dtype=torch.int64, device=self.device)
+            from priortrack.body.fk_triton import positions as on_gpu
+
+            return on_gpu(channels, self._gpu, self._wanted[key])
         from priortrack.body.fk_kernel import positions
 
         out = torch.empty(channels.shape[0], len(chosen), 3, dtype=self.dtype)
