@@ -1,6 +1,7 @@
 """Filter presets: the shipped TOML files, validation of every section, the fitted-prior cache."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -46,7 +47,7 @@ def test_patterns_in_train_are_expanded():
     ({"prior__kind": "hmm"}, r"\[prior\] kind 'hmm'"),
     ({"prior__train": []}, r"train must be a non-empty list"),
     ({"prior__options": {"spaces": "angles"}}, r"options \(diffusion-local\): unknown key 'spaces'; valid keys: space"),
-    ({"observation__sigma": 3.0}, r"\[observation\]: unknown key 'sigma'; valid keys: robust_nu, sigma_px"),
+    ({"observation__sigma": 3.0}, r"\[observation\]: unknown key 'sigma'; valid keys: one_camera_sigma_px, robust_nu, sigma_px"),
 ])
 def test_mistyped_keys_list_the_valid_ones(changes, message):
     with pytest.raises(PriortrackError, match=message):
@@ -140,6 +141,39 @@ def test_build_gives_the_named_filter_with_its_parameters(tmp_path):
     filt = preset.build(default_camera(joint_positions(motion, "eval15")), seed=3, cache=tmp_path)
     assert type(filt).__name__ == "ParticleFilter" and filt.P == 50
     assert np.isclose(filt.model.likelihood.sigma_px, 10.0)
+
+
+def test_one_camera_takes_its_own_sigma_where_the_preset_gives_one(tmp_path):
+    """[observation] one_camera_sigma_px: the single-camera likelihood (the lab bench, one camera's detections)
+    weighs with it, a recording from two cameras or more with sigma_px; without it both are sigma_px; a value
+    that is no positive number is refused by name. The shipped guided particle presets: 5 px with several
+    cameras, 10 px with one; the real 4-camera trial's model takes 5 px."""
+    from priortrack.data.calibration import Calibration, read_calibration
+    from priortrack.data.bundled import POSE2SIM_DIR
+    from priortrack.data.detections import read_detections
+    from priortrack.observation import default_camera
+    from priortrack.tracking.person import TrackConfig, prepared
+
+    preset = parse_preset(table(observation__sigma_px=5.0, observation__one_camera_sigma_px=12.0), "small")
+    assert preset.observation == {"sigma_px": 5.0} and preset.one_camera_sigma_px == 12.0
+    assert preset.observation_for(1) == {"sigma_px": 12.0} and preset.observation_for(4) == {"sigma_px": 5.0}
+    filt = preset.build(default_camera(joint_positions(preset.training_motions[0], "eval15")), cache=tmp_path)
+    assert filt.model.likelihood.sigma_px == 12.0
+    plain = parse_preset(table(), "small")
+    assert plain.observation_for(1) == plain.observation_for(3) == {"sigma_px": 10.0}
+    for bad in (0.0, -3.0, "10", float("nan")):
+        with pytest.raises(PriortrackError, match="one_camera_sigma_px"):
+            parse_preset(table(observation__one_camera_sigma_px=bad), "bad")
+    for name in ("pf-lie", "pf-lie-defensive", "pf-diffusion-local"):
+        shipped = load_preset(name)
+        assert shipped.observation_for(4)["sigma_px"] == 5.0 and shipped.observation_for(1)["sigma_px"] == 10.0
+    detections = read_detections(POSE2SIM_DIR / "pose", keypoints="body25b")
+    calibration = read_calibration(POSE2SIM_DIR / "Calib.toml")
+    four = prepared(detections, calibration, "pf-lie-defensive", TrackConfig(fps=60))
+    assert four.model.likelihood.sigma_px == 5.0
+    one = prepared(replace(detections, keypoints=detections.keypoints[1:2], camera_names=detections.camera_names[1:2]),
+                   Calibration(calibration.cameras[1:2], "z", "one"), "pf-lie-defensive", TrackConfig(fps=60, height=1.75))
+    assert one.model.likelihood.sigma_px == 10.0
 
 
 def test_a_preset_can_name_a_fitted_prior_file(tmp_path):

@@ -553,7 +553,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     single = len(cameras) == 1
     # Student-t by default; the unscented filter needs a Gaussian (R), weighted by confidence as well.
     observation = {"sigma_px": DEFAULT_SIGMA_PX, "robust_nu": None if preset.filter_kind in UNSCENTED_KINDS else DEFAULT_NU,
-                   **preset.observation}
+                   **preset.observation_for(len(cameras))}
     # the start is robust whatever the filter's likelihood: the Student-t of the preset's σ
     noise = (observation["sigma_px"], DEFAULT_NU)
     X, seen, residual, z.left_out = _whole_trial(cameras, z, detections.camera_names, calibration.source,

@@ -19,6 +19,7 @@ A preset (the shipped ones: ``priortrack presets``; any path works too)::
 
     [observation]                 # JointLikelihood's parameters
     sigma_px = 10.0
+    # one_camera_sigma_px = 10.0  # σ where one camera sees the person (default: sigma_px)
 
 The valid keys of ``[filter]`` are the filter class's constructor parameters (besides the model
 and the seed), those of ``[prior].options`` the kind's option schema
@@ -70,6 +71,8 @@ PRESET_DIR = next((d for d in (Path(__file__).resolve().parent / "preset_files",
                   Path(__file__).resolve().parent / "preset_files")
 TOP_KEYS = ("description", "filter", "prior", "observation")
 PRIOR_KEYS = ("kind", "train", "fps", "options", "annealing", "file", "defensive")
+#: The [observation] key of the σ used where one camera sees the person (:attr:`Preset.one_camera_sigma_px`).
+ONE_CAMERA = "one_camera_sigma_px"
 
 
 #: Filter kind → (module, class). Each class says what it needs of a prior in ``requires``
@@ -149,6 +152,10 @@ class Preset:
         defensive: ε of a :class:`~priortrack.priors.defensive.DefensiveMixture` with local diffusion
             fitted to the same motions in the prior's space (0: none).
         observation: JointLikelihood parameters (sigma_px, robust_nu).
+        one_camera_sigma_px: σ in pixels where a single camera sees the person, or None (sigma_px): with two
+            cameras or more the guided proposal draws where the detections are and meets the detector's σ; with
+            one, the particles are the prior's draw, and 1000 of them resolve a wider likelihood better
+            (:meth:`observation_for`).
     """
 
     name: str
@@ -163,6 +170,7 @@ class Preset:
     annealing: float = 1.0
     prior_file: Path | None = None
     defensive: float = 0.0
+    one_camera_sigma_px: float | None = None
 
     @property
     def cache_key(self) -> str:
@@ -221,8 +229,16 @@ class Preset:
         for the global motion of every run)."""
         return tuple(prepare_motions([load_motion(source) for source in self.train], self.fps))
 
+    def observation_for(self, cameras: int) -> dict[str, Any]:
+        """The observation model's parameters for a recording from ``cameras`` cameras: :attr:`observation`,
+        with σ = :attr:`one_camera_sigma_px` where there is one camera and the preset gives it."""
+        if cameras == 1 and self.one_camera_sigma_px is not None:
+            return {**self.observation, "sigma_px": self.one_camera_sigma_px}
+        return dict(self.observation)
+
     def likelihood(self, camera: PinholeCamera) -> JointLikelihood:
-        return JointLikelihood(camera, **self.observation)
+        """The single-camera likelihood (:meth:`observation_for` one camera)."""
+        return JointLikelihood(camera, **self.observation_for(1))
 
     def model(self, camera: PinholeCamera, cache: Path | None = None, progress=None) -> TrackingModel:
         """The tracking model: the prior, the global motion fitted to the training motions, the likelihood."""
@@ -326,11 +342,15 @@ def parse_preset(table: dict, name: str, where: str = "preset", folder: Path | N
         raise PriortrackError(f"{where}: [prior] defensive must be a fraction in [0, 1), got {defensive!r}")
 
     observation = dict(table.get("observation", {}))
-    _check_keys(f"{where} [observation]", observation, _parameters(JointLikelihood.__init__, ("self", "camera")))
-    _check_types(f"{where} [observation]", observation, {"sigma_px": 10.0, "robust_nu": 4.0})
+    _check_keys(f"{where} [observation]", observation,
+                [*_parameters(JointLikelihood.__init__, ("self", "camera")), ONE_CAMERA])
+    _check_types(f"{where} [observation]", observation, {"sigma_px": 10.0, "robust_nu": 4.0, ONE_CAMERA: 10.0})
+    one_camera = observation.pop(ONE_CAMERA, None)
+    if one_camera is not None and not one_camera > 0:
+        raise PriortrackError(f"{where} [observation]: {ONE_CAMERA} must be positive pixels, got {one_camera!r}")
     return Preset(name, str(table.get("description", "")), kind, options, prior_kind,
                   tuple(expand_sources(train)), float(fps), prior_options, observation,
-                  float(annealing), prior_file, float(defensive))
+                  float(annealing), prior_file, float(defensive), None if one_camera is None else float(one_camera))
 
 
 def _prior_file(prior: dict, where: str, folder: Path | None) -> Path | None:
