@@ -119,6 +119,10 @@ class ParticleFilter(SequentialFilter):
             ``step_components``, and a likelihood that projects; with fewer than two cameras, the prior's draw).
         defensive: the guided proposal's share of the prior itself, δ (default 0.1).
         inflation: the guided proposal's factor on its linearised covariance, γ (default 1).
+        auxiliary: the guided draw fully adapted (default False): the parents resampled first by their weight times
+            their linearised predictive density of the frame, the weights then p(y | s) p / (q λ̂) from uniform
+            (Pitt & Shephard 1999; :meth:`~priortrack.filters.proposal.GuidedProposal.draw`); a frame the prior draws is
+            unchanged. ``proposal="guided"`` only, without tempering.
         tempering: 0 (default) or the ESS share α ∈ (0, 1) of adaptive tempering within each frame
             (:meth:`tempered_update`, :mod:`~priortrack.filters.tempering`: from the draw to the posterior in stages
             that each keep an ESS of α P, the particles resampled and moved by ``max(moves, 1)`` random-walk moves
@@ -139,8 +143,8 @@ class ParticleFilter(SequentialFilter):
     def __init__(self, model: TrackingModel, particles: int = 1000, resampling: str = "systematic",
                  ess_threshold: float = 0.5, dtype: str = "float64", translation: str = "sampled", moves: int = 0,
                  move: str = "random-walk", move_scale: float = 0.3, proposal: str = "prior", defensive: float = 0.1,
-                 inflation: float = 1.0, tempering: float = 0.0, seed: int = 0, device: str = "cpu",
-                 threads: int | None = None):
+                 inflation: float = 1.0, auxiliary: bool = False, tempering: float = 0.0, seed: int = 0,
+                 device: str = "cpu", threads: int | None = None):
         if particles < 1:
             raise PriortrackError(f"particles must be positive, got {particles}")
         if not 0.0 <= ess_threshold <= 1.0:
@@ -160,6 +164,9 @@ class ParticleFilter(SequentialFilter):
         if move not in MOVES or (move == "langevin" and proposal != "guided"):
             raise PriortrackError(f"move must be one of {', '.join(MOVES)}, the Langevin moves with proposal = "
                                   f"'guided' (they move in its coordinates); got {move!r} with {proposal!r}")
+        if auxiliary and (proposal != "guided" or tempering):
+            raise PriortrackError("auxiliary = true is the guided draw's first stage: it needs proposal = 'guided', and "
+                                  "goes without tempering (whose stages start from q alone)")
         if not 0.0 <= tempering < 1.0:
             raise PriortrackError(f"tempering must be in [0, 1) (the ESS share each stage keeps; 0: none), got {tempering}")
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
@@ -170,6 +177,8 @@ class ParticleFilter(SequentialFilter):
         self.marginal = translation == "marginalised"
         #: The guided proposal (:mod:`~priortrack.filters.proposal`), or None: the prior's draw.
         self.proposal = GuidedProposal(model, self.marginal, defensive, inflation) if proposal == "guided" else None
+        #: Whether the guided draw resamples its parents first by their predictive density (fully adapted).
+        self.auxiliary = bool(auxiliary)
         self._log_ratio: torch.Tensor | None = None
         self.covariance: torch.Tensor | None = None
         self.model, self.P, self.ess_threshold = model, int(particles), float(ess_threshold)
@@ -248,18 +257,26 @@ class ParticleFilter(SequentialFilter):
         self._observed = None
         self._predict_seconds += time.perf_counter() - t0
 
-    def _guided_draw(self, z: torch.Tensor, parents: torch.Tensor, covariance: torch.Tensor | None) -> None:
+    def _guided_draw(self, z: torch.Tensor, parents: torch.Tensor,
+                     covariance: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The predicted particles drawn from the guided proposal with the frame's (gated) z, and the
-        log ratio of prior to proposal that their weights add."""
+        log ratio of prior to proposal that their weights add. Returns the parents (P, A) and their translation
+        covariances: with :attr:`auxiliary`, those the draw's first stage resampled (the weights then uniform)."""
         t0 = time.perf_counter()
         predicted_covariance = None
         if self.marginal:
             motion = self.model.global_motion
             predicted_covariance = predict_covariance(covariance, motion.sigma[:3], motion.velocity)
         self.states, self._log_ratio = self.proposal.draw(parents, torch.exp(self.log_weights), z, self.generator,
-                                                          predicted_covariance)
+                                                          predicted_covariance, self.resample if self.auxiliary else None)
+        a = self.proposal.ancestors
+        if a is not None:
+            parents, self.log_weights = parents[a], torch.full_like(self.log_weights, -math.log(self.P))
+            if self.marginal:
+                covariance = self.covariance = covariance[a]
         self._observed = None
         self._predict_seconds += time.perf_counter() - t0
+        return parents, covariance
 
     @_on_step_threads
     def predicted_measurement(self) -> tuple[np.ndarray, np.ndarray]:
@@ -317,7 +334,7 @@ class ParticleFilter(SequentialFilter):
             z = gated.to(z)
         if self.proposal is not None:
             if torch.isfinite(z).any():
-                self._guided_draw(z, parents, parent_covariance)
+                parents, parent_covariance = self._guided_draw(z, parents, parent_covariance)
             elif self.states is parents:
                 self._prior_draw(parents)
         t1 = time.perf_counter()
