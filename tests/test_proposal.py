@@ -16,6 +16,15 @@ def sharp():
     return sharp_model()
 
 
+def three_components(sharp) -> LinearMixture:
+    """``sharp``'s dynamics and likelihood with a step that is a mixture of three Gaussians, each with its own shift
+    and covariance (as the Lie prior's step)."""
+    b = [[0.3, 0.0, -0.2], [-0.4, 0.1, 0.0], [0.0, -0.3, 0.5]]
+    Qs = np.array([np.diag([0.02, 0.01, 0.05]), np.diag([0.05, 0.03, 0.02]),
+                   [[0.04, 0.01, 0], [0.01, 0.02, 0], [0, 0, 0.03]]])
+    return LinearMixture(sharp.A.numpy(), b, Qs, [0.5, 0.3, 0.2], sharp.H.numpy(), sharp.R.numpy())
+
+
 def test_optimal_proposal_weight_is_the_predictive_likelihood(sharp):
     """With δ = 0 and γ = 1 the guided proposal of a linear-Gaussian model is p(s_t | s_t−1, y_t): every
     particle's incremental weight log p(y | s) + log p(s | s_t−1) − log q(s) is the predictive likelihood
@@ -46,11 +55,8 @@ def test_a_mixture_transitions_guided_weight_is_its_predictive_likelihood(sharp)
     Lie prior's step): with δ = 0 and γ = 1 the guided proposal is the exact posterior of the step, the mixture of
     each component's Kalman posterior weighted by π_k N(y; H (A s + b_k), H Q_k Hᵀ + R), so every particle's
     incremental weight is the predictive likelihood log Σ_k π_k N(y; H (A s + b_k), H Q_k Hᵀ + R), to rounding."""
-    A, H, R = sharp.A.numpy(), sharp.H.numpy(), sharp.R.numpy()
-    b = [[0.3, 0.0, -0.2], [-0.4, 0.1, 0.0], [0.0, -0.3, 0.5]]
-    Qs = np.array([np.diag([0.02, 0.01, 0.05]), np.diag([0.05, 0.03, 0.02]),
-                   [[0.04, 0.01, 0], [0.01, 0.02, 0], [0, 0, 0.03]]])
-    model = LinearMixture(A, b, Qs, [0.5, 0.3, 0.2], H, R)
+    H, R = sharp.H.numpy(), sharp.R.numpy()
+    model = three_components(sharp)
     g = torch.Generator().manual_seed(0)
     parents = 0.3 * torch.randn(400, 3, generator=g, dtype=torch.float64)
     y = torch.tensor([0.2, -0.1], dtype=torch.float64)
@@ -85,11 +91,7 @@ def test_the_auxiliary_draws_weights_are_equal_on_a_linear_model(sharp):
     w_i N(y; H A s_i, H Q Hᵀ + R), normalised (the resampler sees exactly those weights)."""
     from priortrack.filters.resampling import resampler
 
-    A, H, R = sharp.A.numpy(), sharp.H.numpy(), sharp.R.numpy()
-    b = [[0.3, 0.0, -0.2], [-0.4, 0.1, 0.0], [0.0, -0.3, 0.5]]
-    Qs = np.array([np.diag([0.02, 0.01, 0.05]), np.diag([0.05, 0.03, 0.02]),
-                   [[0.04, 0.01, 0], [0.01, 0.02, 0], [0, 0, 0.03]]])
-    mixture = LinearMixture(A, b, Qs, [0.5, 0.3, 0.2], H, R)
+    mixture = three_components(sharp)
     y = torch.tensor([0.3, -0.4], dtype=torch.float64)
     for model in (sharp, mixture):
         g = torch.Generator().manual_seed(0)
