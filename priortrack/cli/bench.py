@@ -123,7 +123,8 @@ def add_parsers(verbs) -> None:
     pf.add_argument("--cameras", type=int, default=1, help="1: one side camera (default); 2 to 8: distorted cameras "
                     "on a ring, the multi-view likelihood (σ = 5 px)")
     pf.add_argument("--proposal", choices=("prior", "guided"), default="prior",
-                    help="the particles' draw: the prior's (default) or guided by the detections (2 cameras or more)")
+                    help="the particles' draw: the prior's (default) or guided by the detections (2 cameras or more; "
+                         "fully adapted, the GPDM with its pose state, as the presets run)")
     pf.add_argument("--threads", type=int, default=2, help="torch threads (default %(default)s)")
     pf.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                     help="the particles' dtype (the particle-filter presets run float32)")

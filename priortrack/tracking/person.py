@@ -547,7 +547,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     up = up if isinstance(up, str) and up in UP_AXES else up_vector(up)
     A = to_y_up(up)
     cameras = [in_working_frame(c, A) for c in world_cameras]
-    prior = preset.prior(config.cache)
+    prior = preset.prior(config.cache, cameras=len(cameras))
     index = schedule(detections.frames, data_fps, prior.fps)
     z = TickObservations(detections, index, config.min_confidence)     # (T, C, 15, 3), read a block at a time
     single = len(cameras) == 1

@@ -14,7 +14,8 @@ likelihood a :class:`JointLikelihood` through :func:`priortrack.observation.defa
 observations are the ``noise`` scenario of the first test walk (the paper's eight joints). With ``cameras``
 C > 1 instead: C distorted cameras on a ring (:func:`~priortrack.experiments.benchmarks.ukf.ring_observations`,
 every joint with 5 px noise) under the multi-view Gaussian likelihood (σ = 5 px), the real-data setting, where
-``proposal="guided"`` (the presets' draw, :mod:`priortrack.filters.proposal`) looks at the detections. The
+``proposal="guided"`` (the presets' draw, :mod:`priortrack.filters.proposal`) looks at the detections, fully adapted
+(``auxiliary``) and with the GPDM's pose in its state (:mod:`priortrack.priors.gpdm_pose`), as the presets run. The
 filters of all priors start on that walk's first two frames and step through its frames in
 lockstep (diffusion, gpdm, lie, diffusion, …), so that machine noise hits every prior alike;
 fitting and the warm-up steps are not timed.
@@ -48,6 +49,7 @@ from priortrack.observation.multiview import MultiViewLikelihood
 from priortrack.priors.base import TransitionModel
 from priortrack.priors.diffusion import Diffusion
 from priortrack.priors.gpdm import GPDM
+from priortrack.priors.gpdm_pose import PoseStateGPDM
 from priortrack.priors.lie import LiePrior
 from priortrack.threads import torch_threads
 from priortrack.body.fk import ForwardKinematics, joint_positions
@@ -140,10 +142,12 @@ def bench_pf(particles: int = 10_000, steps: int = 20, seed: int = 0, threads: i
         views, z = ring_observations(X, cameras, seed)
         likelihood = MultiViewLikelihood(views, sigma_px=5.0, robust_nu=None)
     filters = {}
+    guided = proposal == "guided"
     for name, prior in priors.items():
+        prior = PoseStateGPDM(prior) if guided and isinstance(prior, GPDM) else prior
         model = TrackingModel.fitted(prior, train, likelihood)
         filters[name] = ParticleFilter(model, particles, dtype=dtype, translation=translation, seed=seed,
-                                       device=device, threads=threads, proposal=proposal)
+                                       device=device, threads=threads, proposal=proposal, auxiliary=guided)
         filters[name].initialise(walk)
     fk = ForwardKinematics(walk.skeleton, device=device, dtype=DTYPES[dtype])
     poses = torch.as_tensor(walk.channels[np.random.default_rng(seed).integers(0, len(walk), particles)],
