@@ -38,13 +38,14 @@ def test_log_prob_is_the_dynamics_times_the_reconstruction_density(gpdm):
     mu_x, var_x = gpdm.dynamics(z[:, :gpdm.d])
     mu_y, var_y = gpdm.reconstruct(x_next)
     mu_y = mu_y + 0.02                                          # the previous pose's offset from μ_Y, carried
+    var_y = var_y + model.step_variance                         # and its step: σ²(x_t) + s²
     expected = (torch.distributions.Normal(mu_x, (var_x / 0.1).sqrt()[:, None]).log_prob(x_next).sum(-1)
                 + torch.distributions.Normal(mu_y, var_y.sqrt()[:, None] / gpdm.W).log_prob(y_next).sum(-1))
     torch.testing.assert_close(model.log_prob(z_next, z), expected)
 
 
 def test_the_draw_has_the_densitys_moments(gpdm):
-    """x_t's mean and variance are the dynamics', and y_t − μ_Y(x_t) − r_{t−1} is N(0, σ²(x_t) W⁻²): the
+    """x_t's mean and variance are the dynamics', and y_t − μ_Y(x_t) − r_{t−1} is N(0, (σ²(x_t) + s²) W⁻²): the
     standardised pose residual has mean 0 and unit variance in every channel."""
     model = PoseStateGPDM(gpdm.annealed(0.1))
     offset = 0.05 * torch.linspace(-1, 1, gpdm.D, dtype=torch.float64)
@@ -55,8 +56,15 @@ def test_the_draw_has_the_densitys_moments(gpdm):
     torch.testing.assert_close(x.mean(0), mu_x[0], atol=4 * math.sqrt(var_x.item() / 0.1 / 20000), rtol=0)
     assert abs(x.var(0).mean().item() / (var_x.item() / 0.1) - 1) < 0.05
     mu_y, var_y = gpdm.reconstruct(x)
-    standard = (y - mu_y - offset) * gpdm.W / var_y.sqrt()[:, None]
+    standard = (y - mu_y - offset) * gpdm.W / (var_y + model.step_variance).sqrt()[:, None]
     assert standard.mean(0).abs().max() < 0.05 and (standard.var(0) - 1).abs().max() < 0.1
+
+
+def test_the_offsets_step_is_the_training_poses_mean_squared_step(gpdm, walks):
+    """s² by hand: the W-scaled frame-to-frame change of each training walk's own angles, its mean square."""
+    angles = [gpdm.space.angles.encode(w.resample(15.0) if w.fps != 15.0 else w) for w in walks]
+    steps = torch.cat([((a[1:] - a[:-1]) * gpdm.W) for a in angles])
+    assert math.isclose(PoseStateGPDM(gpdm).step_variance, steps.pow(2).mean().item(), rel_tol=1e-9)
 
 
 def test_the_pose_jacobian_is_the_derivative_of_the_reconstruction_mean(gpdm):

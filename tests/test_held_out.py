@@ -82,15 +82,14 @@ def test_too_few_errors_in_a_window_leave_the_tick_unjudged():
     assert np.isnan(held_out_ratio(*held_out_errors(CAMERAS, X, z))).all()
 
 
-@pytest.mark.parametrize("preset, seed, flagged", [("pf-gpdm latent", 0, True), ("pf-gpdm", 2, False),
-                                                   ("ukf-real", 0, False)])
-def test_a_preset_worse_than_triangulation_is_flagged_and_one_better_is_not(preset, seed, flagged, monkeypatch):
+@pytest.mark.parametrize("preset, flagged, below", [("pf-gpdm latent", True, None), ("pf-gpdm", False, 1.0),
+                                                    ("ukf-real", False, 0.8)])
+def test_a_preset_worse_than_triangulation_is_flagged_and_one_better_is_not(preset, flagged, below, monkeypatch):
     """The real-format bench (4 cameras, detector-like errors) on 05_01, a person neither prior was trained on:
     pf-gpdm with its latent state alone (its pose on the manifold of two training walks) at 2.9–4.0× per-frame DLT
     (measured) had 0 % of its ticks flagged before the held-out flag (as with the flag off here) and is flagged on
     nearly every tick; ukf-real at 0.6× on none; pf-gpdm as shipped (the pose in its state with 2+ cameras) at
-    0.54–0.57× on none with seed 2 (seeds 0 and 1: 0.71–1.82 by the thread count, a part of the walk lost and
-    flagged: docs/results/2026-11-28-gpdm-pose-state.md)."""
+    0.64–0.70× (one or two torch threads) on none."""
     from dataclasses import replace
 
     from priortrack.experiments.real_format import run_real_format
@@ -99,11 +98,11 @@ def test_a_preset_worse_than_triangulation_is_flagged_and_one_better_is_not(pres
 
     if preset == "pf-gpdm latent":
         preset = replace(load_preset("pf-gpdm"), pose_state=False)
-    run = run_real_format(preset, "cmu:05_01", seed=seed)
+    run = run_real_format(preset, "cmu:05_01", seed=0)
     ratio = run["mpjpe_where_dlt_mm"] / run["dlt_mm"]
     if flagged:
         assert ratio > 2.0 and run["mismatch_fraction"] > 0.9, (ratio, run["mismatch_fraction"])
         monkeypatch.setattr(person, "WORSE_RATIO", np.inf)
-        assert run_real_format(preset, "cmu:05_01", seed=seed)["mismatch_fraction"] < 0.1
+        assert run_real_format(preset, "cmu:05_01", seed=0)["mismatch_fraction"] < 0.1
     else:
-        assert ratio < 0.8 and run["mismatch_fraction"] < 0.1, (ratio, run["mismatch_fraction"])
+        assert ratio < below and run["mismatch_fraction"] < 0.1, (ratio, run["mismatch_fraction"])

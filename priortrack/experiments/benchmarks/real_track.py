@@ -95,7 +95,8 @@ def bench_real_track(frames: int = 100, preset: str = "pf-lie", seed: int = 0, c
         uv, confidence = read_detections(folder, keypoints="body25b").eval15(0.3)
         triangulate(views, uv, confidence)
         dlt_seconds = time.perf_counter() - start
-        prior_draw = (command(replace(shipped, filter_options={**shipped.filter_options, "proposal": "prior"}))
+        prior_draw = (command(replace(shipped, filter_options={**shipped.filter_options, "proposal": "prior",
+                                                                         "auxiliary": False}))
                       if guided else None)
         single_seconds = None if single is None else command(single)
     return {"frames": frames, "fps": fps, "cameras": len(views), "preset": preset, "command_seconds": seconds,
