@@ -9,7 +9,7 @@ import torch
 
 from priortrack import PriortrackError, load_walkjog
 from priortrack.priors.gpdm import GPDM
-from priortrack.priors.gpdm_pose import PoseStateGPDM
+from priortrack.priors.gpdm_pose import LatentPoseSpace, PoseStateGPDM
 from priortrack.priors.registry import fit_prior
 from priortrack.tracking.presets import Preset, load_preset, parse_preset
 
@@ -100,6 +100,9 @@ def test_states_decode_from_their_pose_and_encode_a_motion_exactly(gpdm, walks):
     moved[:, :gpdm.d] += 1.0                                  # the latent part does not move the joints
     torch.testing.assert_close(model.joints(moved), model.joints(z))
     assert model.kind == "bgpdm" and model.state_dim == gpdm.d + gpdm.D
+    body = model.space.for_body(walks[1])                       # the tracked subject's bones, the same state
+    assert isinstance(body, LatentPoseSpace) and body.dim == model.space.dim
+    torch.testing.assert_close(body.joints(z), body.angles.joints(z[:, gpdm.d:]))
 
 
 def test_the_preset_key_its_refusals_and_the_number_of_cameras(gpdm, walks, monkeypatch):

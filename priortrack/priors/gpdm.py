@@ -309,7 +309,7 @@ class LatentSpace(EuclideanSpace):
         return self.angles.pose_joints(motion)
 
     def for_body(self, motion: Motion) -> LatentSpace:
-        return LatentSpace(self.model, self.angles.for_body(motion))
+        return type(self)(self.model, self.angles.for_body(motion))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return self.angles.to_arrays()

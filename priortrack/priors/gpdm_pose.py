@@ -43,21 +43,20 @@ import torch
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.priors.base import BuiltOnPrior, TransitionModel
-from priortrack.priors.gpdm import GPDM
-from priortrack.priors.spaces import EuclideanSpace
+from priortrack.priors.gpdm import GPDM, LatentSpace
 from priortrack.randomness import standard_normal
 
 
-class LatentPoseSpace(EuclideanSpace):
+class LatentPoseSpace(LatentSpace):
     """States (x, y) ∈ R^(d + D): the latent position x, then the pose y (the GPDM's angle channels, radians, with
     the mean pose), Euclidean. Groups: "x0", … per latent dimension, then the angle space's joints. Joints decode
-    from y alone."""
+    from y alone; the body, the placement and the file arrays are the latent space's (its angle space's)."""
 
     def __init__(self, model: GPDM, angles):
-        self.model, self.angles = model, angles
-        self.group_names = tuple(f"x{i}" for i in range(model.d)) + angles.group_names
-        self.groups = np.concatenate([np.arange(model.d), model.d + angles.groups])
-        self.tangent_dims = np.concatenate([np.ones(model.d, dtype=int), angles.tangent_dims])
+        super().__init__(model, angles)
+        self.group_names = self.group_names + angles.group_names
+        self.groups = np.concatenate([self.groups, model.d + angles.groups])
+        self.tangent_dims = np.concatenate([self.tangent_dims, angles.tangent_dims])
 
     def encode(self, motion: Motion) -> torch.Tensor:
         """(T, d + D): each frame's latent position (:meth:`~priortrack.priors.gpdm.GPDM.encode_poses`) and its pose."""
@@ -66,18 +65,6 @@ class LatentPoseSpace(EuclideanSpace):
 
     def joints(self, x: torch.Tensor) -> torch.Tensor:
         return self.angles.joints(x[..., self.model.d:])
-
-    def pose_joints(self, motion: Motion) -> torch.Tensor:
-        return self.angles.pose_joints(motion)
-
-    def for_body(self, motion: Motion) -> LatentPoseSpace:
-        return LatentPoseSpace(self.model, self.angles.for_body(motion))
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        return self.angles.to_arrays()
-
-    def global_pose(self, motion: Motion) -> torch.Tensor:
-        return self.angles.global_pose(motion)
 
 
 class PoseStateGPDM(BuiltOnPrior):
