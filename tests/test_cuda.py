@@ -33,6 +33,7 @@ from priortrack.observation.multiview import MultiViewLikelihood
 from priortrack.priors import Diffusion
 from priortrack.priors.defensive import DefensiveMixture
 from priortrack.priors.gpdm import GPDM
+from priortrack.priors.gpdm_pose import PoseStateGPDM
 from priortrack.priors.lie import LiePrior
 from priortrack.threads import torch_threads
 
@@ -45,8 +46,10 @@ def priors():
     walks = list(load_walkjog().walks("train"))
     with torch_threads(1):
         lie = LiePrior.fit(walks[:3], seed=0, max_components=2)
+        gpdm = GPDM.fit([m[:15] for m in walks[:2]], seed=0)
         return {"diffusion": Diffusion.fit(walks[:2], local=True),
-                "gpdm": GPDM.fit([m[:15] for m in walks[:2]], seed=0),
+                "gpdm": gpdm,
+                "gpdm-pose": PoseStateGPDM(gpdm.annealed(0.003)),
                 "lie": lie,
                 "defensive": DefensiveMixture(lie, Diffusion.fit(walks[:2], local=True, space="directions"), 0.1)}
 
@@ -182,17 +185,17 @@ def test_the_guided_proposals_linearisation_gives_the_cpus_numbers(priors, walk,
 
 
 @needs_cuda
-@pytest.mark.parametrize("name", ["diffusion", "lie", "defensive"])
+@pytest.mark.parametrize("name", ["diffusion", "lie", "defensive", "gpdm-pose"])
 def test_a_guided_particle_filter_tracks_on_the_gpu_as_on_the_cpu(priors, walk, name):
-    """Four ring cameras (5 px), the guided draw as the presets run it (translation marginalised), 1,000 float32
-    particles, seeds 0–1: on the GPU every estimate is finite, some ratio p / q of the draw moved off zero (the
+    """Four ring cameras (5 px), the guided draw as the presets run it (translation marginalised, fully adapted; the
+    GPDM with its pose state), 1,000 float32 particles, seeds 0–1: on the GPU every estimate is finite, some ratio p / q of the draw moved off zero (the
     guided branch ran), and the mean MPJPE is within 25 % (+ 5 mm) of the CPU runs'."""
     model, z = _ring_model(priors[name], walk)
     ratios = {}                                             # (device, seed) → that run's draws' log p / q
 
     def filter_on(device, seed):
         pf = ParticleFilter(model, 1000, dtype="float32", translation="marginalised", proposal="guided", seed=seed,
-                            device=device)
+                            device=device, auxiliary=True)
         draw, ratios[device, seed] = pf.proposal.draw, []
 
         def spy(*args, **kwargs):
