@@ -109,6 +109,27 @@ def test_a_broken_covariance_is_repaired_and_flagged(linear):
     assert "covariance-repaired" not in ukf.step(z).flags
 
 
+def test_a_covariance_singular_to_rounding_is_repaired_before_a_scaled_factorisation_fails():
+    """A cloud collapsed in one coordinate: a variance of 1e−40 there, a pivot numpy's Cholesky accepts, and whose sign
+    the next factorisation, of a multiple of P (the sigma points' (λ + n) P) after other arithmetic, need not keep
+    (pf-lie-general's smoothed cloud on the Pose2Sim trial: smallest eigenvalue −5e−40, scipy failed). The repair
+    floors it."""
+    import scipy.linalg
+
+    from priortrack.filters.ukf import repaired_covariance
+
+    P = np.zeros((3, 3))
+    P[:2, :2] = [[2.0, 0.5], [0.5, 1.0]]
+    P[2, 2] = 1e-40
+    np.linalg.cholesky(P)
+    fixed, repaired = repaired_covariance(P)
+    assert repaired and np.linalg.eigvalsh(fixed).min() >= 0.5 * EIGEN_FLOOR * np.linalg.eigvalsh(P).max()
+    scipy.linalg.cholesky(10.0 * fixed)
+    np.testing.assert_allclose(fixed, P, atol=1e-8)                         # a floor, nothing else moved
+    well = np.diag([3.0, 2.0, 1.0])
+    assert repaired_covariance(well)[1] is False and np.array_equal(repaired_covariance(well)[0], well)
+
+
 class HalfBlind(LinearGaussian):
     """The linear model whose first measured coordinate is undefined (NaN) for states with s_0 > 0,
     as a joint behind the camera has no projection."""
