@@ -43,7 +43,7 @@ import torch
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.priors.base import BuiltOnPrior, TransitionModel
-from priortrack.priors.gpdm import GPDM, LatentSpace
+from priortrack.priors.gpdm import GPDM, LatentSpace, k_Y
 from priortrack.randomness import standard_normal
 
 
@@ -91,22 +91,22 @@ class PoseStateGPDM(BuiltOnPrior):
     def _split(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return z[:, :self.d].contiguous(), z[:, self.d:]
 
-    def _pose_mean(self, x_next: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        """(P, D) float64 μ_Y(x_t) + r_{t−1}, the pose's mean given x_t (P, d) and the previous states z (P, d + D)."""
+    def _offset(self, z: torch.Tensor) -> torch.Tensor:
+        """(P, D) float64 r = y − μ_Y(x) of states z (P, d + D)."""
         x, y = self._split(z)
-        offset = y.to(torch.float64) - self.gpdm.pose_mean(x).to(torch.float64)
-        return self.gpdm.pose_mean(x_next).to(torch.float64) + offset
+        return y.to(torch.float64) - self.gpdm.pose_mean(x).to(torch.float64)
 
-    def _pose_variance(self, x_next: torch.Tensor) -> torch.Tensor:
-        """(P,) float64 σ²(x_t) + s²: the pose's variance given x_t (P, d), W-scaled."""
-        return self.gpdm.reconstruct(x_next)[1].to(torch.float64) + self.step_variance
+    def _pose_given(self, x_next: torch.Tensor, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The pose's mean μ_Y(x_t) + r_{t−1} (P, D) and W-scaled variance σ²(x_t) + s² (P,), float64, given x_t (P, d)
+        and the previous states z (P, d + D): one reconstruction of x_t for both."""
+        mu, var = self.gpdm.reconstruct(x_next)
+        return mu.to(torch.float64) + self._offset(z), var.to(torch.float64) + self.step_variance
 
     def sample(self, z: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """(P, d + D) → (P, d + D): x_t from the GPDM's (annealed) dynamics, then y_t ~ N(μ_Y(x_t) + r_{t−1}, (σ²(x_t) + s²) W⁻²)."""
         z = self.check_state(z)
         x_next = self.gpdm.sample(self._split(z)[0], generator)
-        var = self._pose_variance(x_next)
-        mean = self._pose_mean(x_next, z)
+        mean, var = self._pose_given(x_next, z)
         noise = standard_normal(mean.shape, generator, mean)
         y_next = mean + (var.sqrt()[:, None] / self.gpdm.W.to(z.device)) * noise
         return torch.cat([x_next, y_next.to(z.dtype)], -1)
@@ -116,9 +116,9 @@ class PoseStateGPDM(BuiltOnPrior):
         z_next, z = self.check_pair(z_next, z)
         x_next, y_next = self._split(z_next)
         dynamics = self.gpdm.log_prob(x_next, self._split(z)[0]).to(torch.float64)
-        var = self._pose_variance(x_next)
+        mean, var = self._pose_given(x_next, z)
         W = self.gpdm.W.to(z.device)
-        r = (y_next.to(torch.float64) - self._pose_mean(x_next, z)) * W
+        r = (y_next.to(torch.float64) - mean) * W
         return (dynamics - 0.5 * r.pow(2).sum(-1) / var - 0.5 * self.gpdm.D * torch.log(2 * math.pi * var)
                 + torch.log(W).sum())
 
@@ -126,7 +126,7 @@ class PoseStateGPDM(BuiltOnPrior):
         """(P, d + D) → (m, μ_Y(m) + r_{t−1}), m = μ_X(x): the pose's mean given the mean latent step."""
         z = self.check_state(z)
         m = self.gpdm.mean(self._split(z)[0])
-        return torch.cat([m, self._pose_mean(m, z).to(z.dtype)], -1)
+        return torch.cat([m, (self.gpdm.pose_mean(m).to(torch.float64) + self._offset(z)).to(z.dtype)], -1)
 
     def pose_jacobian(self, x: torch.Tensor) -> torch.Tensor:
         """(P, d) latent rows → (P, D, d) J = ∂μ_Y/∂x, float64. From μ_Y(x) = ȳ + Σ_n k_n(x) A_n with
@@ -134,7 +134,7 @@ class PoseStateGPDM(BuiltOnPrior):
         g = self.gpdm
         x = x.to(torch.float64)
         X, A = g.X.to(x.device), g.A_Y.to(x.device)
-        k = g.beta[0].item() * torch.exp(-0.5 * g.beta[1].item() * torch.cdist(x, X).pow(2))    # (P, N)
+        k = k_Y(x, X, g.log_beta.to(x.device))                                 # (P, N)
         return -g.beta[1].item() * ((k @ A)[:, :, None] * x[:, None, :] - torch.einsum("pn,nD,nd->pDd", k, A, X))
 
     def transition_covariance(self, z: torch.Tensor) -> torch.Tensor:
@@ -143,7 +143,7 @@ class PoseStateGPDM(BuiltOnPrior):
         x = self._split(z)[0].to(torch.float64)
         m, S = self.gpdm.mean(x), self.gpdm.transition_covariance(x)            # μ_X, σ_X²/λ I_d (P, d, d)
         J = self.pose_jacobian(m)                                                # (P, D, d)
-        var = self._pose_variance(m)                                             # σ²(m) + s² (P,)
+        var = self.gpdm.reconstruct(m)[1].to(torch.float64) + self.step_variance  # σ²(m) + s² (P,)
         SJt = S @ J.transpose(1, 2)                                              # (P, d, D)
         pose = J @ SJt + torch.diag_embed(var[:, None] / self.gpdm.W.to(z.device).pow(2))
         return torch.cat([torch.cat([S, SJt], 2), torch.cat([SJt.transpose(1, 2), pose], 2)], 1)
