@@ -9,8 +9,9 @@ import pytest
 
 from priortrack.cli.main import main
 from priortrack.data.calibration import read_calibration
+from priortrack.experiments.metrics import pcp
 from priortrack.experiments.real_format import DEFAULT_CALIBRATION
-from priortrack.experiments.scenes import (SCENES, capture_centre, composed, false_positive_place, hidden, pcp,
+from priortrack.experiments.scenes import (SCENES, capture_centre, composed, false_positive_place, hidden,
                                            scene_keypoints, score_scene)
 from priortrack.geometry.camera import PinholeCamera
 

@@ -158,6 +158,43 @@ def _eval_scenes(args: argparse.Namespace) -> None:
               f"{c['min_pcp']:.1f} | {c['mpjpe_mm']:.1f} | {c['max_ratio_to_alone']:.2f} |")
 
 
+def _eval_shelf(args: argparse.Namespace) -> None:
+    from priortrack.experiments.shelf import eval_shelf
+
+    result = eval_shelf(args.directory, args.presets, args.cameras, args.subsets, args.detections, args.fps,
+                        args.actors, args.seed, args.workers)
+    if args.json:
+        print_json(result)
+        return
+    actors = result["actors"]
+    print(f"{result['detections']}, {result['frames']} frames at {result['fps']:g} fps: per actor PCP % of the 8 limb "
+          f"parts and MPJPE mm of the 12 limb joints, the oracle DLT of the same cameras (the true association) in "
+          f"brackets; identity switches and false tracks over every annotated actor; seconds")
+    print("| cameras | preset | " + " | ".join(f"actor {a} PCP" for a in actors) + " | mean PCP | " +
+          " | ".join(f"actor {a} mm" for a in actors) + " | switches | false tracks | s |")
+    print("|---|---|" + "---|" * (2 * len(actors) + 4))
+
+    def cell(mine, dlt, digits=1):
+        shown = lambda v: "—" if v is None else f"{v:.{digits}f}"          # noqa: E731
+        return f"{shown(mine)} ({shown(dlt)})"
+
+    for row in result["rows"]:
+        people = row["actors"]
+        mean = sum(p["pcp"] for p in people) / len(people), sum(p["dlt"]["pcp"] for p in people) / len(people)
+        print(f"| {','.join(row['cameras'])} | {row['preset']} | " + " | ".join(cell(p["pcp"], p["dlt"]["pcp"]) for p in people) +
+              f" | {cell(*mean)} | " + " | ".join(cell(p["mpjpe_mm"], p["dlt"]["mpjpe_mm"], 0) for p in people) +
+              f" | {row['switches']} | {len(row['false_tracks'])} | {row['seconds']:.1f} |")
+    if args.per_joint:
+        for row in result["rows"]:
+            print(f"\ncameras {','.join(row['cameras'])}, {row['preset']}: MPJPE per limb joint, mm (oracle DLT)")
+            joints = list(row["actors"][0]["per_joint_mm"])
+            print("| actor | " + " | ".join(joints) + " |")
+            print("|---|" + "---|" * len(joints))
+            for p in row["actors"]:
+                print(f"| {p['actor']} | " + " | ".join(cell(p["per_joint_mm"][j], p["dlt"]["per_joint_mm"][j], 0)
+                                                       for j in joints) + " |")
+
+
 def _eval_smoothing(args: argparse.Namespace) -> None:
     from priortrack.experiments.smoothing import eval_smoothing
 
@@ -274,6 +311,27 @@ def add_parsers(verbs) -> None:
                              "person's own filter (track --association; default %(default)s)")
     scenes.add_argument("--json", action="store_true", help="print every run's scores and the table as JSON")
     scenes.set_defaults(run=_eval_scenes)
+    shelf = evaluate.add_parser("shelf", help="several real people seen by few cameras, scored against manual 3D truth "
+                                              "(Shelf or Campus as 4D Association ships them: you download them) "
+                                              "beside per-frame DLT given the true association")
+    shelf.add_argument("directory", help="the benchmark's folder: calibration.json, gt.txt and (unless --detections) "
+                                         "scene.npz")
+    shelf.add_argument("--cameras", help="one subset of the cameras, indices in the calibration's order: 0,2,4 "
+                                         "(default: all of them)")
+    shelf.add_argument("--subsets", type=int, nargs="+", help="every subset of these sizes: --subsets 2 3")
+    shelf.add_argument("--presets", nargs="+", default=["ukf-real"], help="preset names or .toml files (default: "
+                                                                          "%(default)s)")
+    shelf.add_argument("--detections", help="every person's detections, any layout priortrack reads (default: "
+                                            "DIRECTORY/scene.npz)")
+    shelf.add_argument("--fps", type=float, default=25.0, help="the recording's frame rate (default %(default)s, as "
+                                                               "the field takes Shelf)")
+    shelf.add_argument("--actors", type=int, nargs="+",
+                       help="the annotated actors scored (default: 0 1 2, the field's, where annotated)")
+    shelf.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s)")
+    shelf.add_argument("--workers", type=int, help="processes tracking people side by side (default: one per core)")
+    shelf.add_argument("--per-joint", action="store_true", help="also a table of each limb joint's error per subset")
+    shelf.add_argument("--json", action="store_true", help="print every score as JSON instead of tables")
+    shelf.set_defaults(run=_eval_shelf)
     smoothing = evaluate.add_parser("smoothing", help="smoothed vs filtered through a blackout on held-out walks")
     smoothing.add_argument("--presets", nargs="+",
                            default=["pf-diffusion-local", "pf-gpdm", "pf-lie", "ukf-diffusion-local", "ukf-gpdm"], help="preset names or .toml files (default: %(default)s)")

@@ -15,7 +15,7 @@ import torch
 
 from priortrack.errors import PriortrackError
 
-__all__ = ["mpjpe", "mpjpe_root_relative", "error_2d", "summarise"]
+__all__ = ["mpjpe", "mpjpe_root_relative", "error_2d", "pcp", "summarise"]
 
 logger = logging.getLogger(__name__)
 
@@ -111,6 +111,30 @@ def error_2d(pred_uv: Any, obs_uv: Any) -> np.ndarray:
     count = observed.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(count > 0, dist.sum(axis=-1) / np.maximum(count, 1), np.nan)
+
+
+#: The ten parts PCP scores (as on the Shelf and Campus benchmarks), eval15 joint pairs: the head (neck–head),
+#: the torso (pelvis–neck), then the eight limb parts: upper and lower arms, upper and lower legs.
+PCP_LIMBS = ((1, 2), (0, 1), (3, 4), (4, 5), (6, 7), (7, 8), (9, 10), (10, 11), (12, 13), (13, 14))
+#: The eight limb parts alone (what Shelf's truth and the detectors' keypoints share).
+PCP_LIMB_PARTS = PCP_LIMBS[2:]
+
+
+def pcp(estimate: np.ndarray, truth: np.ndarray, limbs=PCP_LIMBS) -> float:
+    """Percentage of correct parts of joints (T, 15, 3) against truth (T, 15, 3), metres: a part (a, b) of
+    ``limbs`` is correct at a tick when the mean of its two ends' errors is at most half its true length,
+    ½ (‖X̂_a − X_a‖ + ‖X̂_b − X_b‖) ≤ ½ ‖X_a − X_b‖; over the ticks and parts whose truth is known, a part
+    the estimate lacks (NaN) counting as wrong. NaN where no part's truth is known."""
+    correct = []
+    for a, b in limbs:
+        length = np.linalg.norm(truth[:, a] - truth[:, b], axis=-1)
+        error = 0.5 * (np.linalg.norm(estimate[:, a] - truth[:, a], axis=-1) +
+                       np.linalg.norm(estimate[:, b] - truth[:, b], axis=-1))
+        known = np.isfinite(length)
+        with np.errstate(invalid="ignore"):
+            correct.append(error[known] <= 0.5 * length[known])
+    correct = np.concatenate(correct)
+    return float(100 * correct.mean()) if len(correct) else float("nan")
 
 
 def summarise(per_frame: Any) -> dict[str, float | int]:

@@ -46,6 +46,7 @@ from priortrack.data.eval15 import EVAL15_PARENTS
 from priortrack.data.keypoints import LAYOUTS, detector_map
 from priortrack.data.scene_detections import read_scene_detections
 from priortrack.errors import PriortrackError
+from priortrack.experiments.metrics import pcp
 from priortrack.experiments.real_format import (BODY25B_OF, DATA_FPS, DEFAULT_CALIBRATION, SHOULDERS_TO_ANKLES,
                                                 detector_keypoints, placed_walk, write_openpose)
 from priortrack.geometry.camera import PinholeCamera
@@ -210,25 +211,6 @@ def write_scene_openpose(keypoints: np.ndarray, folder: Path, rng: np.random.Gen
             (camera / f"scene_cam{c + 1:02d}.{t:05d}.json").write_text(json.dumps({"version": 1.3, "people": [
                 {"person_id": [-1], "pose_keypoints_2d": p.ravel().round(3).tolist()} for p in people]}))
     return folder
-
-
-#: The ten parts PCP scores (as on the Shelf and Campus benchmarks), eval15 joint pairs: the head (neck–head),
-#: the torso (pelvis–neck), upper and lower arms, upper and lower legs.
-PCP_LIMBS = ((1, 2), (0, 1), (3, 4), (4, 5), (6, 7), (7, 8), (9, 10), (10, 11), (12, 13), (13, 14))
-
-
-def pcp(estimate: np.ndarray, truth: np.ndarray) -> float:
-    """Percentage of correct parts of joints (T, 15, 3) against truth (T, 15, 3) (module docstring), over
-    the ticks and limbs where both are known."""
-    correct = []
-    for a, b in PCP_LIMBS:
-        length = np.linalg.norm(truth[:, a] - truth[:, b], axis=-1)
-        error = 0.5 * (np.linalg.norm(estimate[:, a] - truth[:, a], axis=-1) +
-                       np.linalg.norm(estimate[:, b] - truth[:, b], axis=-1))
-        known = np.isfinite(error) & np.isfinite(length)
-        correct.append(error[known] <= 0.5 * length[known])
-    correct = np.concatenate(correct)
-    return float(100 * correct.mean()) if len(correct) else float("nan")
 
 
 def _median_gap(a: np.ndarray, b: np.ndarray) -> float:

@@ -192,7 +192,7 @@ def prediction_costs(h: np.ndarray, HPH: np.ndarray, sigma: np.ndarray, xy: np.n
         e = points - h
         m = (d * e[..., 0] ** 2 - 2 * b * e[..., 0] * e[..., 1] + a * e[..., 1] ** 2) / det
         spread = np.log(det / r2 ** 2)
-    both = _median_of_seen(m, seen) + _median_of_seen(spread, seen)                     # (2, K, N)
+    both = median_of_seen(m, seen) + median_of_seen(spread, seen)                     # (2, K, N)
     return np.minimum(both[0], both[1]), both[1] < both[0]
 
 
@@ -286,7 +286,7 @@ class ProposalInitiator:
         return best.id
 
 
-def _median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
+def median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """(…,) the median of values (…, J) over the seen entries of the last axis (inf where none)."""
     ordered = np.sort(np.where(seen, values, np.inf), axis=-1)
     k = seen.sum(axis=-1, keepdims=True)

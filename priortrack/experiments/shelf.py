@@ -1,0 +1,264 @@
+"""``priortrack eval shelf``: several real people, few cameras, manual 3D truth (Shelf, or Campus).
+
+The benchmark stays where the user keeps it, a folder as 4D Association (Zhang et al., CVPR 2020) ships it:
+``calibration.json`` (each camera's ``K``, ``RT``, ``imgSize``), ``gt.txt`` (:mod:`priortrack.data.shelf_truth`),
+and every person's detections in any layout priortrack reads (``scene.npz`` there by default;
+:func:`~priortrack.data.scene_detections.read_scene_detections`). For each subset of the cameras asked for,
+the scene tracker follows every person with a preset from the detections alone
+(:func:`~priortrack.tracking.people.track_scene`: no ids, no truth), and each annotated actor is scored:
+
+- **PCP** over the eight limb parts (upper arms, forearms, thighs, shins;
+  :func:`~priortrack.experiments.metrics.pcp`) and **MPJPE** over the twelve limb joints (shoulders to ankles),
+  at every frame with the actor's truth, of the track nearest the actor there (the mean error of those joints:
+  the field's convention); a frame with no track at all scores every part wrong.
+- beside the **oracle DLT**: per frame and camera the detections are given to the actors by an optimal assignment
+  on their distance to the truth's projection (the median over the limb joints, within :data:`ORACLE_GATE` of the
+  actor's size in the image): the true association, which no tracker has; each actor's joints are then the
+  confidence-weighted DLT of their detections (:func:`~priortrack.geometry.triangulation.triangulate`).
+- **identity switches**: per annotated actor (scored or not), the track an optimal assignment of actors to tracks gives them at a frame
+  (median limb-joint distance within :data:`MATCH_M`) changes between two such frames;
+- **false tracks**: tracks never so given to an annotated actor (every person of Shelf is annotated at some
+  frames; a track of nobody, or a second track of someone, is never given one).
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from priortrack.data.calibration import Calibration, read_calibration
+from priortrack.data.eval15 import EVAL15_NAMES
+from priortrack.data.scene_detections import SceneDetections, read_scene_detections
+from priortrack.data.shelf_truth import ShelfTruth, read_shelf_truth
+from priortrack.errors import PriortrackError
+from priortrack.experiments.metrics import PCP_LIMB_PARTS, pcp
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.geometry.triangulation import triangulate
+from priortrack.tracking.scene import median_of_seen
+
+log = logging.getLogger(__name__)
+
+#: The twelve limb joints scored (eval15: shoulders, elbows, wrists, hips, knees, ankles).
+LIMB_JOINTS = list(range(3, 15))
+#: The oracle gives an actor a detection whose limb joints lie within this fraction of the actor's size in the image
+#: (the diagonal of the box around their projected limb joints; a standing person's height, about) of the truth's
+#: projection (median over the joints): a detection of the actor, not of someone beside them.
+ORACLE_GATE = 0.15
+#: A track is an actor's at a frame when their limb joints lie within this median distance (metres).
+MATCH_M = 0.3
+#: The actors the field scores on Shelf and Campus.
+SCORED_ACTORS = (0, 1, 2)
+#: Shelf's and Campus's frame rate as the field takes it (the source does not state it).
+SHELF_FPS = 25.0
+
+
+def camera_subsets(count: int, cameras: str | None = None, sizes: list[int] | None = None) -> list[tuple[int, ...]]:
+    """The subsets of a rig's ``count`` cameras to evaluate: ``cameras`` "0,2,4" (indices in the calibration's
+    order) is one; ``sizes`` [2, 3] every subset of 2 and of 3; neither: all of them."""
+    if cameras is not None and sizes:
+        raise PriortrackError("give --cameras or --subsets, not both")
+    if cameras is not None:
+        try:
+            chosen = tuple(int(c) for c in str(cameras).split(","))
+        except ValueError:
+            chosen = ()
+        if len(chosen) < 2 or len(set(chosen)) != len(chosen) or not all(0 <= c < count for c in chosen):
+            raise PriortrackError(f"--cameras {cameras}: give two or more different camera indices from 0 to "
+                                  f"{count - 1}, comma-separated")
+        return [tuple(sorted(chosen))]
+    if sizes:
+        bad = [k for k in sizes if not 2 <= k <= count]
+        if bad:
+            raise PriortrackError(f"--subsets {bad[0]}: subsets of 2 to {count} cameras")
+        return [c for k in sorted(set(sizes)) for c in itertools.combinations(range(count), k)]
+    return [tuple(range(count))]
+
+
+def benchmark_files(directory: str | Path, detections: str | Path | None = None) -> tuple[Path, Path, Path]:
+    """The calibration, truth and detections of a benchmark folder (module docstring), checked to exist."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise PriortrackError(f"{directory} is not a folder: give the folder that holds the benchmark's "
+                              f"calibration.json and gt.txt")
+    found = directory / "calibration.json", directory / "gt.txt"
+    for path in found:
+        if not path.is_file():
+            raise PriortrackError(f"{directory} has no {path.name} (the benchmark as 4D Association ships it)")
+    detections = Path(detections) if detections is not None else directory / "scene.npz"
+    if not detections.exists():
+        raise PriortrackError(f"detections {detections} do not exist: give them (--detections), every person of "
+                              f"every camera (an OpenPose folder of camera folders, COCO results or an .npz)")
+    return found[0], found[1], detections
+
+
+def oracle_slots(cameras: list[PinholeCamera], uv: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(C, T, A) the detection slot the true association gives actor a in camera c at frame t, −1 where none
+    (module docstring): uv (C, T, N, 15, 2) the detections' eval15 pixels, truth (T, A, 15, 3)."""
+    C, T = uv.shape[:2]
+    slots = np.full((C, T, truth.shape[1]), -1, dtype=int)
+    limbs = truth[:, :, LIMB_JOINTS]
+    for c, camera in enumerate(cameras):
+        projected = camera.project(limbs)[0]                                            # (T, A, 12, 2)
+        size = np.linalg.norm(np.fmax.reduce(projected, axis=2) - np.fmin.reduce(projected, axis=2), axis=-1)  # (T, A)
+        gap = np.linalg.norm(projected[:, :, None] - uv[c][:, None, :, LIMB_JOINTS], axis=-1)   # (T, A, N, 12)
+        cost = median_of_seen(gap, np.isfinite(gap)) / np.where(np.isfinite(size), size, np.nan)[..., None]
+        cost = np.where(np.isfinite(cost), cost, np.inf)                                # (T, A, N), inf: none
+        for t in range(T):
+            rows, cols = linear_sum_assignment(np.where(cost[t] < ORACLE_GATE, cost[t], 1e12))
+            for a, n in zip(rows, cols):
+                if cost[t, a, n] < ORACLE_GATE:
+                    slots[c, t, a] = n
+    return slots
+
+
+def oracle_dlt(cameras: list[PinholeCamera], uv: np.ndarray, confidence: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(T, A, 15, 3) each actor's confidence-weighted DLT of the detections the true association gives them
+    (:func:`oracle_slots`), NaN where fewer than two cameras show a joint: uv (C, T, N, 15, 2) eval15 pixels,
+    confidence (C, T, N, 15), truth (T, A, 15, 3)."""
+    slots = oracle_slots(cameras, uv, truth)                                           # (C, T, A)
+    taken = np.take_along_axis(uv, np.maximum(slots, 0)[..., None, None], axis=2)      # (C, T, A, 15, 2)
+    weight = np.take_along_axis(confidence, np.maximum(slots, 0)[..., None], axis=2)   # (C, T, A, 15)
+    missing = (slots < 0)[..., None] | ~np.isfinite(taken).all(-1)
+    return triangulate(cameras, np.where(missing[..., None], np.nan, taken), np.where(missing, 0.0, weight))
+
+
+def nearest_tracks(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(T, A, 15, 3) per frame the track of estimate (T, P, 15, 3) (NaN where a track is absent) nearest each
+    actor of truth (T, A, 15, 3) by the mean error of the limb joints they share; NaN where no track is there."""
+    if not estimate.shape[1]:
+        return np.full(truth.shape, np.nan)
+    gap = np.linalg.norm(estimate[:, None, :, LIMB_JOINTS] - truth[:, :, None, LIMB_JOINTS], axis=-1)   # (T, A, P, 12)
+    seen = np.isfinite(gap)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(seen.any(-1), np.where(seen, gap, 0.0).sum(-1) / seen.sum(-1), np.inf)        # (T, A, P)
+    best = np.argmin(mean, axis=-1)                                                                     # (T, A)
+    there = np.isfinite(np.take_along_axis(mean, best[..., None], -1)[..., 0])
+    return np.where(there[..., None, None], np.take_along_axis(estimate, best[..., None, None], axis=1), np.nan)
+
+
+def identities(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(T, A) the track (index into estimate's P) given to each actor at each frame by an optimal assignment on
+    the median limb-joint distance within :data:`MATCH_M`, −1 where none: estimate (T, P, 15, 3), truth (T, A, 15, 3)."""
+    T, A = truth.shape[:2]
+    given = np.full((T, A), -1, dtype=int)
+    if not estimate.shape[1]:
+        return given
+    gap = np.linalg.norm(estimate[:, None, :, LIMB_JOINTS] - truth[:, :, None, LIMB_JOINTS], axis=-1)   # (T, A, P, 12)
+    cost = median_of_seen(gap, np.isfinite(gap))
+    for t in range(T):
+        rows, cols = linear_sum_assignment(np.where(cost[t] < MATCH_M, cost[t], 1e12))
+        for a, q in zip(rows, cols):
+            if cost[t, a, q] < MATCH_M:
+                given[t, a] = q
+    return given
+
+
+def switches(given: np.ndarray) -> np.ndarray:
+    """(A,) per actor, how often the track given them (:func:`identities`, (T, A)) changes between two frames
+    where one is given."""
+    return np.array([int((np.diff(column[column >= 0]) != 0).sum()) for column in given.T], dtype=int)
+
+
+def score(estimate: np.ndarray, truth: np.ndarray, frames: np.ndarray) -> list[dict]:
+    """Per actor, at ``frames`` (T,) bool, the scores of the module docstring of their estimate (T, A, 15, 3)
+    (the nearest track's, :func:`nearest_tracks`, or the oracle DLT's; NaN where none) against truth
+    (T, A, 15, 3): PCP % of the limb parts, MPJPE mm of the limb joints and per limb joint (where both are known),
+    and the frames scored."""
+    rows = []
+    for a in range(truth.shape[1]):
+        annotated = frames & np.isfinite(truth[:, a, LIMB_JOINTS]).all(-1).any(-1)
+        X, Y = estimate[annotated, a], truth[annotated, a]
+        error = 1000 * np.linalg.norm(X[:, LIMB_JOINTS] - Y[:, LIMB_JOINTS], axis=-1)              # (F, 12)
+        known = np.isfinite(error)
+        rows.append({"pcp": pcp(X, Y, PCP_LIMB_PARTS), "mpjpe_mm": float(error[known].mean()) if known.any() else None,
+                     "per_joint_mm": {EVAL15_NAMES[j]: (float(error[known[:, k], k].mean()) if known[:, k].any()
+                                                        else None) for k, j in enumerate(LIMB_JOINTS)},
+                     "frames": int(annotated.sum())})
+    return rows
+
+
+def matched_cameras(scene: SceneDetections, calibration: Calibration) -> list[int]:
+    """The calibration camera (index) of each detection camera: by name where every detection camera is named as
+    one of the calibration's (Shelf's "0" … "4"), else in order."""
+    names = [c.name for c in calibration.cameras]
+    if set(scene.camera_names) <= set(names):
+        return [names.index(n) for n in scene.camera_names]
+    if len(scene.camera_names) != len(names):
+        raise PriortrackError(f"{scene.source}: {len(scene.camera_names)} detection cameras "
+                              f"({', '.join(scene.camera_names)}) for the calibration's {len(names)} "
+                              f"({', '.join(names)}), not named alike")
+    return list(range(len(names)))
+
+
+def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None = None, sizes: list[int] | None = None,
+               detections: str | Path | None = None, fps: float = SHELF_FPS, actors=None, seed: int = 0,
+               workers: int | None = None, min_confidence: float = 0.3, cache=None) -> dict:
+    """Every preset on every subset of the benchmark's cameras asked for (:func:`camera_subsets`), scored as the
+    module docstring says beside the oracle DLT of the same cameras; ``actors``: the annotated actors scored (None:
+    :data:`SCORED_ACTORS` where annotated, else every one). Returns {"rows": one per subset and preset
+    (cameras, preset, per actor the tracker's and the DLT's scores, switches, false tracks, tracks, seconds),
+    "actors", "frames"}."""
+    from priortrack.tracking.people import track_scene
+    from priortrack.tracking.person import TrackConfig, fitted_once
+    from priortrack.tracking.presets import load_preset
+
+    calibration_path, truth_path, detections_path = benchmark_files(directory, detections)
+    calibration = read_calibration(calibration_path)
+    truth_file = read_shelf_truth(truth_path)
+    if actors is None:                                       # the field's, where annotated; else every actor
+        actors = [a for a in SCORED_ACTORS if a in truth_file.ids] or truth_file.ids.tolist()
+    missing = [a for a in actors if a not in truth_file.ids]
+    if missing:
+        raise PriortrackError(f"{truth_path}: no actor {missing[0]} (actors: {', '.join(map(str, truth_file.ids))})")
+    everyone = truth_file.eval15()                                                     # (T, every actor, 15, 3)
+    truth = everyone[:, [int(np.flatnonzero(truth_file.ids == a)[0]) for a in actors]]  # (T, A, 15, 3)
+    scene = read_scene_detections(detections_path)
+    subsets = camera_subsets(len(calibration.cameras), cameras, sizes)
+    presets = [load_preset(p) for p in presets]
+    of_calibration = matched_cameras(scene, calibration)
+    frames = np.zeros(len(truth), dtype=bool)
+    frames[scene.frames[(scene.frames >= 0) & (scene.frames < len(truth))]] = True
+    if not frames.any():
+        raise PriortrackError(f"{detections_path}: none of its frames ({scene.frames[0]} …) is one of the truth's "
+                              f"0 … {len(truth) - 1}")
+    uv, confidence = scene.eval15(min_confidence)
+    at = np.flatnonzero((scene.frames >= 0) & (scene.frames < len(truth)))            # detection frames with truth
+    rows = []
+    for subset in subsets:
+        missing = [c for c in subset if c not in of_calibration]
+        if missing:
+            raise PriortrackError(f"{detections_path} has no detections of the calibration's camera "
+                                  f"{calibration.cameras[missing[0]].name}")
+        own = [of_calibration.index(c) for c in subset]
+        world = [PinholeCamera.from_calibration(calibration.cameras[c]) for c in subset]
+        dlt = np.full(truth.shape, np.nan)
+        dlt[scene.frames[at]] = oracle_dlt(world, uv[own][:, at], confidence[own][:, at], truth[scene.frames[at]])
+        oracle = score(dlt, truth, frames)
+        part = replace(scene, camera_names=tuple(scene.camera_names[c] for c in own), keypoints=scene.keypoints[own])
+        config = TrackConfig(fps=fps, seed=seed, min_confidence=min_confidence, cache=cache,
+                             camera_map={scene.camera_names[o]: calibration.cameras[c].name for o, c in zip(own, subset)})
+        for preset in presets:
+            fitted_once(preset, cache)                                     # the prior's fit is not the run's time
+            result = track_scene(part, calibration, preset, config, workers=workers)
+            estimate = np.full((len(truth), len(result.person_ids), 15, 3), np.nan)
+            ticks = np.flatnonzero((result.frames >= 0) & (result.frames < len(truth)))
+            estimate[result.frames[ticks]] = result.joints[ticks]
+            given = identities(estimate, everyone)
+            tracker = score(nearest_tracks(estimate, truth), truth, frames)
+            false = [int(result.person_ids[q]) for q in range(len(result.person_ids)) if not (given == q).any()]
+            rows.append({"cameras": [calibration.cameras[c].name for c in subset], "preset": preset.name,
+                         "actors": [{"actor": int(a), **mine, "dlt": dlt_row} for a, mine, dlt_row in
+                                    zip(actors, tracker, oracle)],
+                         "switches": int(switches(given).sum()), "false_tracks": false,
+                         "tracks": int(len(result.person_ids)), "seconds": float(result.seconds)})
+            log.info("cameras %s, %s: PCP %s (DLT %s), %d switches, %d false tracks, %.1f s",
+                     ",".join(rows[-1]["cameras"]), preset.name,
+                     " / ".join(f"{r['pcp']:.1f}" for r in tracker), " / ".join(f"{r['pcp']:.1f}" for r in oracle),
+                     rows[-1]["switches"], len(false), result.seconds)
+    return {"rows": rows, "actors": [int(a) for a in actors], "frames": int(frames.sum()), "fps": fps,
+            "detections": str(detections_path)}
