@@ -19,9 +19,9 @@
    weighed by the robust likelihood's Student-t and each limb's depth branches tried
    (:func:`priortrack.body.ik.inverse_kinematics_2d`). From several, each tick's joints are triangulated (confidence-weighted, through the
    lens distortion, under the likelihood's Student-t: :func:`~priortrack.geometry.triangulation.robust_triangulate`,
-   a detector's outlier does not drag a joint); the first two consecutive ticks with at least ``START_JOINTS`` joints
-   triangulated (where the trial never shows as many, a person seated at a desk: the joints it shows in
-   most ticks, :func:`start_joints`), each reprojecting into every camera about as well as the trial's typical tick
+   a detector's outlier does not drag a joint); the first two consecutive ticks with at least ``MIN_FIT_JOINTS`` joints
+   triangulated (fewer where the trial never shows as many, a person seated at a desk: the joints it shows in
+   most ticks, :func:`start_joints`; the pose prior fills in what a shelf hides on the first ticks), each reprojecting into every camera about as well as the trial's typical tick
    (:func:`start_ticks`: not a tick where one camera swapped left and right), start the filter: the body (the prior's skeleton, or CMU subject 35's) is scaled to
    the person's own distances, each bone's the median over every tick of the whole trial whose
    triangulation measures it, left and right averaged (robust to a detector's swaps and outliers on
@@ -102,7 +102,10 @@ log = logging.getLogger(__name__)
 #: A camera's person at a tick is someone else's if the others' triangulation reprojects this far from
 #: it (median over its joints), as a fraction of the image diagonal.
 CROSS_VIEW_GATE = 0.1
-#: Joints a tick needs triangulated to start the filter there …
+#: Joints a tick needs to start the filter there from one camera (detected: the whole body's image size gives its
+#: depth; with two cameras or more, MIN_FIT_JOINTS triangulated: a person of a scene is tracked from their first
+#: ticks, though a shelf hides an arm there: Shelf, cameras 0, 1, 2, an actor's first 14 frames untracked, 162 →
+#: 58 mm) …
 START_JOINTS = 14
 #: … or, where the trial never shows as many (a person seated at a desk, legs under it or seen by one camera),
 #: every joint it shows (triangulated, or detected with one camera) in at least VIEW_SHARE of its ticks, and
@@ -561,6 +564,8 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     rejected = int(z.left_out.sum())
     counts = seen.sum(axis=-1)
     needed = start_joints(seen, single)
+    if not single:          # triangulated joints place the body; the pose prior fills what the first ticks hide
+        needed = min(needed, MIN_FIT_JOINTS)
     good = start_ticks(counts, residual, needed)
     if not len(good):
         raise PriortrackError(f"no two consecutive frames have {needed} joints "
