@@ -149,3 +149,29 @@ def test_every_person_is_read_from_coco_results_and_npz(tmp_path):
     (tmp_path / "results.txt").write_text("x")
     with pytest.raises(PriortrackError, match="several people are read from"):
         read_scene_detections(tmp_path / "results.txt")
+
+
+def test_a_track_gives_back_a_detection_its_other_cameras_rays_do_not_meet():
+    """Two cameras a quarter turn apart; a person at the origin and a second 1.5 m behind them in line with camera
+    B. A track of the first that took the second's detection in B (their images overlap there) gives it back: the
+    rays of B's detection pass the first person at other heights (its knee ray at their ankle), and it costs more
+    than A's; with the first person's own detection in B, the track keeps both."""
+    from priortrack.tracking.association import PAIR_GATE_M, normalised
+    from priortrack.tracking.motion import View
+    from priortrack.tracking.scene import PredictionAssociator
+
+    body = placed_walk("cmu:07_10", "z")[0]
+    first = body - [*body[0, :2], 0.0]
+    second = first + [0.0, 1.5, 0.0]
+    a = PinholeCamera.look_at((-3.0, 0.0, 1.5), (0.0, 0.0, 1.0), up=(0, 0, 1), focal_px=1000, width=1000, height=1000)
+    b = PinholeCamera.look_at((0.0, -3.0, 1.5), (0.0, 0.0, 1.0), up=(0, 0, 1), focal_px=1000, width=1000, height=1000)
+    xy = normalised([a, b], [a.project(first)[0][None], np.stack([b.project(first)[0], b.project(second)[0]])])
+    confidence = [np.ones((1, 15)), np.ones((2, 15))]
+    views = [View.of(a), View.of(b)]
+    associator = PredictionAssociator()
+    assert pair_distances(views[0].centre, views[0].rays(xy[0][:1]), confidence[0][:1], views[1].centre,
+                          views[1].rays(xy[1][1:]), confidence[1][1:])[0, 0] > PAIR_GATE_M
+    kept = associator.consistent({0: (0, False), 1: (1, False)}, views, xy, confidence, {0: 2.0, 1: 5.0})
+    assert kept == {0: (0, False)}
+    both = {0: (0, False), 1: (0, False)}
+    assert associator.consistent(both, views, xy, confidence, {0: 2.0, 1: 5.0}) == both

@@ -36,6 +36,7 @@ import numpy as np
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.triangulation import dlt_normalised, undistort_normalised
+from priortrack.tracking.motion import View
 
 #: Joints two detections must both show for their rays to be compared.
 MIN_SHARED = 4
@@ -78,11 +79,7 @@ def normalised(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray]) -> li
 def rays(cameras: Sequence[PinholeCamera], xy: Sequence[np.ndarray]) -> list[np.ndarray]:
     """Each camera's joint rays from normalised coordinates xy (N_c, J, 2): unit directions Rᵀ (x, y, 1)
     in the world (N_c, J, 3), NaN where the joint is missing."""
-    out = []
-    for camera, points in zip(cameras, xy):
-        d = np.concatenate([points, np.ones(points.shape[:-1] + (1,))], axis=-1) @ camera.R.double().numpy()
-        out.append(d / np.linalg.norm(d, axis=-1, keepdims=True))
-    return out
+    return [View.of(camera).rays(points) for camera, points in zip(cameras, xy)]
 
 
 def pair_distances(centre_i: np.ndarray, rays_i: np.ndarray, conf_i: np.ndarray, centre_j: np.ndarray,

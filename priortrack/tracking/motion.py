@@ -47,6 +47,16 @@ class View:
     def of(cls, camera: PinholeCamera) -> "View":
         return cls(camera.R.double().numpy(), camera.t.double().numpy(), float(np.sqrt(camera.fx * camera.fy)))
 
+    @property
+    def centre(self) -> np.ndarray:
+        """(3,) the camera's centre in the world, −Rᵀ t."""
+        return -self.R.T @ self.t
+
+    def rays(self, xy: np.ndarray) -> np.ndarray:
+        """Unit world directions Rᵀ (x, y, 1) (..., 3) of normalised image points xy (..., 2) (NaN stays NaN)."""
+        d = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1) @ self.R
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
 
 class JointKalman:
     """The motion model of the module docstring for one person's J joints.

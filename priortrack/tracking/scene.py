@@ -34,6 +34,7 @@ tick's detections again (:mod:`priortrack.tracking.reassociation`, with :func:`p
 
 from __future__ import annotations
 
+import itertools
 import logging
 from dataclasses import dataclass, field
 
@@ -45,7 +46,7 @@ from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS, EVAL15_PARENTS
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.tracking.association import PAIR_GATE_M, associate, median_distance, normalised
+from priortrack.tracking.association import PAIR_GATE_M, associate, median_distance, normalised, pair_distances
 from priortrack.tracking.motion import JointKalman, View
 
 log = logging.getLogger(__name__)
@@ -143,10 +144,19 @@ class PredictionAssociator:
     median_j log(det S_j / det R_j) ≥ 0: the log-likelihood's normaliser, so that of two tracks whose
     gates both hold a detection the sharper prediction wins, and a track whose prediction has spread far
     beyond the detections' noise (unseen for a while) takes none and ends (a person who comes back is
-    born again and re-identified)."""
+    born again and re-identified).
 
-    def __init__(self, gate: float = GATE):
-        self.gate = gate
+    **Across views** (:meth:`consistent`): the detections one track takes in different cameras must be one
+    person's, their joints' rays meeting within the pair gate (:func:`~priortrack.tracking.association.pair_distances`,
+    as a birth's); where two do not, the costlier (the farther from the track's prediction) is given back, until the
+    rest agree. Two people in
+    line with one camera overlap in its image, and a track of the farther one took the nearer one's detection
+    there: its other camera's rays do not meet it (the nearer person's knee ray passes the farther one's ankle),
+    and the nearer one's detections are left to make them a track (Shelf, cameras 1 and 3: a person entering
+    behind another was absorbed, and the other's track lost)."""
+
+    def __init__(self, gate: float = GATE, pair_gate: float = PAIR_GATE_M):
+        self.gate, self.pair_gate = gate, pair_gate
 
     @staticmethod
     def costs(tracks: list[Track], view: View, xy: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -163,13 +173,35 @@ class PredictionAssociator:
         assigned: dict[int, dict[int, tuple[int, bool]]] = {t.id: {} for t in tracks}
         if not tracks:
             return assigned
+        paid: dict[tuple[int, int], float] = {}
         for c, view in enumerate(views):
             if not len(xy[c]):
                 continue
             cost, mirror = self.costs(tracks, view, xy[c], confidence[c])
             for k, n in gated_assignment(cost, self.gate):
                 assigned[tracks[k].id][c] = (n, bool(mirror[k, n]))
-        return assigned
+                paid[tracks[k].id, c] = float(cost[k, n])
+        return {pid: self.consistent(chosen, views, xy, confidence, {c: paid[pid, c] for c in chosen})
+                for pid, chosen in assigned.items()}
+
+    def consistent(self, chosen: dict[int, tuple[int, bool]], views: list[View], xy: list[np.ndarray],
+                   confidence: list[np.ndarray], cost: dict[int, float]) -> dict[int, tuple[int, bool]]:
+        """One track's detections {camera: (index, mirrored)} with those that are not the same person as the
+        others given back (class docstring); ``cost`` {camera: the detection's cost}."""
+        chosen = dict(chosen)
+        while len(chosen) >= 2:
+            order = {c: MIRRORED if mirrored else slice(None) for c, (_, mirrored) in chosen.items()}
+            points = {c: xy[c][n][order[c]] for c, (n, _) in chosen.items()}
+            weight = {c: np.where(np.isfinite(points[c]).all(-1), confidence[c][n][order[c]], 0.0)
+                      for c, (n, _) in chosen.items()}
+            apart = [(a, b) for a, b in itertools.combinations(chosen, 2)
+                     if self.pair_gate <= pair_distances(views[a].centre, views[a].rays(points[a])[None], weight[a][None],
+                                                         views[b].centre, views[b].rays(points[b])[None],
+                                                         weight[b][None])[0, 0] < np.inf]
+            if not apart:
+                break
+            del chosen[max({c for pair in apart for c in pair}, key=cost.get)]
+        return chosen
 
 
 def prediction_costs(h: np.ndarray, HPH: np.ndarray, sigma: np.ndarray, xy: np.ndarray,
@@ -359,7 +391,7 @@ class SceneTracker:
         self.cameras, self.fps, self.config = list(cameras), float(fps), config or SceneConfig()
         self.views = [View.of(c) for c in self.cameras]
         frames = lambda seconds: max(1, int(round(seconds * self.fps)))          # noqa: E731
-        self.associator = associator or PredictionAssociator(self.config.gate)
+        self.associator = associator or PredictionAssociator(self.config.gate, self.config.pair_gate_m)
         self.deleter = deleter or MissedFramesDeleter(frames(self.config.death_s))
         self.initiator = initiator or ProposalInitiator(frames(self.config.birth_s),
                                                         min(self.config.birth_views, len(self.cameras)),
