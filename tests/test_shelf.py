@@ -113,6 +113,7 @@ def benchmark(tmp_path_factory):
         rows[:, :, i] = head_bottom if name == "head_bottom" else head_top if name == "head_top" else \
             truth[:, :, shelf15[name]]
     (folder / "gt.txt").write_text(_truth_text([{p: rows[p, t] for p in range(P)} for t in range(T)]))
+    np.save(folder / "shelf15.npy", rows)                               # the truth's rows, for a test to change
     (folder / "calibration.json").write_text(json.dumps({str(c): {
         "K": camera.K.double().numpy().ravel().tolist(),
         "RT": np.concatenate([camera.R.double().numpy(), camera.t.double().numpy()[:, None]], 1).ravel().tolist(),
@@ -173,6 +174,9 @@ def test_eval_shelf_scores_every_subset_beside_the_oracle(benchmark, capsys):
                  "--per-joint"]) == 0
     out = capsys.readouterr().out
     assert "| 0,2 | ukf-real |" in out and "MPJPE per limb joint" in out
+    assert main(["eval", "shelf", str(folder), "--diagnose"]) == 0
+    assert "| lhip |" in capsys.readouterr().out
+    assert main(["eval", "shelf", str(folder), "--diagnose", "--subsets", "2"]) == 2
 
 
 @pytest.mark.parametrize("args, message", [
@@ -193,3 +197,26 @@ def test_bad_arguments_are_one_line(benchmark, capsys, args, message):
 def test_a_folder_without_the_benchmarks_files_is_named(tmp_path, capsys):
     assert main(["eval", "shelf", str(tmp_path)]) == 2
     assert "has no calibration.json" in capsys.readouterr().err
+
+
+def test_the_diagnosis_finds_white_noise_and_a_planted_bias(benchmark, tmp_path):
+    """On the benchmark's 2 px white noise: no bias, errors uncorrelated from frame to frame, no swap, the
+    annotation never still; truth whose left hip an annotator put 50 mm higher than the keypoint: a 50 mm bias
+    there, most of that joint's error, and nowhere else."""
+    import shutil
+
+    folder = benchmark[0]
+    result = shelf.diagnose(folder, "0,1,2")
+    assert result["swapped_share"] == 0.0
+    for name, row in result["joints"].items():
+        assert row["bias_mm"] < 5 and abs(row["autocorrelation"][0]) < 0.3 and row["truth_still_share"] == 0.0, name
+    assert result["summary"]["rms_mm"] < 20
+    for name in ("calibration.json", "scene.npz"):
+        shutil.copy(folder / name, tmp_path / name)
+    rows = np.load(folder / "shelf15.npy")
+    rows[:, :, SHELF15_NAMES.index("l_hip"), 2] += 0.05                              # up is z
+    (tmp_path / "gt.txt").write_text(_truth_text([{p: rows[p, t] for p in range(rows.shape[0])}
+                                                  for t in range(rows.shape[1])]))
+    planted = shelf.diagnose(tmp_path, "0,1,2")["joints"]
+    assert planted["lhip"]["bias_mm"] == pytest.approx(50, abs=5) and planted["lhip"]["bias_share"] > 0.8
+    assert all(row["bias_mm"] < 5 for name, row in planted.items() if name != "lhip")

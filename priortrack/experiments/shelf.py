@@ -262,3 +262,138 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
                      rows[-1]["switches"], len(false), result.seconds)
     return {"rows": rows, "actors": [int(a) for a in actors], "frames": int(frames.sum()), "fps": fps,
             "detections": str(detections_path)}
+
+
+#: The lags (frames) at which :func:`diagnose` measures the DLT error's autocorrelation, and the width (frames) of
+#: the centred moving average that bounds what smoothing the DLT could gain.
+LAGS, SMOOTHING_WIDTH = (1, 2, 4, 8), 5
+
+
+def diagnose(directory: str | Path, cameras: str | None = None, detections: str | Path | None = None,
+             fps: float = SHELF_FPS, actors=None, min_confidence: float = 0.3) -> dict:
+    """What per-frame triangulation's error on the benchmark is made of (issue 58, item 2), for one subset of its
+    cameras (:func:`camera_subsets`), over the oracle DLT of the actors (:func:`oracle_dlt`). Per limb joint:
+
+    - ``rms_mm``: the RMS error; ``bias_mm``: its mean in each actor's body frame (origin the mid-hips, axes the
+      hips' line and the forward direction on the floor, and up), a bias no filter removes (the annotators'
+      joints are not the detector's keypoints); ``bias_share``: |bias|² / RMS²;
+    - ``autocorrelation``: of the error less its bias, at :data:`LAGS` frames (0: white noise, which a temporal
+      model averages out; near 1: errors that last, which it cannot);
+    - ``smoothed_rms_mm``: the RMS of the DLT averaged over :data:`SMOOTHING_WIDTH` centred frames, a bound on what
+      smoothing alone gains;
+    - ``body_rms_mm``: the RMS of the tracker's body (the template scaled to the actor, CMU subject 35's, through
+      the detector's joint definitions) fitted by inverse kinematics to the DLT, each frame; and ``truth_body_rms_mm``
+      fitted to the truth itself (what the body model cannot represent);
+
+    and over the whole: ``swapped_share`` (the camera-detections whose left–right mirror lies nearer the truth's
+    projection), ``truth_still_share`` per joint (frames where the annotation did not move at all from the last),
+    and ``tick_offset_mm`` (how far the joints move in the time between a detection frame and the 30 fps tick that
+    consumes it: :func:`~priortrack.tracking.person.schedule`)."""
+    from priortrack.body.fk import joint_positions
+    from priortrack.body.ik import fitted_skeleton, inverse_kinematics
+    from priortrack.data.bundled import cmu_skeleton
+    from priortrack.data.keypoints import detector_map
+    from priortrack.geometry.frames import to_y_up, up_from_person
+    from priortrack.tracking.person import schedule
+    from priortrack.tracking.scene import MIRRORED
+
+    calibration_path, truth_path, detections_path = benchmark_files(directory, detections)
+    calibration = read_calibration(calibration_path)
+    truth_file = read_shelf_truth(truth_path)
+    if actors is None:
+        actors = [a for a in SCORED_ACTORS if a in truth_file.ids] or truth_file.ids.tolist()
+    truth = truth_file.eval15()[:, [int(np.flatnonzero(truth_file.ids == a)[0]) for a in actors]]
+    scene = read_scene_detections(detections_path)
+    (subset,) = camera_subsets(len(calibration.cameras), cameras)
+    own = [matched_cameras(scene, calibration).index(c) for c in subset]
+    world = [PinholeCamera.from_calibration(calibration.cameras[c]) for c in subset]
+    at = np.flatnonzero((scene.frames >= 0) & (scene.frames < len(truth)))
+    uv, confidence = scene.eval15(min_confidence)
+    truth = truth[scene.frames[at]]                                                    # (F, A, 15, 3)
+    uv, confidence = uv[own][:, at], confidence[own][:, at]
+    dlt = oracle_dlt(world, uv, confidence, truth)
+    error = dlt - truth
+    left, right = truth[..., 9, :], truth[..., 12, :]
+    standing = truth.reshape(-1, 15, 3).copy()
+    standing[:, 1] = 0.5 * (standing[:, 3] + standing[:, 6])                  # the truth has no neck: mid-shoulders
+    up = up_from_person(standing)[0]
+    side = (left - right) - ((left - right) @ up)[..., None] * up
+    side /= np.linalg.norm(side, axis=-1, keepdims=True)
+    frame = np.stack([side, np.cross(up, side), np.broadcast_to(up, side.shape)], axis=-2)      # (F, A, 3, 3) rows
+    local = np.einsum("faij,fakj->faki", frame, error)                                  # (F, A, 15, 3)
+    A = to_y_up(up)
+    M = detector_map()
+    body, truth_body = np.full(dlt.shape, np.nan), np.full(dlt.shape, np.nan)
+    for a in range(len(actors)):
+        for source, out in ((dlt, body), (truth, truth_body)):
+            X = source[:, a] @ A.T                                                          # Y-up, as the tracker's
+            fit = np.isfinite(X).all(-1).sum(-1) >= 6
+            if fit.sum() < 2:
+                continue
+            skeleton = fitted_skeleton(cmu_skeleton("35"), X[fit], M)
+            motion = inverse_kinematics(X[fit], fps, joint_map=M, skeleton=skeleton)
+            out[fit, a] = np.einsum("jk,tkd->tjd", M, joint_positions(motion)) @ A
+    smoothed = _moving_average(dlt, SMOOTHING_WIDTH)
+    rows = {}
+    for j in LIMB_JOINTS:
+        e = local[:, :, j]                                                                 # (F, A, 3)
+        seen = np.isfinite(e).all(-1)
+        bias = np.nanmean(np.where(seen[..., None], e, np.nan).reshape(-1, 3), axis=0)
+        rms = _rms(e)
+        centred = np.where(seen[..., None], e - bias, np.nan)
+        rows[EVAL15_NAMES[j]] = {"rms_mm": 1000 * rms, "bias_mm": 1000 * float(np.linalg.norm(bias)),
+                                 "bias_share": float(bias @ bias / rms ** 2),
+                                 "autocorrelation": [_autocorrelation(centred, lag) for lag in LAGS],
+                                 "smoothed_rms_mm": 1000 * _rms(smoothed[:, :, j] - truth[:, :, j]),
+                                 "body_rms_mm": 1000 * _rms(body[:, :, j] - truth[:, :, j]),
+                                 "truth_body_rms_mm": 1000 * _rms(truth_body[:, :, j] - truth[:, :, j]),
+                                 "truth_still_share": float(np.mean(np.linalg.norm(np.diff(truth[:, :, j], axis=0),
+                                                                                   axis=-1)[np.isfinite(
+                                     np.diff(truth[:, :, j], axis=0)).all(-1)] < 1e-4))}
+    slots = oracle_slots(world, uv, truth)
+    swapped = []
+    for c, camera in enumerate(world):
+        projected = camera.project(truth)[0]                                              # (F, A, 15, 2)
+        mine = np.take_along_axis(uv[c], np.maximum(slots[c], 0)[..., None, None], axis=1)   # (F, A, 15, 2)
+        gap = [median_of_seen(np.linalg.norm(m[..., LIMB_JOINTS, :] - projected[..., LIMB_JOINTS, :], axis=-1),
+                              np.isfinite(m[..., LIMB_JOINTS, 0]) & np.isfinite(projected[..., LIMB_JOINTS, 0]))
+               for m in (mine, mine[..., MIRRORED, :])]
+        swapped.append((gap[1] < gap[0])[slots[c] >= 0])
+    index = schedule(scene.frames[at], fps, 30.0)
+    offset = np.full(len(at), np.nan)
+    offset[index[index >= 0]] = np.abs(np.flatnonzero(index >= 0) / 30.0 - (scene.frames[at][index[index >= 0]]
+                                                                             - scene.frames[at][0]) / fps)
+    speed = np.linalg.norm(np.gradient(truth, axis=0), axis=-1) * fps                       # (F, A, 15) m/s
+    moved = (speed * offset[:, None, None])[..., LIMB_JOINTS]
+    summary = {key: float(np.mean([r[key] for r in rows.values()])) for key in
+               ("rms_mm", "bias_mm", "bias_share", "smoothed_rms_mm", "body_rms_mm", "truth_body_rms_mm")}
+    return {"cameras": [calibration.cameras[c].name for c in subset], "actors": [int(a) for a in actors],
+            "joints": rows, "summary": summary,
+            "swapped_share": float(np.concatenate(swapped).mean()) if swapped else float("nan"),
+            "tick_offset_mm": {"mean": 1000 * float(np.nanmean(moved)), "p95": 1000 * float(np.nanpercentile(moved, 95))}}
+
+
+def _rms(e: np.ndarray) -> float:
+    """The root mean square of the finite vectors of e (..., 3)."""
+    seen = np.isfinite(e).all(-1)
+    return float(np.sqrt((e[seen] ** 2).sum(-1).mean())) if seen.any() else float("nan")
+
+
+def _autocorrelation(e: np.ndarray, lag: int) -> float:
+    """The correlation of e (F, A, 3) with itself ``lag`` frames on, over every actor, coordinate and frame pair
+    where both are finite."""
+    a, b = e[:-lag], e[lag:]
+    both = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
+    a, b = a[both], b[both]
+    return float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum())) if len(a) > 1 else float("nan")
+
+
+def _moving_average(X: np.ndarray, width: int) -> np.ndarray:
+    """X (F, ...) averaged over the ``width`` frames centred on each (the finite ones), NaN where X is."""
+    half = width // 2
+    padded = np.concatenate([np.full((half,) + X.shape[1:], np.nan), X, np.full((half,) + X.shape[1:], np.nan)])
+    window = np.stack([padded[k:k + len(X)] for k in range(width)])
+    seen = np.isfinite(window)
+    with np.errstate(invalid="ignore"):
+        mean = np.where(seen, window, 0.0).sum(0) / seen.sum(0)
+    return np.where(np.isfinite(X), mean, np.nan)
