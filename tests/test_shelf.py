@@ -130,7 +130,7 @@ def test_the_oracle_gives_each_actor_their_own_detections_and_their_dlt(benchmar
     by_frame = truth.transpose(1, 0, 2, 3)                                              # (T, P, 15, 3)
     slots = shelf.oracle_slots(cameras, uv, by_frame)
     assert np.array_equal(slots, order)                                                  # the shuffles undone
-    dlt = shelf.oracle_dlt(cameras, uv, confidence, by_frame)
+    dlt = shelf.oracle_dlt(cameras, uv, confidence, slots)
     C, T = order.shape[:2]
     own = np.stack([uv[c, np.arange(T)[:, None], order[c]] for c in range(C)])          # (C, T, P, 15, 2) by hand
     weight = np.stack([confidence[c, np.arange(T)[:, None], order[c]] for c in range(C)])
@@ -155,6 +155,14 @@ def test_the_scores_of_hand_made_tracks():
     frames = np.ones(T, dtype=bool)
     rows = shelf.score(shelf.nearest_tracks(estimate, truth), truth, frames)
     assert [r["pcp"] for r in rows] == [100.0, 100.0] and rows[0]["mpjpe_mm"] == 0.0
+    # the tracks' detections (T, C, P): track 0 actor 0's, track 1 actor 0's too (never given: a second track of
+    # them), track 2 slot 5's, which the truth gives nobody (someone unannotated: not judged)
+    oracle = np.full((2, T, 2), -1)
+    oracle[:, :, 0], oracle[:, :, 1] = 0, 1
+    taken = np.stack([np.zeros((T, 2)), np.zeros((T, 2)), np.full((T, 2), 5)], axis=-1).astype(int)
+    never = np.full((T, 2), -1)
+    never[:, 0] = 0
+    assert shelf.false_tracks(taken, oracle, never).tolist() == [False, True, False]
     estimate[3] = np.nan                                                                  # nobody tracked there
     rows = shelf.score(shelf.nearest_tracks(estimate, truth), truth, frames)
     assert rows[0]["pcp"] == pytest.approx(90.0) and rows[0]["frames"] == T

@@ -17,8 +17,9 @@ the scene tracker follows every person with a preset from the detections alone
   confidence-weighted DLT of their detections (:func:`~priortrack.geometry.triangulation.triangulate`).
 - **identity switches**: per annotated actor (scored or not), the track an optimal assignment of actors to tracks gives them at a frame
   (median limb-joint distance within :data:`MATCH_M`) changes between two such frames;
-- **false tracks**: tracks never so given to an annotated actor (every person of Shelf is annotated at some
-  frames; a track of nobody, or a second track of someone, is never given one).
+- **false tracks**: tracks never so given to an annotated actor though most of their detections are annotated
+  actors' (the oracle's): a second track of someone, or one made of different people's detections
+  (:func:`false_tracks`; a track of someone the truth does not annotate there is not judged).
 """
 
 from __future__ import annotations
@@ -96,6 +97,26 @@ def benchmark_files(directory: str | Path, detections: str | Path | None = None)
     return found[0], found[1], detections
 
 
+def read_benchmark(directory: str | Path, detections: str | Path | None = None, actors=None):
+    """The benchmark folder's calibration, every annotated actor's truth (T, A_all, 15, 3) in the eval15 layout,
+    the indices of the actors scored among them (``actors``: ids; None: :data:`SCORED_ACTORS` where annotated, else
+    every one) with their ids, and the detections (their frames checked against the truth's)."""
+    calibration_path, truth_path, detections_path = benchmark_files(directory, detections)
+    calibration = read_calibration(calibration_path)
+    truth = read_shelf_truth(truth_path)
+    if actors is None:
+        actors = [a for a in SCORED_ACTORS if a in truth.ids] or truth.ids.tolist()
+    missing = [a for a in actors if a not in truth.ids]
+    if missing:
+        raise PriortrackError(f"{truth_path}: no actor {missing[0]} (actors: {', '.join(map(str, truth.ids))})")
+    scene = read_scene_detections(detections_path)
+    if not ((scene.frames >= 0) & (scene.frames < len(truth.joints))).any():
+        raise PriortrackError(f"{detections_path}: none of its frames ({scene.frames[0]} …) is one of the truth's "
+                              f"0 … {len(truth.joints) - 1}")
+    return (calibration, truth.eval15(), [int(np.flatnonzero(truth.ids == a)[0]) for a in actors],
+            [int(a) for a in actors], scene)
+
+
 def oracle_slots(cameras: list[PinholeCamera], uv: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """(C, T, A) the detection slot the true association gives actor a in camera c at frame t, −1 where none
     (module docstring): uv (C, T, N, 15, 2) the detections' eval15 pixels, truth (T, A, 15, 3)."""
@@ -116,15 +137,26 @@ def oracle_slots(cameras: list[PinholeCamera], uv: np.ndarray, truth: np.ndarray
     return slots
 
 
-def oracle_dlt(cameras: list[PinholeCamera], uv: np.ndarray, confidence: np.ndarray, truth: np.ndarray) -> np.ndarray:
+def oracle_dlt(cameras: list[PinholeCamera], uv: np.ndarray, confidence: np.ndarray, slots: np.ndarray) -> np.ndarray:
     """(T, A, 15, 3) each actor's confidence-weighted DLT of the detections the true association gives them
-    (:func:`oracle_slots`), NaN where fewer than two cameras show a joint: uv (C, T, N, 15, 2) eval15 pixels,
-    confidence (C, T, N, 15), truth (T, A, 15, 3)."""
-    slots = oracle_slots(cameras, uv, truth)                                           # (C, T, A)
+    (``slots`` (C, T, A), :func:`oracle_slots`), NaN where fewer than two cameras show a joint: uv (C, T, N, 15, 2)
+    eval15 pixels, confidence (C, T, N, 15)."""
     taken = np.take_along_axis(uv, np.maximum(slots, 0)[..., None, None], axis=2)      # (C, T, A, 15, 2)
     weight = np.take_along_axis(confidence, np.maximum(slots, 0)[..., None], axis=2)   # (C, T, A, 15)
     missing = (slots < 0)[..., None] | ~np.isfinite(taken).all(-1)
     return triangulate(cameras, np.where(missing[..., None], np.nan, taken), np.where(missing, 0.0, weight))
+
+
+def false_tracks(taken: np.ndarray, oracle: np.ndarray, given: np.ndarray) -> np.ndarray:
+    """(P,) whether each track is false: never given to an annotated actor (``given`` (T, A) the track of each actor
+    at each frame, :func:`identities`), though at least half of its detections (``taken`` (T, C, P) its detection slot
+    per frame and camera, −1 none) are annotated actors' (``oracle`` (C, T, A), :func:`oracle_slots`): a second track
+    of someone, or one made of different people's detections. A track whose detections are nobody's the truth
+    annotates (a person walking by unannotated) is not judged."""
+    mine = taken >= 0                                                                   # (T, C, P)
+    theirs = (taken[..., None] == oracle.transpose(1, 0, 2)[:, :, None, :]).any(-1) & mine
+    return np.array([not (given == p).any() and 0 < mine[..., p].sum() <= 2 * theirs[..., p].sum()
+                     for p in range(taken.shape[-1])], dtype=bool)
 
 
 def nearest_tracks(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -207,37 +239,27 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
     from priortrack.tracking.person import TrackConfig, fitted_once
     from priortrack.tracking.presets import load_preset
 
-    calibration_path, truth_path, detections_path = benchmark_files(directory, detections)
-    calibration = read_calibration(calibration_path)
-    truth_file = read_shelf_truth(truth_path)
-    if actors is None:                                       # the field's, where annotated; else every actor
-        actors = [a for a in SCORED_ACTORS if a in truth_file.ids] or truth_file.ids.tolist()
-    missing = [a for a in actors if a not in truth_file.ids]
-    if missing:
-        raise PriortrackError(f"{truth_path}: no actor {missing[0]} (actors: {', '.join(map(str, truth_file.ids))})")
-    everyone = truth_file.eval15()                                                     # (T, every actor, 15, 3)
-    truth = everyone[:, [int(np.flatnonzero(truth_file.ids == a)[0]) for a in actors]]  # (T, A, 15, 3)
-    scene = read_scene_detections(detections_path)
+    calibration, everyone, scored, actors, scene = read_benchmark(directory, detections, actors)
+    truth = everyone[:, scored]                                                        # (T, A, 15, 3)
     subsets = camera_subsets(len(calibration.cameras), cameras, sizes)
     presets = [load_preset(p) for p in presets]
     of_calibration = matched_cameras(scene, calibration)
     frames = np.zeros(len(truth), dtype=bool)
     frames[scene.frames[(scene.frames >= 0) & (scene.frames < len(truth))]] = True
-    if not frames.any():
-        raise PriortrackError(f"{detections_path}: none of its frames ({scene.frames[0]} …) is one of the truth's "
-                              f"0 … {len(truth) - 1}")
     uv, confidence = scene.eval15(min_confidence)
     at = np.flatnonzero((scene.frames >= 0) & (scene.frames < len(truth)))            # detection frames with truth
     rows = []
     for subset in subsets:
         missing = [c for c in subset if c not in of_calibration]
         if missing:
-            raise PriortrackError(f"{detections_path} has no detections of the calibration's camera "
+            raise PriortrackError(f"{scene.source} has no detections of the calibration's camera "
                                   f"{calibration.cameras[missing[0]].name}")
         own = [of_calibration.index(c) for c in subset]
         world = [PinholeCamera.from_calibration(calibration.cameras[c]) for c in subset]
+        seen, weight = uv[own][:, at], confidence[own][:, at]
+        slots = oracle_slots(world, seen, everyone[scene.frames[at]])                  # (C, F, every actor)
         dlt = np.full(truth.shape, np.nan)
-        dlt[scene.frames[at]] = oracle_dlt(world, uv[own][:, at], confidence[own][:, at], truth[scene.frames[at]])
+        dlt[scene.frames[at]] = oracle_dlt(world, seen, weight, slots[..., scored])
         oracle = score(dlt, truth, frames)
         part = replace(scene, camera_names=tuple(scene.camera_names[c] for c in own), keypoints=scene.keypoints[own])
         config = TrackConfig(fps=fps, seed=seed, min_confidence=min_confidence, cache=cache,
@@ -250,7 +272,9 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
             estimate[result.frames[ticks]] = result.joints[ticks]
             given = identities(estimate, everyone)
             tracker = score(nearest_tracks(estimate, truth), truth, frames)
-            false = [int(result.person_ids[q]) for q in range(len(result.person_ids)) if not (given == q).any()]
+            kept = [result.association.person_ids.tolist().index(pid) for pid in result.person_ids]
+            false = result.person_ids[false_tracks(result.association.slots[at][:, :, kept], slots,
+                                                   given[scene.frames[at]])].tolist()
             rows.append({"cameras": [calibration.cameras[c].name for c in subset], "preset": preset.name,
                          "actors": [{"actor": int(a), **mine, "dlt": dlt_row} for a, mine, dlt_row in
                                     zip(actors, tracker, oracle)],
@@ -260,8 +284,7 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
                      ",".join(rows[-1]["cameras"]), preset.name,
                      " / ".join(f"{r['pcp']:.1f}" for r in tracker), " / ".join(f"{r['pcp']:.1f}" for r in oracle),
                      rows[-1]["switches"], len(false), result.seconds)
-    return {"rows": rows, "actors": [int(a) for a in actors], "frames": int(frames.sum()), "fps": fps,
-            "detections": str(detections_path)}
+    return {"rows": rows, "actors": actors, "frames": int(frames.sum()), "fps": fps, "detections": scene.source}
 
 
 #: The lags (frames) at which :func:`diagnose` measures the DLT error's autocorrelation, and the width (frames) of
@@ -297,21 +320,17 @@ def diagnose(directory: str | Path, cameras: str | None = None, detections: str 
     from priortrack.tracking.person import schedule
     from priortrack.tracking.scene import MIRRORED
 
-    calibration_path, truth_path, detections_path = benchmark_files(directory, detections)
-    calibration = read_calibration(calibration_path)
-    truth_file = read_shelf_truth(truth_path)
-    if actors is None:
-        actors = [a for a in SCORED_ACTORS if a in truth_file.ids] or truth_file.ids.tolist()
-    truth = truth_file.eval15()[:, [int(np.flatnonzero(truth_file.ids == a)[0]) for a in actors]]
-    scene = read_scene_detections(detections_path)
+    calibration, everyone, scored, actors, scene = read_benchmark(directory, detections, actors)
     (subset,) = camera_subsets(len(calibration.cameras), cameras)
     own = [matched_cameras(scene, calibration).index(c) for c in subset]
     world = [PinholeCamera.from_calibration(calibration.cameras[c]) for c in subset]
-    at = np.flatnonzero((scene.frames >= 0) & (scene.frames < len(truth)))
+    at = np.flatnonzero((scene.frames >= 0) & (scene.frames < len(everyone)))
     uv, confidence = scene.eval15(min_confidence)
-    truth = truth[scene.frames[at]]                                                    # (F, A, 15, 3)
+    everyone = everyone[scene.frames[at]]                                              # (F, every actor, 15, 3)
+    truth = everyone[:, scored]                                                        # (F, A, 15, 3)
     uv, confidence = uv[own][:, at], confidence[own][:, at]
-    dlt = oracle_dlt(world, uv, confidence, truth)
+    slots = oracle_slots(world, uv, everyone)[..., scored]
+    dlt = oracle_dlt(world, uv, confidence, slots)
     error = dlt - truth
     left, right = truth[..., 9, :], truth[..., 12, :]
     standing = truth.reshape(-1, 15, 3).copy()
@@ -350,7 +369,6 @@ def diagnose(directory: str | Path, cameras: str | None = None, detections: str 
                                  "truth_still_share": float(np.mean(np.linalg.norm(np.diff(truth[:, :, j], axis=0),
                                                                                    axis=-1)[np.isfinite(
                                      np.diff(truth[:, :, j], axis=0)).all(-1)] < 1e-4))}
-    slots = oracle_slots(world, uv, truth)
     swapped = []
     for c, camera in enumerate(world):
         projected = camera.project(truth)[0]                                              # (F, A, 15, 2)
@@ -367,7 +385,7 @@ def diagnose(directory: str | Path, cameras: str | None = None, detections: str 
     moved = (speed * offset[:, None, None])[..., LIMB_JOINTS]
     summary = {key: float(np.mean([r[key] for r in rows.values()])) for key in
                ("rms_mm", "bias_mm", "bias_share", "smoothed_rms_mm", "body_rms_mm", "truth_body_rms_mm")}
-    return {"cameras": [calibration.cameras[c].name for c in subset], "actors": [int(a) for a in actors],
+    return {"cameras": [calibration.cameras[c].name for c in subset], "actors": actors,
             "joints": rows, "summary": summary,
             "swapped_share": float(np.concatenate(swapped).mean()) if swapped else float("nan"),
             "tick_offset_mm": {"mean": 1000 * float(np.nanmean(moved)), "p95": 1000 * float(np.nanpercentile(moved, 95))}}
