@@ -163,6 +163,10 @@ def test_the_scores_of_hand_made_tracks():
     never = np.full((T, 2), -1)
     never[:, 0] = 0
     assert shelf.false_tracks(taken, oracle, never).tolist() == [False, True, False]
+    off = truth + np.where(np.arange(T)[:, None, None, None] < T // 2, 0.01, 0.03) * np.array([1.0, 0, 0])
+    beside = np.where(np.arange(T)[:, None, None, None] < T // 2, truth, np.nan)       # a DLT of the first half
+    row = shelf.score(off, truth, frames, beside)[0]
+    assert row["mpjpe_mm"] == pytest.approx(20.0) and row["mpjpe_beside_mm"] == pytest.approx(10.0)
     estimate[3] = np.nan                                                                  # nobody tracked there
     rows = shelf.score(shelf.nearest_tracks(estimate, truth), truth, frames)
     assert rows[0]["pcp"] == pytest.approx(90.0) and rows[0]["frames"] == T

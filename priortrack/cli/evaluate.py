@@ -190,8 +190,9 @@ def _eval_shelf(args: argparse.Namespace) -> None:
         return
     actors = result["actors"]
     print(f"{result['detections']}, {result['frames']} frames at {result['fps']:g} fps: per actor PCP % of the 8 limb "
-          f"parts and MPJPE mm of the 12 limb joints, the oracle DLT of the same cameras (the true association) in "
-          f"brackets; identity switches and false tracks over every annotated actor; seconds")
+          f"parts, and MPJPE mm of the 12 limb joints where the DLT has them (every frame's after the slash), the "
+          f"oracle DLT of the same cameras (the true association) in brackets; identity switches and false tracks "
+          f"over every annotated actor; seconds")
     print("| cameras | preset | " + " | ".join(f"actor {a} PCP" for a in actors) + " | mean PCP | " +
           " | ".join(f"actor {a} mm" for a in actors) + " | switches | false tracks | s |")
     print("|---|---|" + "---|" * (2 * len(actors) + 4))
@@ -204,7 +205,9 @@ def _eval_shelf(args: argparse.Namespace) -> None:
         people = row["actors"]
         mean = sum(p["pcp"] for p in people) / len(people), sum(p["dlt"]["pcp"] for p in people) / len(people)
         print(f"| {','.join(row['cameras'])} | {row['preset']} | " + " | ".join(cell(p["pcp"], p["dlt"]["pcp"]) for p in people) +
-              f" | {cell(*mean)} | " + " | ".join(cell(p["mpjpe_mm"], p["dlt"]["mpjpe_mm"], 0) for p in people) +
+              f" | {cell(*mean)} | " + " | ".join(f"{cell(p['mpjpe_beside_mm'], p['dlt']['mpjpe_mm'], 0)} / "
+                                                   f"{'—' if p['mpjpe_mm'] is None else round(p['mpjpe_mm'])}"
+                                                   for p in people) +
               f" | {row['switches']} | {len(row['false_tracks'])} | {row['seconds']:.1f} |")
     if args.per_joint:
         for row in result["rows"]:

@@ -11,6 +11,8 @@ the scene tracker follows every person with a preset from the detections alone
   :func:`~priortrack.experiments.metrics.pcp`) and **MPJPE** over the twelve limb joints (shoulders to ankles),
   at every frame with the actor's truth, of the track nearest the actor there (the mean error of those joints:
   the field's convention); a frame with no track at all scores every part wrong.
+- the same MPJPE over the joints and frames the oracle DLT triangulates (``mpjpe_beside_mm``: where two cameras show
+  the joint; a person one camera sees has no DLT, and the tracker's estimate there is scored only in ``mpjpe_mm``),
 - beside the **oracle DLT**: per frame and camera the detections are given to the actors by an optimal assignment
   on their distance to the truth's projection (the median over the limb joints, within :data:`ORACLE_GATE` of the
   actor's size in the image): the true association, which no tracker has; each actor's joints are then the
@@ -196,22 +198,30 @@ def switches(given: np.ndarray) -> np.ndarray:
     return np.array([int((np.diff(column[column >= 0]) != 0).sum()) for column in given.T], dtype=int)
 
 
-def score(estimate: np.ndarray, truth: np.ndarray, frames: np.ndarray) -> list[dict]:
+def score(estimate: np.ndarray, truth: np.ndarray, frames: np.ndarray, beside: np.ndarray | None = None) -> list[dict]:
     """Per actor, at ``frames`` (T,) bool, the scores of the module docstring of their estimate (T, A, 15, 3)
     (the nearest track's, :func:`nearest_tracks`, or the oracle DLT's; NaN where none) against truth
     (T, A, 15, 3): PCP % of the limb parts, MPJPE mm of the limb joints and per limb joint (where both are known),
-    and the frames scored."""
+    and the frames scored; given ``beside`` (T, A, 15, 3), another estimate (the oracle DLT's), also
+    ``mpjpe_beside_mm``: the MPJPE over the joints and frames that one has (where DLT triangulates: two cameras show
+    the joint)."""
     rows = []
     for a in range(truth.shape[1]):
         annotated = frames & np.isfinite(truth[:, a, LIMB_JOINTS]).all(-1).any(-1)
         X, Y = estimate[annotated, a], truth[annotated, a]
         error = 1000 * np.linalg.norm(X[:, LIMB_JOINTS] - Y[:, LIMB_JOINTS], axis=-1)              # (F, 12)
         known = np.isfinite(error)
-        rows.append({"pcp": pcp(X, Y, PCP_LIMB_PARTS), "mpjpe_mm": float(error[known].mean()) if known.any() else None,
-                     "per_joint_mm": {EVAL15_NAMES[j]: (float(error[known[:, k], k].mean()) if known[:, k].any()
-                                                        else None) for k, j in enumerate(LIMB_JOINTS)},
-                     "frames": int(annotated.sum())})
+        row = {"pcp": pcp(X, Y, PCP_LIMB_PARTS), "mpjpe_mm": _mean(error[known]),
+               "per_joint_mm": {EVAL15_NAMES[j]: _mean(error[known[:, k], k]) for k, j in enumerate(LIMB_JOINTS)},
+               "frames": int(annotated.sum())}
+        if beside is not None:
+            row["mpjpe_beside_mm"] = _mean(error[known & np.isfinite(beside[annotated, a][:, LIMB_JOINTS]).all(-1)])
+        rows.append(row)
     return rows
+
+
+def _mean(values: np.ndarray) -> float | None:
+    return float(values.mean()) if len(values) else None
 
 
 def matched_cameras(scene: SceneDetections, calibration: Calibration) -> list[int]:
@@ -271,7 +281,7 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
             ticks = np.flatnonzero((result.frames >= 0) & (result.frames < len(truth)))
             estimate[result.frames[ticks]] = result.joints[ticks]
             given = identities(estimate, everyone)
-            tracker = score(nearest_tracks(estimate, truth), truth, frames)
+            tracker = score(nearest_tracks(estimate, truth), truth, frames, dlt)
             kept = [result.association.person_ids.tolist().index(pid) for pid in result.person_ids]
             false = result.person_ids[false_tracks(result.association.slots[at][:, :, kept], slots,
                                                    given[scene.frames[at]])].tolist()
