@@ -180,3 +180,18 @@ def test_the_filters_association_from_the_command_line_an_interrupt_and_a_filter
         track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60, smooth=True, lag=5),
                     SceneConfig(association="filter"))
     assert not predicts(load_preset("map-gpdm")) and predicts(load_preset("ukf-real"))
+
+
+def test_what_no_filter_takes_stays_the_scene_trackers():
+    """One camera, three slots: person 0's filter wants slot 1, person 1's filter has lost its person (no slot within
+    its gate), person 2 is not deciding (not started) and holds slot 2. Person 1 keeps the scene tracker's slot 0,
+    which no filter took, instead of nothing (a filter given nothing does not come back); where person 0's filter
+    takes person 1's slot, person 1 gets nothing."""
+    from priortrack.tracking.reassociation import assigned
+
+    slots = np.array([[1, 0, 2]])                                           # (C, P): the scene tracker's
+    lost = np.full((1, 3), np.inf)
+    wants_1 = np.array([[np.inf, 1.0, np.inf]])
+    assert assigned({0: wants_1, 1: lost}, slots, 13.8).tolist() == [[1, 0, 2]]
+    wants_0 = np.array([[1.0, np.inf, np.inf]])
+    assert assigned({0: wants_0, 1: lost}, slots, 13.8).tolist() == [[0, -1, 2]]

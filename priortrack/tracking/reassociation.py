@@ -14,7 +14,10 @@ person's filter runs together, tick by tick (the prior's ticks, :func:`~priortra
    in the scene there and whose filter runs, by the scene tracker's cost (the median over joints of the
    Mahalanobis distance with S = P_zz + R, R = (σ_px / confidence)² I in pixels, plus the spread penalty,
    the mirror's where smaller: :func:`~priortrack.tracking.scene.prediction_costs`) and its optimal
-   assignment with a "not this person" option at the gate (:func:`~priortrack.tracking.scene.gated_assignment`);
+   assignment with a "not this person" option at the gate (:func:`~priortrack.tracking.scene.gated_assignment`); a
+   person whose filter takes nothing in a camera keeps the scene tracker's detection there if no filter took it (a
+   filter that lost its person, its prediction covering none of their detections, would otherwise be given none and
+   never come back: Shelf, cameras 1 and 2, ukf-real, an entering person at 735 mm, with it 69);
 4. **update**: each filter corrects with the detections it was given (``correct``; as detected: a swap is
    the filter's own to undo).
 
@@ -66,7 +69,8 @@ def detection_costs(person: PersonRun, uv: np.ndarray, confidence: np.ndarray) -
 
 def assigned(costs: dict[int, np.ndarray], slots: np.ndarray, gate: float) -> np.ndarray:
     """A frame's slots (C, P) with those of the people deciding (``costs``' keys, each with (C, N) costs of the
-    frame's N slots) decided by the optimal assignment; the slots the others hold are offered to nobody."""
+    frame's N slots) decided by the optimal assignment; the slots the others hold are offered to nobody; a deciding
+    person given nothing in a camera keeps their slot there where no one else took it (module docstring, 3)."""
     deciding = list(costs)
     out = slots.copy()
     out[:, deciding] = -1
@@ -77,6 +81,9 @@ def assigned(costs: dict[int, np.ndarray], slots: np.ndarray, gate: float) -> np
         if len(offered):
             for i, n in gated_assignment(cost[:, offered], gate):
                 out[c, deciding[i]] = offered[n]
+        for p in deciding:                       # what no filter took stays the scene tracker's
+            if out[c, p] < 0 <= slots[c, p] and slots[c, p] not in out[c]:
+                out[c, p] = slots[c, p]
     return out
 
 
