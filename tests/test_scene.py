@@ -298,11 +298,11 @@ def test_bad_choices_and_settings_are_named(demo, capsys):
     assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps", "60",
                  "--filter", "ukf-real", "--workers", "2"]) == 2
     assert "--workers tracks several people side by side: give --people" in capsys.readouterr().err
-    with pytest.raises(PriortrackError, match="scene setting association must be one of joints, filter, got 'both'"):
+    with pytest.raises(PriortrackError, match="scene setting association must be one of auto, joints, filter, got 'both'"):
         SceneConfig(association="both")
     for extra, message in ((["--association", "filter"], "--association decides who is who among several people: "
                                                          "give --people"),
-                           (["--people", "all", "--association", "both"], "association must be one of joints, filter")):
+                           (["--people", "all", "--association", "both"], "association must be one of auto, joints, filter")):
         assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps",
                      "60", "--filter", "ukf-real", *extra]) == 2
         assert message in capsys.readouterr().err

@@ -106,7 +106,7 @@ def test_bench_scene_runs_and_refuses_bad_sizes(capsys):
         assert result["people_tracked"] == 2 and result["command_seconds"] > 0 and result["single_person_seconds"] > 0
         assert result["association"] == association
     assert main(["bench", "scene", "--association", "best"]) == 2
-    assert "association must be one of joints, filter, got 'best'" in capsys.readouterr().err
+    assert "association must be one of auto, joints, filter, got 'best'" in capsys.readouterr().err
     assert main(["bench", "scene", "--people", "12"]) == 2
     assert "people must be in [1, 9]" in capsys.readouterr().err
     assert main(["eval", "scenes", "--scenes", "dance"]) == 2

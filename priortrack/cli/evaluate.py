@@ -184,7 +184,7 @@ def _eval_shelf(args: argparse.Namespace) -> None:
               f"and the 30 fps tick that takes it")
         return
     result = eval_shelf(args.directory, args.presets, args.cameras, args.subsets, args.detections, args.fps,
-                        args.actors, args.seed, args.workers)
+                        args.actors, args.seed, args.workers, association=args.association)
     if args.json:
         print_json(result)
         return
@@ -354,6 +354,8 @@ def add_parsers(verbs) -> None:
                        help="the annotated actors scored (default: 0 1 2, the field's, where annotated)")
     shelf.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s)")
     shelf.add_argument("--workers", type=int, help="processes tracking people side by side (default: one per core)")
+    shelf.add_argument("--association", default="auto", metavar="auto|joints|filter",
+                       help="who is who finally decided (track --association; default %(default)s)")
     shelf.add_argument("--per-joint", action="store_true", help="also a table of each limb joint's error per subset")
     shelf.add_argument("--diagnose", action="store_true",
                        help="no tracking: what per-frame DLT's error is made of on --cameras (bias, autocorrelation, "

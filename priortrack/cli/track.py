@@ -243,10 +243,11 @@ def add_parsers(verbs) -> None:
                             "column, a .trc/.bvh per person; the recording colours and labels each")
     track.add_argument("--workers", type=int, metavar="N",
                        help="--people: processes tracking people side by side (default: one per core)")
-    track.add_argument("--association", metavar="joints|filter",
-                       help="--people: who is who finally decided by the scene tracker's joint model (joints, the "
-                            "default: each person then tracked on their own, side by side) or through every "
-                            "person's own filter, all stepped together in one process (filter)")
+    track.add_argument("--association", metavar="auto|joints|filter",
+                       help="--people: who is who finally decided by the scene tracker's joint model (joints: each "
+                            "person then tracked on their own, side by side) or through every person's own filter, "
+                            "all stepped together in one process (filter); auto, the default: filter on 2 or 3 "
+                            "cameras, joints on more")
     track.add_argument("--skeleton", help="the person's own body (.asf, or a .bvh's hierarchy) instead of the "
                                          "template scaled to the detections")
     track.add_argument("--height", type=float, default=1.7,

@@ -42,7 +42,7 @@ from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import PCP_LIMB_PARTS, pcp
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.geometry.triangulation import triangulate
-from priortrack.tracking.scene import median_of_seen
+from priortrack.tracking.scene import SceneConfig, median_of_seen
 
 log = logging.getLogger(__name__)
 
@@ -239,16 +239,18 @@ def matched_cameras(scene: SceneDetections, calibration: Calibration) -> list[in
 
 def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None = None, sizes: list[int] | None = None,
                detections: str | Path | None = None, fps: float = SHELF_FPS, actors=None, seed: int = 0,
-               workers: int | None = None, min_confidence: float = 0.3, cache=None) -> dict:
+               workers: int | None = None, min_confidence: float = 0.3, cache=None, association: str = "auto") -> dict:
     """Every preset on every subset of the benchmark's cameras asked for (:func:`camera_subsets`), scored as the
     module docstring says beside the oracle DLT of the same cameras; ``actors``: the annotated actors scored (None:
-    :data:`SCORED_ACTORS` where annotated, else every one). Returns {"rows": one per subset and preset
+    :data:`SCORED_ACTORS` where annotated, else every one); ``association``: who is who decided as
+    :class:`~priortrack.tracking.scene.SceneConfig` says. Returns {"rows": one per subset and preset
     (cameras, preset, per actor the tracker's and the DLT's scores, switches, false tracks, tracks, seconds),
     "actors", "frames"}."""
     from priortrack.tracking.people import track_scene
     from priortrack.tracking.person import TrackConfig, fitted_once
     from priortrack.tracking.presets import load_preset
 
+    scene_config = SceneConfig(association=association)
     calibration, everyone, scored, actors, scene = read_benchmark(directory, detections, actors)
     truth = everyone[:, scored]                                                        # (T, A, 15, 3)
     subsets = camera_subsets(len(calibration.cameras), cameras, sizes)
@@ -276,7 +278,7 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
                              camera_map={scene.camera_names[o]: calibration.cameras[c].name for o, c in zip(own, subset)})
         for preset in presets:
             fitted_once(preset, cache)                                     # the prior's fit is not the run's time
-            result = track_scene(part, calibration, preset, config, workers=workers)
+            result = track_scene(part, calibration, preset, config, scene_config, workers=workers)
             estimate = np.full((len(truth), len(result.person_ids), 15, 3), np.nan)
             ticks = np.flatnonzero((result.frames >= 0) & (result.frames < len(truth)))
             estimate[result.frames[ticks]] = result.joints[ticks]

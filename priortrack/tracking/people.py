@@ -2,8 +2,9 @@
 (:mod:`priortrack.tracking.scene`), then each kept person's own detections are tracked by the preset
 with their own body (:func:`~priortrack.tracking.person.track_detections`: their bones measured over
 their whole trial, their start, their filter), and the people are gathered on one tick grid. With
-``SceneConfig(association="filter")`` the people's filters are stepped together in this process instead, and
-each tick's detections decided again through their predictions (:mod:`~priortrack.tracking.reassociation`).
+``SceneConfig(association="filter")`` (the default on two or three cameras, :meth:`SceneConfig.decided_by`) the
+people's filters are stepped together in this process instead, and each tick's detections decided again through
+their predictions (:mod:`~priortrack.tracking.reassociation`).
 
 :func:`track_scene` gives a :class:`SceneTrack`: ``joints`` (T, P, 15, 3) in the calibration's world,
 NaN where a person is not in the scene (before they appear, after their track ended and until they
@@ -236,10 +237,15 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     if data_fps is None:
         raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
-    in_lockstep = scene_config.association == "filter" and predicts(preset)          # in this process
-    if scene_config.association == "filter" and not in_lockstep:
+    how = scene_config.decided_by(len(scene.camera_names))
+    if scene_config.association == "auto" and how == "filter" and config.smooth and config.lag is not None:
+        how = "joints"                                # a fixed lag releases ticks the filters' association decides
+    in_lockstep = how == "filter" and predicts(preset)                               # in this process
+    if how == "filter" and not in_lockstep:
         log.info("the %s filter does not predict its detections: each person is tracked on the scene tracker's "
                  "decisions", preset.filter_kind)
+    log.info("who is who: decided by %s", "every person's filter, stepped together" if in_lockstep else
+             "the scene tracker's joint model")
     if in_lockstep and config.smooth and config.lag is not None:
         raise PriortrackError("the filters' association decides each tick as the filters go: smooth the whole run "
                               "(--smooth without --lag), or decide by the joint model (--association joints)")

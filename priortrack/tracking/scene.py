@@ -54,7 +54,9 @@ log = logging.getLogger(__name__)
 #: The χ² quantile (2 degrees of freedom, 99.9 %) a detection's median joint distance must be under.
 GATE = 13.8
 #: How each tick's detections are finally decided (:class:`SceneConfig`).
-ASSOCIATIONS = ("joints", "filter")
+ASSOCIATIONS = ("auto", "joints", "filter")
+#: A rig of this many cameras or fewer decides each tick through the people's filters by default (:class:`SceneConfig`).
+FEW_VIEWS = 3
 #: A tentative person's next proposal lies within this median joint distance (metres) of the last.
 FOLLOW_M = 0.3
 #: A returning person's bone lengths within this relative RMS difference of an ended person's are theirs.
@@ -79,14 +81,16 @@ class SceneConfig:
         birth_s: seconds of proposals that confirm a new person.
         birth_views: cameras a proposal needs to start a person (capped at the rig's camera count).
         death_s: seconds unseen after which a person's track ends.
-        association: "joints" (the default): the scene tracker's decisions are kept and each person's filter
-            runs on their own (in worker processes, side by side); "filter": each tick's detections are decided
-            again through every person's own filter (:mod:`~priortrack.tracking.reassociation`), the people
-            tracked in lockstep in this process. Measured (``eval scenes``, ``bench scene``;
-            docs/results/2026-11-27-scenes.md): with ukf-real both give the same scores (0–3 person-frames a run
-            decided otherwise); with pf-lie "filter" is worse where the particle filter loses its person (its
-            prediction then covers none of their detections, it is given none and does not recover: IDF1 0.88
-            against 0.997); and the whole command takes 1.4× as long (one process): hence "joints" by default.
+        association: "joints": the scene tracker's decisions are kept and each person's filter runs on their own
+            (in worker processes, side by side); "filter": each tick's detections are decided again through every
+            person's own filter (:mod:`~priortrack.tracking.reassociation`), the people tracked in lockstep in this
+            process; "auto" (the default, :meth:`decided_by`): "filter" on a rig of :data:`FEW_VIEWS` cameras or
+            fewer, else "joints". Measured: on four cameras (``eval scenes``, one seed) both give the same scores
+            (ukf-real, pf-lie: 0 switches, 0 false tracks, IDF1 1.000), "filter" in 1.4× the time (one process);
+            on two and three of Shelf's real cameras (``eval shelf``, ukf-real) "filter" holds people the joint
+            model loses (a joint seen by one camera drifts along its ray; a body does not): cameras 0, 1, 4 actor 0
+            151 → 59 mm, 0, 1 actor 0 211 → 63, 1, 3, 4 75 → 58, the other subsets within a few mm
+            (docs/results/2026-11-28-shelf.md).
     """
 
     pair_gate_m: float = PAIR_GATE_M
@@ -94,7 +98,14 @@ class SceneConfig:
     birth_s: float = 0.1
     birth_views: int = 3
     death_s: float = 0.5
-    association: str = "joints"
+    association: str = "auto"
+
+    def decided_by(self, cameras: int) -> str:
+        """"joints" or "filter": the association a rig of ``cameras`` cameras gets (``association``, where "auto":
+        "filter" on :data:`FEW_VIEWS` cameras or fewer)."""
+        if self.association != "auto":
+            return self.association
+        return "filter" if cameras <= FEW_VIEWS else "joints"
 
     def __post_init__(self):
         for name in ("pair_gate_m", "gate", "birth_s", "death_s"):
