@@ -158,30 +158,36 @@ def _eval_scenes(args: argparse.Namespace) -> None:
               f"{c['min_pcp']:.1f} | {c['mpjpe_mm']:.1f} | {c['max_ratio_to_alone']:.2f} |")
 
 
+def _shelf_diagnosis(args: argparse.Namespace) -> None:
+    from priortrack.experiments.shelf import LAGS, SMOOTHING_WIDTH, diagnose
+
+    if args.subsets:
+        raise PriortrackError("--diagnose looks at one subset of cameras: give --cameras, not --subsets")
+    result = diagnose(args.directory, args.cameras, args.detections, args.fps, args.actors)
+    if args.json:
+        print_json(result)
+        return
+    print(f"per-frame DLT given the true association, cameras {','.join(result['cameras'])}, actors "
+          f"{', '.join(map(str, result['actors']))}: what its error is made of (mm; autocorrelation of the error "
+          f"less its bias at {', '.join(map(str, LAGS))} frames; smoothed: a centred {SMOOTHING_WIDTH}-frame mean; "
+          f"body: the tracker's body fitted to the DLT, and to the truth; still: annotation unchanged from the last frame)")
+    print("| joint | RMS | bias | bias share | autocorrelation | smoothed | body on DLT | body on truth | still |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, r in list(result["joints"].items()) + [("mean", result["summary"])]:
+        ac = " ".join(f"{v:.2f}" for v in r["autocorrelation"]) if "autocorrelation" in r else ""
+        still = f"{100 * r['truth_still_share']:.0f}%" if "truth_still_share" in r else ""
+        print(f"| {name} | {r['rms_mm']:.1f} | {r['bias_mm']:.1f} | {100 * r['bias_share']:.0f}% | {ac} | "
+              f"{r['smoothed_rms_mm']:.1f} | {r['body_rms_mm']:.1f} | {r['truth_body_rms_mm']:.1f} | {still} |")
+    print(f"left-right swapped camera-detections: {100 * result['swapped_share']:.2f}%; joints move "
+          f"{result['tick_offset_mm']['mean']:.1f} mm (p95 {result['tick_offset_mm']['p95']:.1f}) between a frame "
+          f"and the 30 fps tick that takes it")
+
+
 def _eval_shelf(args: argparse.Namespace) -> None:
-    from priortrack.experiments.shelf import LAGS, SMOOTHING_WIDTH, diagnose, eval_shelf
+    from priortrack.experiments.shelf import eval_shelf
 
     if args.diagnose:
-        if args.subsets:
-            raise PriortrackError("--diagnose looks at one subset of cameras: give --cameras, not --subsets")
-        result = diagnose(args.directory, args.cameras, args.detections, args.fps, args.actors)
-        if args.json:
-            print_json(result)
-            return
-        print(f"per-frame DLT given the true association, cameras {','.join(result['cameras'])}, actors "
-              f"{', '.join(map(str, result['actors']))}: what its error is made of (mm; autocorrelation of the error "
-              f"less its bias at {', '.join(map(str, LAGS))} frames; smoothed: a centred {SMOOTHING_WIDTH}-frame mean; "
-              f"body: the tracker's body fitted to the DLT, and to the truth; still: annotation unchanged from the last frame)")
-        print("| joint | RMS | bias | bias share | autocorrelation | smoothed | body on DLT | body on truth | still |")
-        print("|---|---|---|---|---|---|---|---|---|")
-        for name, r in list(result["joints"].items()) + [("mean", result["summary"])]:
-            ac = " ".join(f"{v:.2f}" for v in r["autocorrelation"]) if "autocorrelation" in r else ""
-            still = f"{100 * r['truth_still_share']:.0f}%" if "truth_still_share" in r else ""
-            print(f"| {name} | {r['rms_mm']:.1f} | {r['bias_mm']:.1f} | {100 * r['bias_share']:.0f}% | {ac} | "
-                  f"{r['smoothed_rms_mm']:.1f} | {r['body_rms_mm']:.1f} | {r['truth_body_rms_mm']:.1f} | {still} |")
-        print(f"left-right swapped camera-detections: {100 * result['swapped_share']:.2f}%; joints move "
-              f"{result['tick_offset_mm']['mean']:.1f} mm (p95 {result['tick_offset_mm']['p95']:.1f}) between a frame "
-              f"and the 30 fps tick that takes it")
+        _shelf_diagnosis(args)
         return
     result = eval_shelf(args.directory, args.presets, args.cameras, args.subsets, args.detections, args.fps,
                         args.actors, args.seed, args.workers, association=args.association)
