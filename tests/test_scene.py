@@ -306,3 +306,15 @@ def test_bad_choices_and_settings_are_named(demo, capsys):
         assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps",
                      "60", "--filter", "ukf-real", *extra]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_the_filters_decide_who_is_who_by_default_on_two_or_three_cameras():
+    """SceneConfig's "auto": the filters' association where views are few (2, 3 cameras), the joint model's on more;
+    an explicit choice holds on any rig."""
+    from priortrack.tracking.scene import FEW_VIEWS
+
+    auto = SceneConfig()
+    assert auto.association == "auto" and FEW_VIEWS == 3
+    assert [auto.decided_by(c) for c in (2, 3, 4, 5)] == ["filter", "filter", "joints", "joints"]
+    assert SceneConfig(association="joints").decided_by(2) == "joints"
+    assert SceneConfig(association="filter").decided_by(5) == "filter"
