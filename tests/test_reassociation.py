@@ -195,3 +195,25 @@ def test_what_no_filter_takes_stays_the_scene_trackers():
     assert assigned({0: wants_1, 1: lost}, slots, 13.8).tolist() == [[1, 0, 2]]
     wants_0 = np.array([[1.0, np.inf, np.inf]])
     assert assigned({0: wants_0, 1: lost}, slots, 13.8).tolist() == [[0, -1, 2]]
+
+
+def test_a_second_filter_on_one_person_is_found_after_half_a_second():
+    """Three runs: people 0 and 1 at the same place, person 2 a metre off. After ``needed`` ticks together the later
+    started of 0 and 1 (person 1) is a second track of one person, not before, and person 2 never; a tick apart resets
+    the count."""
+    from types import SimpleNamespace
+
+    from priortrack.tracking.reassociation import _duplicates
+
+    body = np.random.default_rng(0).normal(0, 0.3, (15, 3))
+    runs = {p: SimpleNamespace(estimates=np.tile(body + [d, 0, 0], (5, 1, 1)), done=5)
+            for p, d in ((0, 0.0), (1, 0.05), (2, 1.0))}
+    first, together, ids = {0: 0, 1: 30, 2: 10}, {}, np.array([7, 8, 9])
+    assert _duplicates([0, 1, 2], runs, first, together, 3, ids) == set()
+    assert _duplicates([0, 1, 2], runs, first, together, 3, ids) == set()
+    runs[1].estimates[-1] += [0.5, 0, 0]                                   # apart for a tick
+    assert _duplicates([0, 1, 2], runs, first, together, 3, ids) == set() and together[0, 1] == 0
+    runs[1].estimates[-1] -= [0.5, 0, 0]
+    for _ in range(2):
+        assert _duplicates([0, 1, 2], runs, first, together, 3, ids) == set()
+    assert _duplicates([0, 1, 2], runs, first, together, 3, ids) == {1}

@@ -19,7 +19,12 @@ person's filter runs together, tick by tick (the prior's ticks, :func:`~priortra
    filter that lost its person, its prediction covering none of their detections, would otherwise be given none and
    never come back: Shelf, cameras 1 and 2, ukf-real, an entering person at 735 mm, with it 69);
 4. **update**: each filter corrects with the detections it was given (``correct``; as detected: a swap is
-   the filter's own to undo).
+   the filter's own to undo);
+5. **a second track of one person**: two filters whose estimates stay within the association's ``DUPLICATE_M``
+   (median over the joints) for :data:`DUPLICATE_S` follow one person (the joint model's track of someone followed a
+   person entering beside them, and a new track was born on the first: both filters then share the first one's
+   detections, and their identity flips from frame to frame); the later started is given no more detections and
+   ends as the scene tracker ends an unseen person.
 
 The detections of a person whose filter has not started yet (their start ticks), or who is not among the
 people tracked, stay theirs and are offered to nobody else. Frames the prior's ticks skip (60 fps data, a
@@ -43,12 +48,16 @@ import numpy as np
 
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.filters.snapshot import KNOWN_FRAMES
+from priortrack.tracking.association import DUPLICATE_M, median_distance
 from priortrack.tracking.motion import SIGMA_PX
 from priortrack.tracking.person import PersonRun
 from priortrack.tracking.presets import Preset, filter_class
 from priortrack.tracking.scene import GATE, SceneAssociation, gated_assignment, prediction_costs
 
 log = logging.getLogger(__name__)
+
+#: Two people's filters whose estimates stay within DUPLICATE_M this long (seconds) follow one person.
+DUPLICATE_S = 0.5
 
 
 def predicts(preset: Preset) -> bool:
@@ -127,24 +136,30 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
     first = {p: K - len(run.index) for p, run in people.items()}
     runs = {p: run.filt.started(run.known, len(run.z), run.config.keep_snapshots, None, run.config.snapshot_every,
                                 run.on_step, **run.initial) for p, run in people.items()}
-    changed = 0
+    changed, ended, together = 0, set(), {}
+    needed = max(1, int(round(DUPLICATE_S * next(iter(people.values())).prior.fps))) if people else 1
     try:
         for k in range(K):
             running = [p for p in people if k >= first[p] + KNOWN_FRAMES]
             f = int(index[k])
+            for p in ended:                                     # a second track of someone: nobody's detections
+                slots[max(f, 0):, :, p] = -1
             if f < 0:                                                       # a tick without a frame
                 for p in running:
                     runs[p].record(people[p].filt.step(np.full((len(uv), 15, 3), np.nan)))
             else:
                 for p in running:
                     people[p].filt.advance()
-                costs = {p: detection_costs(people[p], uv[:, f], confidence[:, f]) for p in running if present[f, p]}
+                costs = {p: detection_costs(people[p], uv[:, f], confidence[:, f]) for p in running
+                         if present[f, p] and p not in ended}
                 if costs:
                     decided = assigned(costs, slots[f], gate)
                     changed += int((decided != slots[f]).any(axis=0).sum())
                     slots[f] = decided
                 for p in running:
                     runs[p].record(people[p].filt.correct(observation(uv[:, f], confidence[:, f], slots[f, :, p])))
+            ended |= _duplicates([p for p in running if p not in ended], runs, first, together, needed,
+                                 association.person_ids)
             if progress:
                 progress(k, K)
     except KeyboardInterrupt:
@@ -156,3 +171,22 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
     for p, run in people.items():
         run.observe(out.detections_of(scene, p))
     return out, {p: run.result() for p, run in runs.items()}
+
+
+def _duplicates(running: list[int], runs: dict, first: dict[int, int], together: dict, needed: int,
+                ids: np.ndarray) -> set[int]:
+    """The people whose filter has followed another's person for ``needed`` ticks running (their latest estimates
+    within :data:`~priortrack.tracking.association.DUPLICATE_M`, median over the joints; ``together`` counts each
+    pair's ticks, updated here): of each such pair the later started, a second track of one person (module
+    docstring, 5)."""
+    out = set()
+    for i, p in enumerate(running):
+        for q in running[i + 1:]:
+            near = median_distance(runs[p].estimates[runs[p].done - 1], runs[q].estimates[runs[q].done - 1]) < DUPLICATE_M
+            together[p, q] = together.get((p, q), 0) + 1 if near else 0
+            if together[p, q] >= needed:
+                later = max((p, q), key=lambda r: (first[r], r))
+                out.add(later)
+                log.info("person %d has followed person %d's detections for %d ticks: a second track of one person, "
+                         "given no more detections", ids[later], ids[p + q - later], needed)
+    return out
