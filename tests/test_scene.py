@@ -318,3 +318,26 @@ def test_the_filters_decide_who_is_who_by_default_on_two_or_three_cameras():
     assert [auto.decided_by(c) for c in (2, 3, 4, 5)] == ["filter", "filter", "joints", "joints"]
     assert SceneConfig(association="joints").decided_by(2) == "joints"
     assert SceneConfig(association="filter").decided_by(5) == "filter"
+
+
+def test_a_person_whose_detector_never_gives_the_head_is_re_identified_by_the_other_bones():
+    """BODY_25 without ears never shows the head: the signature is each bone's median over the frames that measured
+    it (the head NaN), and a returning person is matched on the bones both signatures have."""
+    from types import SimpleNamespace
+
+    from priortrack.tracking.motion import JointKalman
+    from priortrack.tracking.scene import REID_MIN_BONES, ProposalInitiator, Track, bone_lengths
+
+    body = np.random.default_rng(0).normal(0, 0.3, (15, 3)) + [0, 0, 1]
+    bones = bone_lengths(body)
+    headless = np.where(np.arange(14) == 1, np.nan, bones)                            # bone 1: neck to head
+    rows = [headless * (1 + d) for d in (-0.02, 0.0, 0.03)]
+    old = Track(3, JointKalman(body), 0, 40, bones=rows)
+    assert np.isnan(old.signature[1]) and np.allclose(old.signature[[0, 2]], bones[[0, 2]])
+    back = Track(-1, JointKalman(body + [0.3, 0, 0]), 60, 60, bones=[headless])
+    scene = SimpleNamespace(frame=60, ended=[old], next_id=5)
+    assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, back) == 3 and not scene.ended
+    few = np.full(14, np.nan)
+    few[:REID_MIN_BONES - 1] = bones[:REID_MIN_BONES - 1]
+    scene = SimpleNamespace(frame=60, ended=[Track(3, JointKalman(body), 0, 40, bones=rows)], next_id=5)
+    assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, Track(-1, JointKalman(body), 60, 60, bones=[few])) == 5

@@ -61,8 +61,9 @@ FEW_VIEWS = 3
 FOLLOW_M = 0.3
 #: A returning person's bone lengths within this relative RMS difference of an ended person's are theirs.
 REID_BONES = 0.1
-#: … and their pelvis within this distance (metres) plus 1.5 m/s times the time away.
-REID_M = 1.0
+#: … and their pelvis within this distance (metres) plus 1.5 m/s times the time away; the two signatures compared
+#: over the bones both measured, at least this many of the 14.
+REID_M, REID_MIN_BONES = 1.0, 7
 
 
 def bone_lengths(joints: np.ndarray) -> np.ndarray:
@@ -121,8 +122,10 @@ class SceneConfig:
 
 @dataclass
 class Track:
-    """One person: ``id``, the motion model, the frame first and last seen, the bone lengths of the
-    frames where every bone was triangulated (their median is the person's signature), and, for a person
+    """One person: ``id``, the motion model, the frame first and last seen, the bone lengths (14,) of the
+    frames where two cameras or more saw them, NaN for a bone whose ends two cameras did not both show (their median
+    per bone is the person's signature: a detector that never gives the head still signs with the other 13), and,
+    for a person
     just born, the proposals that confirmed them ({frame: ({camera: detection index}, joints (15, 3))})."""
 
     id: int
@@ -134,7 +137,18 @@ class Track:
 
     @property
     def signature(self) -> np.ndarray | None:
-        return np.median(self.bones, axis=0) if self.bones else None
+        """(14,) the median of each bone over the frames that measured it (NaN: none did); None where no bone was."""
+        if not self.bones:
+            return None
+        bones = np.stack(self.bones)
+        measured = np.isfinite(bones)
+        if not measured.any():
+            return None
+        ordered = np.sort(np.where(measured, bones, np.inf), axis=0)
+        k = measured.sum(axis=0)
+        low = np.take_along_axis(ordered, np.maximum(k - 1, 0)[None] // 2, axis=0)[0]
+        high = np.take_along_axis(ordered, np.minimum(k // 2, len(bones) - 1)[None], axis=0)[0]
+        return np.where(k > 0, (low + high) / 2, np.nan)
 
 
 def _mirrored() -> np.ndarray:
@@ -302,7 +316,7 @@ class ProposalInitiator:
         joints = history[-1]
         velocity = (history[-1] - history[-2]) * self.fps if len(history) > 1 else None
         track = Track(-1, self.motion(joints, velocity), min(views), scene.frame, birth=views)
-        track.bones = [b for b in bone_lengths(np.stack(history)) if np.isfinite(b).all()]
+        track.bones = [b for b in bone_lengths(np.stack(history)) if np.isfinite(b).any()]
         track.id = self._identity(scene, track)
         return track
 
@@ -313,10 +327,13 @@ class ProposalInitiator:
         for old in scene.ended:
             if old.signature is None or signature is None:
                 continue
+            both = np.isfinite(signature) & np.isfinite(old.signature)
+            if both.sum() < REID_MIN_BONES:
+                continue
             away = (scene.frame - old.last_seen) / self.fps
             if np.linalg.norm(old.motion.joints[0] - track.motion.joints[0]) > REID_M + 1.5 * away:
                 continue
-            gap = float(np.sqrt(np.mean(((signature - old.signature) / old.signature) ** 2)))
+            gap = float(np.sqrt(np.mean(((signature[both] - old.signature[both]) / old.signature[both]) ** 2)))
             if gap < best_gap:
                 best, best_gap = old, gap
         if best is None:
@@ -430,9 +447,12 @@ class SceneTracker:
             if views:
                 track.last_seen = self.frame
                 if len(views) >= 2:
-                    bones = bone_lengths(track.motion.joints)
-                    if np.isfinite(bones).all():
-                        track.bones.append(bones)
+                    shown = sum(np.isfinite(xy[c][n][order[c]]).all(-1) & (confidence[c][n][order[c]] > 0)
+                                for c, (n, _) in views.items())                 # (15,) cameras showing each joint
+                    child = np.flatnonzero(EVAL15_PARENTS >= 0)
+                    measured = (shown[child] >= 2) & (shown[EVAL15_PARENTS[child]] >= 2)
+                    if measured.any():
+                        track.bones.append(np.where(measured, bone_lengths(track.motion.joints), np.nan))
         for track in self.deleter(self.live, self.frame):
             self.live.remove(track)
             self.ended.append(track)
