@@ -615,3 +615,17 @@ def test_a_bad_track_config_is_named_when_it_is_made(settings, message):
     with several it is unused, and a wrong one is still a mistake worth naming)."""
     with pytest.raises(PriortrackError, match=message):
         TrackConfig(**settings)
+
+
+def test_no_fit_check_skips_the_fit_check(tmp_path, capsys, monkeypatch):
+    """--no-fit-check (TrackConfig(fit_check=False)): the run never judges its motion under the prior (whose reference
+    may have to be fitted first: issue 60, item 1); the summary's fit_check is null. A motion's track refuses it."""
+    import priortrack.tracking.person as person
+
+    monkeypatch.setattr(person, "tracked_fit_check", lambda *a, **k: pytest.fail("the fit-check ran"))
+    argv = ["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
+            "--filter", "ukf-real", "--no-fit-check", "--json"]
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["fit_check"] is None
+    assert main(["track", "cmu:07_10", "--filter", "ukf-real", "--no-fit-check"]) == 2
+    assert "--no-fit-check is for tracking --detections" in capsys.readouterr().err

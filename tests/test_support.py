@@ -72,10 +72,27 @@ def test_the_tracker_says_when_the_tracked_motion_is_outside_the_prior():
 
     walk = run_real_format("pf-lie", "cmu:07_10", seed=0)
     assert walk["fit_check"] == "in support" and walk["better_prior"] is None
-    better = better_fitting(load_motion("cmu:49_18"), load_preset("pf-lie"), below=1.0)
-    assert better["preset"] == "pf-lie-general" and better["verdict"] == "in support", better
-    assert better_fitting(load_motion("cmu:49_18"), load_preset("pf-lie"), below=0.0) is None   # none fits better
+    better, skipped = better_fitting(load_motion("cmu:49_18"), load_preset("pf-lie"), below=1.0, fit=True)
+    assert better["preset"] == "pf-lie-general" and better["verdict"] == "in support" and skipped == [], better
+    assert better_fitting(load_motion("cmu:49_18"), load_preset("pf-lie"), below=0.0) == (None, [])  # none fits better
     assert run_real_format("pf-gpdm", "cmu:07_10", seed=0)["fit_check"] is None
+
+
+def test_a_tracking_run_does_not_fit_an_alternative_prior_it_can_only_name(tmp_path, monkeypatch):
+    """issue 60, item 1: a run's fit-check compares the tracked motion only with alternatives whose prior and reference
+    the cache holds; pf-lie-general's took half an hour after the last tick, before anything was written. With an empty
+    cache nothing is fitted (fit_prior is never called) and both alternatives are named as not compared."""
+    from priortrack.data.load import load_motion
+    import priortrack.priors.support as support
+    from priortrack.tracking.person import better_fitting
+    from priortrack.tracking.presets import load_preset
+
+    import priortrack.tracking.presets as presets
+
+    for module in (support, presets):
+        monkeypatch.setattr(module, "fit_prior", lambda *a, **k: pytest.fail("a run fitted an alternative prior"))
+    best, skipped = better_fitting(load_motion("cmu:49_18"), load_preset("ukf-real"), below=1.0, cache=tmp_path)
+    assert best is None and skipped == ["pf-lie", "pf-lie-general"]
 
 
 def test_the_mismatch_flag_needs_the_prior_to_find_the_step_implausible(tmp_path):

@@ -22,7 +22,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.viz.replay import replay
 
     for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory",
-                 "workers", "association"):                                                   # (--height has a default)
+                 "workers", "association", "no_fit_check"):                                   # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -112,7 +112,7 @@ def _track_detections(args: argparse.Namespace) -> None:
     config = TrackConfig(fps=args.fps, up=args.up, camera_map=camera_map, min_confidence=args.min_confidence,
                          seed=args.seed, height=args.height, device=args.device,
                          memory=DEFAULT_MEMORY if args.memory is None else parse_memory(args.memory),
-                         **_smoothing(args))
+                         fit_check=not args.no_fit_check, **_smoothing(args))
     skeleton = _skeleton(args.skeleton) if args.skeleton else None
     if args.people is not None:
         _track_scene(args, config)
@@ -250,6 +250,9 @@ def add_parsers(verbs) -> None:
                             "cameras, joints on more")
     track.add_argument("--skeleton", help="the person's own body (.asf, or a .bvh's hierarchy) instead of the "
                                          "template scaled to the detections")
+    track.add_argument("--no-fit-check", action="store_true",
+                       help="--detections: do not judge the tracked motion under the prior after the last tick (its "
+                            "reference is fitted once if not cached; mismatch flags then from the detections alone)")
     track.add_argument("--height", type=float, default=1.7,
                        help="the person's standing height, metres (one camera: the body's size and depth; 1.7)")
     track.add_argument("--out", action="append",

@@ -77,21 +77,15 @@ def reference(preset, cache: Path | None = None) -> np.ndarray:
     """ℓ_t on held-out frames of the preset's training data (module docstring): two-fold cross-fits (with
     the preset's defensive mixture, if it has one: the density it tracks with), cached as
     ``support<version>-<kind>-<key>[-defensive<ε>].npz`` in the prior cache, verified by its digest as the priors are."""
-    from priortrack.priors.cache import cache_dir, read_cached, write_cached
+    from priortrack.priors.cache import read_cached, write_cached
 
-    if preset.prior_file is not None:
-        raise PriortrackError(f"preset {preset.name!r} names a prior file: its training motions are not known, so "
-                              f"give reference motions of its kind (--reference)")
-    motions = list(preset.training_motions)
-    mixed = f"-defensive{preset.defensive:g}" if preset.defensive else ""
-    path = (cache_dir() if cache is None else Path(cache)) / \
-        f"support{REFERENCE_VERSION}-{preset.prior_kind}-{preset.cache_key}{mixed}.npz"
+    path = reference_path(preset, cache)
     stored = read_cached(path, lambda p: read_npz(p, REFERENCE_BYTES, "support reference")["values"],
                          "support reference")
     if stored is not None:
         return stored
     values = []
-    for fit_on, held_out in _folds(motions):
+    for fit_on, held_out in _folds(list(preset.training_motions)):
         fitted = fit_prior(preset.prior_kind, fit_on, fps=preset.fps, **preset.prior_options)
         fitted = fitted if preset.annealing == 1.0 else fitted.annealed(preset.annealing)
         if preset.defensive:                    # the density the preset tracks with: its defensive mixture
@@ -105,6 +99,18 @@ def reference(preset, cache: Path | None = None) -> np.ndarray:
     values = np.concatenate(values)
     write_cached(path, lambda p: np.savez(p, values=values), "support reference")
     return values
+
+
+def reference_path(preset, cache: Path | None = None) -> Path:
+    """Where the prior cache keeps the preset's :func:`reference` (a preset naming a prior file has none: refused)."""
+    from priortrack.priors.cache import cache_dir
+
+    if preset.prior_file is not None:
+        raise PriortrackError(f"preset {preset.name!r} names a prior file: its training motions are not known, so "
+                              f"give reference motions of its kind (--reference)")
+    mixed = f"-defensive{preset.defensive:g}" if preset.defensive else ""
+    return (cache_dir() if cache is None else Path(cache)) / \
+        f"support{REFERENCE_VERSION}-{preset.prior_kind}-{preset.cache_key}{mixed}.npz"
 
 
 def _folds(motions: list[Motion]) -> list[tuple[list[Motion], list[Motion]]]:

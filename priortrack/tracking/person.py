@@ -483,6 +483,8 @@ class TrackConfig:
         memory: bytes of the whole-run smoother's steps held in memory, the rest spilled to a temporary
             folder (:class:`~priortrack.filters.step_store.StepStore`).
         cache: the prior cache's folder (None: :func:`~priortrack.priors.cache.cache_dir`).
+        fit_check: judge the tracked motion under the prior (:func:`tracked_fit_check`); without it the mismatch flag
+            is the likelihood's and the triangulation's alone.
     """
 
     fps: float | None = None
@@ -501,6 +503,7 @@ class TrackConfig:
     device: str = "cpu"
     memory: int = DEFAULT_MEMORY
     cache: Path | str | None = None
+    fit_check: bool = True
 
     def __post_init__(self):
         if self.fps is not None and not (isinstance(self.fps, (int, float)) and 0 < self.fps < 1e4):
@@ -720,7 +723,8 @@ class PersonRun:
                                 filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
                                 gated=gated, pose_spread=self.pose, bones_unmeasured=self.unmeasured,
                                 held_out_ratio=np.full(T, np.nan) if held_out is None else held_out)
-        result.fit_check, implausible = tracked_fit_check(self.preset, self.prior, result, self.config.cache)
+        result.fit_check, implausible = (tracked_fit_check(self.preset, self.prior, result, self.config.cache)
+                                         if self.config.fit_check else (None, None))
         if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
             result.mismatch = result.mismatch & implausible
         unlikely = result.mismatch.copy()
@@ -730,14 +734,16 @@ class PersonRun:
         if result.fit_check is not None and result.fit_check["verdict"] != "in support":
             from priortrack.priors.support import verdict_rule
 
-            better = result.fit_check.get("better_prior")
+            better, unfitted = result.fit_check.get("better_prior"), result.fit_check.get("not_compared", [])
             log.warning("fit-check: the tracked motion is %s the %s prior's support (%.0f%% of its frames below the "
                         "1st percentile of held-out training frames; %s); its estimate leans on a prior that does not "
-                        "know the motion: %s", "outside" if result.fit_check["verdict"] == "outside" else "partly in",
+                        "know the motion: %s%s", "outside" if result.fit_check["verdict"] == "outside" else "partly in",
                         self.preset.prior_kind, 100 * result.fit_check["below_p1_fraction"], verdict_rule(),
                         "no shipped prior fits it better; fit one on motion like it (priortrack fit)" if better is None else
                         f"the {better['preset']} preset's prior fits it better ({better['verdict']}, "
-                        f"{100 * better['below_p1_fraction']:.0f}% of its frames below): track with --filter {better['preset']}")
+                        f"{100 * better['below_p1_fraction']:.0f}% of its frames below): track with --filter {better['preset']}",
+                        "" if not unfitted else f" (not compared, their priors not fitted yet: {', '.join(unfitted)}; "
+                                                f"a run with that --filter fits one once, minutes)")
         if result.mismatch_fraction > 0:
             log.warning(mismatch_message(result.mismatch, unlikely, lost, self.preset.prior_kind,
                                          implausible is not None, worse))
@@ -777,7 +783,7 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack,
     a balance). The per-tick triangulation was tried as the motion judged instead (a prior-free
     estimate): its detector noise made a held-out walk "outside". The references are read from the run's
     prior ``cache`` (None: the default), where :func:`fitted_once` puts them."""
-    from priortrack.priors.support import frame_log_density, reference, verdict
+    from priortrack.priors.support import frame_log_density, reference, reference_path, verdict
 
     ticks = np.isfinite(result.body_joints).all(axis=(1, 2))
     reason = no_fit_check(preset) or (f"{int(ticks.sum())} tracked ticks" if ticks.sum() < MIN_FIT_CHECK_TICKS
@@ -785,6 +791,10 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack,
     if reason is not None:
         log.info("no fit-check of the tracked motion: %s", reason)
         return None, None
+    if not reference_path(preset, cache).is_file():
+        log.warning("fit-check: fitting the %s prior's held-out reference once (two cross-fits of its %d training "
+                    "motions: seconds for diffusion, minutes for a learned prior; cached for later runs; --no-fit-check "
+                    "skips the fit-check)", preset.prior_kind, len(preset.train))
     motion = inverse_kinematics(result.body_joints if ticks.all() else result.body_joints[ticks], result.fps,
                                 skeleton=result.skeleton, name="tracked", pose=result.pose_spread)
     ell, reference_values = frame_log_density(prior, motion), reference(preset, cache)
@@ -793,27 +803,32 @@ def tracked_fit_check(preset: Preset, prior, result: DetectionTrack,
     implausible[np.flatnonzero(ticks)[1:]] = ell < np.percentile(reference_values, 1)
     check = {key: found[key] for key in ("verdict", "below_p1_fraction", "median_percentile")}
     if found["verdict"] != "in support":
-        check["better_prior"] = better_fitting(motion, preset, found["below_p1_fraction"], cache)
+        check["better_prior"], check["not_compared"] = better_fitting(motion, preset, found["below_p1_fraction"], cache)
     return check, implausible
 
 
-def better_fitting(motion, preset: Preset, below: float, cache=None) -> dict | None:
+def better_fitting(motion, preset: Preset, below: float, cache=None, fit: bool = False) -> tuple[dict | None, list[str]]:
     """The shipped preset of :data:`ALTERNATIVE_PRIORS` (not ``preset`` itself) whose prior finds ``motion``
     most plausible: the smallest share of its frames below that prior's held-out 1st percentile
     (:mod:`priortrack.priors.support`), if smaller than ``below``, the running preset's share; else None.
-    Returns {"preset", "verdict", "below_p1_fraction"}. A first call fits the alternative's prior and its
-    reference (cached like every prior)."""
-    from priortrack.priors.support import frame_log_density, reference, verdict
+    Returns ({"preset", "verdict", "below_p1_fraction"} or None, the alternatives not compared). An alternative whose
+    prior or reference the cache does not hold is fitted only with ``fit`` (``eval fit-check``); a tracking run
+    does not wait for it (pf-lie-general's 23 activities took over 30 minutes on 2 cores, after every tick was
+    tracked and before any result was written), it names it instead."""
+    from priortrack.priors.support import frame_log_density, reference, reference_path, verdict
 
-    best = None
+    best, skipped = None, []
     for name in ALTERNATIVE_PRIORS:
         if name == preset.name:
             continue
         alternative = load_preset(name)
+        if not fit and not (alternative.prior_path(cache).is_file() and reference_path(alternative, cache).is_file()):
+            skipped.append(name)
+            continue
         found = verdict(frame_log_density(alternative.prior(cache), motion), reference(alternative, cache))
         if found["below_p1_fraction"] < (below if best is None else best["below_p1_fraction"]):
             best = {"preset": name, "verdict": found["verdict"], "below_p1_fraction": found["below_p1_fraction"]}
-    return best
+    return best, skipped
 
 
 def pose_spread(preset: Preset, skeleton: Skeleton) -> PoseSpread | None:

@@ -220,6 +220,12 @@ class Preset:
                            prior_file=None, defensive=0.0).prior(cache)
         return DefensiveMixture(prior, fallback, self.defensive)
 
+    def prior_path(self, cache: Path | None = None) -> Path:
+        """Where the prior cache keeps the preset's fitted prior (its ``file`` where it names one)."""
+        if self.prior_file is not None:
+            return Path(self.prior_file)
+        return (cache_dir() if cache is None else Path(cache)) / f"{self.prior_kind}-{self.cache_key}.npz"
+
     def _learned_prior(self, cache: Path | None, progress) -> TransitionModel:
         if self.prior_file is not None:
             prior = load_prior(self.prior_file)
@@ -227,8 +233,7 @@ class Preset:
                 raise PriortrackError(f"preset {self.name!r}: [prior] file {self.prior_file} holds a {prior.kind!r} "
                                       f"prior, not {self.prior_kind!r}")
             return prior if self.annealing == 1.0 else prior.annealed(self.annealing)
-        cache = cache_dir() if cache is None else Path(cache)
-        path = cache / f"{self.prior_kind}-{self.cache_key}.npz"
+        path = self.prior_path(cache)
         prior = read_cached(path, load_prior)
         if prior is None:
             prior = fit_prior(self.prior_kind, self.training_motions, progress=progress, fps=self.fps,
