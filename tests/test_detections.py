@@ -189,3 +189,36 @@ def test_an_empty_keypoint_list_is_a_person_not_there():
     d = read_detections(folder, keypoints="body25b")
     assert d.camera_names == ("cam01_json", "cam02_json", "cam03_json", "cam04_json")
     assert d.keypoints.shape == (4, 100, 25, 3) and np.isfinite(d.keypoints[0, 1, :, :2]).any()
+
+
+def test_a_25_keypoint_layout_read_as_the_other_is_refused_naming_it(tmp_path, capsys):
+    """issue 60, item 4: BODY_25B read as BODY_25 made bodies of no one (a 0.63 m thigh, hips 0.66 m apart) and the run
+    exited 0. BODY_25's keypoint 8 (MidHip) is the midpoint of 9 and 12; BODY_25B's 8, 9, 12 are an elbow, a wrist and
+    a hip. The bundled BODY_25B trial read as BODY_25 is refused, naming --keypoints body25b; BODY_25 detections (8 the
+    hips' midpoint, written here) read as BODY_25B are refused naming body25; each read as itself is taken, and a
+    file with too few people-frames to tell is taken as named."""
+    from priortrack.cli.main import main
+    from priortrack.data.keypoints import check_layout
+    from priortrack.data.scene_detections import read_scene_detections
+
+    with pytest.raises(PriortrackError, match=r"read as BODY_25 \(--keypoints body25\), but its keypoint 8 is not "
+                                              r"the midpoint of 9 and 12 .*--keypoints body25b"):
+        read_detections(POSE2SIM / "pose", keypoints="body25")
+    with pytest.raises(PriortrackError, match="--keypoints body25b"):
+        read_scene_detections(POSE2SIM / "pose", keypoints="body25")
+    read_detections(POSE2SIM / "pose", keypoints="body25b")
+    rng = np.random.default_rng(0)
+    camera = tmp_path / "cam01"
+    camera.mkdir()
+    for t in range(12):
+        kp = np.column_stack([rng.uniform(100, 500, (25, 2)), np.full(25, 0.9)])
+        kp[8, :2] = 0.5 * (kp[9, :2] + kp[12, :2]) + rng.normal(0, 1, 2)          # MidHip
+        (camera / f"walk_{t:012d}_keypoints.json").write_text(
+            json.dumps({"people": [{"pose_keypoints_2d": kp.ravel().tolist()}]}))
+    read_detections(tmp_path, keypoints="body25")
+    with pytest.raises(PriortrackError, match=r"read as BODY_25B .*is the midpoint of 9 and 12.*--keypoints body25\b"):
+        read_detections(tmp_path, keypoints="body25b")
+    check_layout(np.full((1, 5, 25, 3), 1.0), "body25b", "few")                  # nothing to tell it by
+    assert main(["track", "--detections", str(POSE2SIM / "pose"), "--cameras", str(POSE2SIM / "Calib.toml"),
+                 "--keypoints", "body25", "--fps", "60", "--filter", "ukf-real"]) == 2
+    assert "--keypoints body25b" in capsys.readouterr().err

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from priortrack.data.caliscope import is_caliscope_csv, read_caliscope
-from priortrack.data.keypoints import LAYOUTS, layout_for, layout_of_names, to_eval15
+from priortrack.data.keypoints import LAYOUTS, check_layout, layout_for, layout_of_names, to_eval15
 from priortrack.data.npz import ArrayOnDisk, npz_member_on_disk, read_npz
 from priortrack.errors import PriortrackError
 
@@ -244,6 +244,7 @@ def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Det
     cameras, frames, layout, K, people = openpose_cameras(path, keypoints)
     out = np.full((len(cameras), len(frames), K, 3), np.nan, dtype=np.float32)
     switches = tuple(follow(people(c), out[c], person, name) for c, name in enumerate(cameras))
+    check_layout(out, layout, str(path))
     return Detections(layout, cameras, frames, None, str(path), switches, keypoints=out)
 
 
@@ -365,6 +366,7 @@ def _read_coco_results(path: Path, keypoints: str | None, person: int | None) ->
     check_frames(frames, str(path))
     followed = np.full((1, len(frames), K, 3), np.nan, dtype=np.float32)
     switches = follow([by_frame[int(n)] for n in frames], followed[0], person, path.stem)
+    check_layout(followed, layout, str(path))
     return Detections(layout, (path.stem,), frames, None, str(path), (switches,), keypoints=followed)
 
 

@@ -129,6 +129,40 @@ def layout_for(name: str | None, count: int, where: str) -> str:
     return matches[0]
 
 
+#: BODY_25's keypoint 8 (MidHip) lies midway between 9 and 12 (its hips); BODY_25B's 8, 9 and 12 (right elbow, left
+#: wrist, right hip) do not: the median over people and frames of |k8 − (k9 + k12) / 2| over the person's size (their
+#: keypoints' box diagonal) is under this for BODY_25 (Shelf's OpenPose: 0.004, 90th percentile 0.01) and far over it
+#: for BODY_25B (Pose2Sim's two demos: 0.25 and 0.28, 10th percentile 0.07 and 0.12) …
+MIDHIP_TOLERANCE = 0.05
+#: … judged where this many people-frames show all three.
+MIN_JUDGED = 10
+
+
+def check_layout(keypoints: np.ndarray, layout: str, where: str, min_confidence: float = 0.3) -> None:
+    """Refuse keypoints (..., K, 3) read as ``layout`` that are the other 25-keypoint layout's (BODY_25 as BODY_25B or
+    the reverse: :data:`MIDHIP_TOLERANCE`); every point of a wrong layout is some other joint, and the bodies it makes
+    are no one's."""
+    if layout not in ("body25", "body25b"):
+        return
+    kp = np.asarray(keypoints, dtype=np.float64).reshape(-1, 25, 3)
+    xy = np.where((np.nan_to_num(kp[..., 2:]) > min_confidence) & np.isfinite(kp[..., :2]), kp[..., :2], np.nan)
+    shown = np.isfinite(xy[:, [8, 9, 12]]).all(axis=(-1, -2))
+    if shown.sum() < MIN_JUDGED:
+        return
+    xy = xy[shown]
+    size = np.linalg.norm(np.fmax.reduce(xy, axis=1) - np.fmin.reduce(xy, axis=1), axis=-1)
+    gap = float(np.median(np.linalg.norm(xy[:, 8] - 0.5 * (xy[:, 9] + xy[:, 12]), axis=-1) / np.maximum(size, 1e-9)))
+    midway = gap < MIDHIP_TOLERANCE
+    if midway != (layout == "body25"):
+        other = "body25b" if layout == "body25" else "body25"
+        name = {"body25": "BODY_25", "body25b": "BODY_25B"}
+        raise PriortrackError(
+            f"{where}: read as {name[layout]} (--keypoints {layout}), but its keypoint 8 is {'' if midway else 'not '}"
+            f"the midpoint of 9 and 12 (median distance {gap:.3f} of the person's size over {int(shown.sum())} "
+            f"people-frames; BODY_25's MidHip is within {MIDHIP_TOLERANCE}, BODY_25B's right elbow is not): "
+            f"{name[other]} detections? --keypoints {other}")
+
+
 def to_eval15(keypoints: np.ndarray, names: tuple[str, ...], min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
     """(..., K, 3) keypoints (x, y, confidence) named ``names`` → eval15 pixels (..., 15, 2), NaN where
     missing, and confidences (..., 15), 0 where missing, in the keypoints' float dtype (float64 for

@@ -23,7 +23,7 @@ import numpy as np
 
 from priortrack.data.detections import (MAX_CAMERAS, MAX_NPZ_BYTES, Detections, DetectionsHeader, check_frames,
                                         cleaned_keypoints, coco_people, follow, npz_header, openpose_cameras)
-from priortrack.data.keypoints import layout_for, to_eval15
+from priortrack.data.keypoints import check_layout, layout_for, to_eval15
 from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
 
@@ -105,7 +105,9 @@ def _stacked(per_camera: list[list[list[np.ndarray]]], K: int, where: str) -> np
 def _openpose(path: Path, keypoints: str | None) -> SceneDetections:
     cameras, frames, layout, K, people = openpose_cameras(path, keypoints)
     per_camera = [[_seen(frame) for frame in people(c)] for c in range(len(cameras))]
-    return SceneDetections(layout, cameras, frames, None, str(path), keypoints=_stacked(per_camera, K, str(path)))
+    stacked = _stacked(per_camera, K, str(path))
+    check_layout(stacked, layout, str(path))
+    return SceneDetections(layout, cameras, frames, None, str(path), keypoints=stacked)
 
 
 def _coco(path: Path, keypoints: str | None) -> SceneDetections:
@@ -113,8 +115,9 @@ def _coco(path: Path, keypoints: str | None) -> SceneDetections:
     frames = np.array(sorted(by_frame))
     check_frames(frames, str(path))
     per_camera = [[_seen(by_frame[int(n)]) for n in frames]]
-    return SceneDetections(layout_for(keypoints, K, str(path)), (path.stem,), frames, None, str(path),
-                           keypoints=_stacked(per_camera, K, str(path)))
+    layout, stacked = layout_for(keypoints, K, str(path)), _stacked(per_camera, K, str(path))
+    check_layout(stacked, layout, str(path))
+    return SceneDetections(layout, (path.stem,), frames, None, str(path), keypoints=stacked)
 
 
 def _npz(path: Path, keypoints: str | None) -> SceneDetections:
