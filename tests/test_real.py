@@ -629,3 +629,23 @@ def test_no_fit_check_skips_the_fit_check(tmp_path, capsys, monkeypatch):
     assert json.loads(capsys.readouterr().out)["fit_check"] is None
     assert main(["track", "cmu:07_10", "--filter", "ukf-real", "--no-fit-check"]) == 2
     assert "--no-fit-check is for tracking --detections" in capsys.readouterr().err
+
+
+def test_a_rate_given_against_the_files_is_warned(caplog):
+    """issue 60, item 4: an .npz saying 60 fps tracked with --fps 30 was timed at 30 without a word. --fps wins, and
+    the conflict is named; the file's rate where none is given; neither is refused."""
+    import logging
+
+    from priortrack.tracking.person import data_rate
+
+    with caplog.at_level(logging.WARNING, logger="priortrack.tracking.person"):
+        assert data_rate(30.0, 60.0, "walk.npz") == 30.0
+    assert "walk.npz says its frames are 60 fps; --fps 30 is taken" in caplog.text and "2×" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="priortrack.tracking.person"):
+        assert data_rate(None, 60.0, "walk.npz") == 60.0 and data_rate(60.0, 60.0, "walk.npz") == 60.0
+    assert caplog.text == ""
+    with pytest.raises(PriortrackError, match="walk.npz: the detections do not say their frame rate; give it"):
+        data_rate(None, None, "walk.npz")
+    with pytest.raises(PriortrackError, match="positive frame rate"):
+        data_rate(-5.0, None, "walk.npz")

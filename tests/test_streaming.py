@@ -139,11 +139,16 @@ def test_an_openpose_folder_is_parsed_a_file_at_a_time(tmp_path, monkeypatch):
     from priortrack.data import detections
 
     rng = np.random.default_rng(0)
-    base = rng.uniform(300, 400, size=(25, 2))
+
+    def body25(xy):                                      # BODY_25's keypoint 8, MidHip, the hips' (9, 12) midpoint
+        xy[8] = 0.5 * (xy[9] + xy[12])
+        return xy
+
+    base = body25(rng.uniform(300, 400, size=(25, 2)))
     for c in range(2):
         (tmp_path / f"cam{c}").mkdir()
         for t in range(40):
-            people = [base + t + c, base + 300, rng.uniform(600, 700, size=(25, 2))]
+            people = [base + t + c, base + 300, body25(rng.uniform(600, 700, size=(25, 2)))]
             if t == 20:
                 people = people[1:]                                  # the person followed is not seen
             entries = [{"pose_keypoints_2d": np.c_[xy, np.full(25, 0.9)].ravel().tolist()} for xy in people]

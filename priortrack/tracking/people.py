@@ -34,8 +34,8 @@ from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
-from priortrack.tracking.person import (DetectionTrack, TrackConfig, fitted_once, match_cameras, output_path, prepared,
-                                         schedule, track_detections, up_from_detections)
+from priortrack.tracking.person import (DetectionTrack, TrackConfig, data_rate, fitted_once, match_cameras, output_path,
+                                         prepared, schedule, track_detections, up_from_detections)
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.presets import Preset, load_preset
 from priortrack.tracking.reassociation import predicts, reassociated
@@ -233,9 +233,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     take their own body (``skeleton``)."""
     start = time.perf_counter()
     config, scene_config = config or TrackConfig(), scene_config or SceneConfig()
-    data_fps = config.fps if config.fps is not None else scene.fps
-    if data_fps is None:
-        raise PriortrackError(f"{scene.source}: the detections do not say their frame rate; give it (--fps)")
+    data_fps = data_rate(config.fps, scene.fps, scene.source)
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
     how = scene_config.decided_by(len(scene.camera_names))
     if scene_config.association == "auto" and how == "filter" and config.smooth and config.lag is not None:

@@ -533,6 +533,21 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     return prepared(detections, calibration, preset, config, skeleton).tracked(progress)
 
 
+def data_rate(given: float | None, stated: float | None, source: str) -> float:
+    """The detections' frame rate: ``given`` (--fps) where given, else the one their file ``stated``; where both are and
+    differ, the given one, warned (its frames are then stepped at that rate: 60 fps frames taken at 30 last twice as
+    long); neither: refused."""
+    if given is not None and stated is not None and not math.isclose(given, stated, rel_tol=1e-6):
+        log.warning("%s says its frames are %g fps; --fps %g is taken (the motion is timed at %g fps: %s as fast as "
+                    "the file says)", source, stated, given, given, f"{stated / given:.2g}×")
+    rate = given if given is not None else stated
+    if rate is None:
+        raise PriortrackError(f"{source}: the detections do not say their frame rate; give it (--fps)")
+    if not 0 < rate < 1e4:
+        raise PriortrackError(f"fps must be a positive frame rate, got {rate}")
+    return float(rate)
+
+
 def prepared(detections: Detections, calibration: Calibration, preset: Preset | str, config: TrackConfig | None = None,
              skeleton: Skeleton | None = None) -> "PersonRun":
     """Everything of :func:`track_detections` before the filter runs (module docstring, 1–4): the cameras in
@@ -540,11 +555,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     start_time = time.perf_counter()
     config = config or TrackConfig()
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
-    data_fps = config.fps if config.fps is not None else detections.fps
-    if data_fps is None:
-        raise PriortrackError(f"{detections.source}: the detections do not say their frame rate; give it (--fps)")
-    if not 0 < data_fps < 1e4:
-        raise PriortrackError(f"fps must be a positive frame rate, got {data_fps}")
+    data_fps = data_rate(config.fps, detections.fps, detections.source)
     calibrated = match_cameras(detections, calibration, config.camera_map)
     world_cameras = [PinholeCamera.from_calibration(c) for c in calibrated]
     up = config.up if config.up is not None else calibration.up
