@@ -649,3 +649,19 @@ def test_a_rate_given_against_the_files_is_warned(caplog):
         data_rate(None, None, "walk.npz")
     with pytest.raises(PriortrackError, match="positive frame rate"):
         data_rate(-5.0, None, "walk.npz")
+
+
+def test_small_messages_count_right(capsys):
+    """issue 60, item 7: one camera and one person are singular; a trial too short for the filter says so (not that
+    it starts too late); --filter defaults to ukf-real, the preset the README recommends."""
+    detections = read_detections(POSE, keypoints="body25b")
+    calibration = read_calibration(CALIB)
+    one = replace(detections, keypoints=detections.keypoints[:1], camera_names=detections.camera_names[:1])
+    with pytest.raises(PriortrackError, match="c.toml has 4 cameras for 1 detection camera: say which"):
+        track_detections(one, replace(calibration, source="c.toml"), "ukf-real", TrackConfig(fps=60))
+    with pytest.raises(PriortrackError, match=r"2 ticks from the start to the end of the detections \(2 ticks in all, "
+                                              r"at the prior's 30 fps\): the filter needs 3 to track: give more frames"):
+        track_detections(detections.head(3), calibration, "ukf-real", TrackConfig(fps=60))
+    assert main(["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
+                 "--people", "all", "--no-fit-check"]) == 0
+    assert capsys.readouterr().out.startswith("ukf-real: 1 person, ")

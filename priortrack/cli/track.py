@@ -211,7 +211,8 @@ def _track_scene(args: argparse.Namespace, config) -> None:
         return
     people_text = ", ".join(f"person {pid} ({v['ticks_present']} ticks)" for pid, v in summary["per_person"].items())
     skipped = "".join(f"; person {k} not tracked: {v}" for k, v in summary["skipped"].items())
-    print(f"{args.filter}: {len(result.person_ids)} people, {summary['frames']} ticks at {result.fps:g} fps in "
+    print(f"{args.filter}: {len(result.person_ids)} {'person' if len(result.person_ids) == 1 else 'people'}, "
+          f"{summary['frames']} ticks at {result.fps:g} fps in "
           f"{summary['seconds']:.1f} s: {people_text}{skipped}" + (f"; wrote {', '.join(written)}" if written else ""))
 
 
@@ -259,7 +260,8 @@ def add_parsers(verbs) -> None:
                        help="write the result by suffix: .npz (joints, spread, ESS, log-likelihood, flags), .csv, "
                             ".trc (Y up, metres: OpenSim) or .bvh (Y up, centimetres: Blender); may repeat "
                             "(docs/formats.md)")
-    track.add_argument("--filter", required=True, help="a preset name (priortrack presets) or a .toml file")
+    track.add_argument("--filter", default="ukf-real",
+                       help="a preset name (priortrack presets) or a .toml file (default %(default)s)")
     track.add_argument("--scenario", default="clean",
                        help="NAME or NAME:key=value,... (clean, noise, dropout, occlusion, blackout, outliers)")
     track.add_argument("--seed", type=int, default=0, help="seeds the observations and the filter")

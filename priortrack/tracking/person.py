@@ -325,12 +325,17 @@ def match_cameras(detections: Detections, calibration: Calibration,
         return [by_name[camera_map[n]] for n in detections.camera_names]
     C, K = len(detections.camera_names), len(calibration.cameras)
     if K < C:
-        raise PriortrackError(f"{calibration.source} has {K} camera{'s' if K != 1 else ''} for {C} detection "
-                              f"cameras ({', '.join(detections.camera_names)})")
+        raise PriortrackError(f"{calibration.source} has {_counted(K, 'camera')} for {_counted(C, 'detection camera')} "
+                              f"({', '.join(detections.camera_names)})")
     if K > C:
-        raise PriortrackError(f"{calibration.source} has {K} cameras for {C} detection cameras: say which is which "
-                              f"with a camera map (folder=calibration name)")
+        raise PriortrackError(f"{calibration.source} has {_counted(K, 'camera')} for {_counted(C, 'detection camera')}: "
+                              f"say which is which with a camera map (folder=calibration name)")
     return list(calibration.cameras)
+
+
+def _counted(n: int, noun: str) -> str:
+    """"1 camera", "4 cameras"."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def schedule(frames: np.ndarray, data_fps: float, prior_fps: float) -> np.ndarray:
@@ -587,7 +592,10 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
                               f"{counts[:10].tolist()}…)")
     first = int(good[0])
     if len(index) - first < KNOWN_FRAMES + 1:
-        raise PriortrackError(f"the detections start too late to track: {len(index) - first} ticks from the start")
+        raise PriortrackError(f"{_counted(len(index) - first, 'tick')} from the start to the end of the detections "
+                              f"({_counted(len(index), 'tick')} in all, at the prior's {prior.fps:g} fps): the filter "
+                              f"needs {KNOWN_FRAMES + 1} to track" + (": give more frames (--frames)" if first == 0 else
+                                                                        "; the person is seen well only late"))
     M = detector_map()
     template = getattr(prior.space, "skeleton", None) or cmu_skeleton("35")
     window = first + KNOWN_FRAMES
