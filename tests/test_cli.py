@@ -35,7 +35,11 @@ def test_data_list(capsys):
     by_name = {c["name"]: c for c in clips}
     assert by_name["cmu:07_01"]["frames"] == 316 and by_name["walkjog:35_29"]["fps"] == 30.0
     assert main(["data", "list"]) == 0
-    assert "mocap.cs.cmu.edu" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "mocap.cs.cmu.edu" in out
+    command = out.splitlines()[-1].split()                            # the bundled real trial's command runs as shown
+    assert command[:2] == ["priortrack", "track"] and "--detections" in command
+    assert main(command[1:-2] + ["--no-fit-check", "--json"]) == 0 and json.loads(capsys.readouterr().out)["frames"] > 0
 
 
 def test_replay_writes_a_recording_with_every_frame(tmp_path, capsys):
