@@ -263,6 +263,13 @@ def test_people_are_chosen_by_count_id_point_and_box(demo):
         assert chosen_people(association, parse_people([f"at:cam01_json:{centre[0]},{centre[1]}"]), scene) == [p]
         box = ",".join(map(str, [*xy.min(axis=0), *xy.max(axis=0)]))
         assert chosen_people(association, parse_people([f"box:cam01_json:{box}"]), scene) == [p]
+        # issue 60, item 2: a point or box where nobody is picks nobody (it picked whoever was nearest, however far)
+        far = xy.max(axis=0) + 2 * (xy.max(axis=0) - xy.min(axis=0))
+        with pytest.raises(PriortrackError, match="nobody is there in cam01_json's first frame with people"):
+            chosen_people(association, parse_people([f"at:cam01_json:{far[0]},{far[1]}"]), scene)
+        with pytest.raises(PriortrackError, match="no person overlaps it"):
+            chosen_people(association, parse_people([f"box:cam01_json:{far[0]},{far[1]},{far[0] + 5},{far[1] + 5}"]),
+                          scene)
 
 
 @pytest.mark.parametrize("words, message", [

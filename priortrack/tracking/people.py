@@ -108,7 +108,7 @@ def _person_at(association: SceneAssociation, scene: SceneDetections, kind: str,
     if not len(frames):
         raise PriortrackError(f"--people {kind}:{camera}: nobody tracked is seen by {camera}")
     t = int(frames[0])
-    best, score = None, -np.inf
+    best, score, near = None, -np.inf, True
     for p in np.flatnonzero(slots[t] >= 0):
         xy = scene.keypoints[c, t, slots[t, p], :, :2]
         xy = xy[np.isfinite(xy).all(axis=1)]
@@ -117,12 +117,18 @@ def _person_at(association: SceneAssociation, scene: SceneDetections, kind: str,
         lo, hi = xy.min(axis=0), xy.max(axis=0)
         if kind == "at":
             s = -float(np.linalg.norm(np.clip(values, lo, hi) - np.asarray(values)))      # 0 inside the box
+            close = -s <= 0.5 * float(np.linalg.norm(hi - lo))         # within half the person's size of their box
         else:
             x0, y0, x1, y1 = values
             overlap = np.clip(np.minimum(hi, [x1, y1]) - np.maximum(lo, [x0, y0]), 0, None).prod()
             s = float(overlap / ((hi - lo).prod() + (x1 - x0) * (y1 - y0) - overlap + 1e-9))
+            close = overlap > 0
         if s > score:
-            best, score = int(p), s
+            best, score, near = int(p), s, close
+    if best is None or not near:
+        raise PriortrackError(f"--people {kind}:{camera}:{','.join(f'{v:g}' for v in values)}: nobody is there in "
+                              f"{camera}'s first frame with people (frame {scene.frames[t]}; "
+                              f"{'the nearest person is further than half their size' if kind == 'at' else 'no person overlaps it'})")
     log.info("--people %s:%s picked person %d (frame %d)", kind, camera, association.person_ids[best],
              scene.frames[t])
     return best
