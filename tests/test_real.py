@@ -665,3 +665,19 @@ def test_small_messages_count_right(capsys):
     assert main(["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
                  "--people", "all", "--no-fit-check"]) == 0
     assert capsys.readouterr().out.startswith("ukf-real: 1 person, ")
+
+
+def test_a_body_of_no_adult_is_named():
+    """implausible_body: the template at 1.7 m is an adult's; scaled to 1.0 m it is under 1.2 m; at 2.5 m its thigh is
+    over 0.6 m; stature gives back the height scaled to."""
+    from priortrack.body.ik import scaled_to_height, stature
+    from priortrack.data.bundled import cmu_skeleton
+    from priortrack.data.keypoints import detector_map
+    from priortrack.tracking.person import implausible_body
+
+    M = detector_map()
+    for height in (1.0, 1.7, 2.5):
+        assert stature(scaled_to_height(cmu_skeleton("35"), height)) == pytest.approx(height)
+    assert implausible_body(scaled_to_height(cmu_skeleton("35"), 1.7), M) == ""
+    assert implausible_body(scaled_to_height(cmu_skeleton("35"), 1.0), M) == "1.00 m tall (under 1.2)"
+    assert "a thigh of 0.6" in implausible_body(scaled_to_height(cmu_skeleton("35"), 2.5), M)

@@ -244,11 +244,16 @@ def scaled_to_height(template: Skeleton, height: float) -> Skeleton:
     """The template scaled uniformly so that its rest pose's head top stands ``height`` metres above its
     lower ankle (a detector's ankle, not the sole: about 5 cm short of the standing height)."""
     check_height(height)
-    rest = ForwardKinematics(template, dtype=torch.float64)(np.zeros(template.num_channels))[
-        eval15_indices(template)].numpy()
-    measured = rest[2, 1] - min(rest[11, 1], rest[14, 1])
-    return replace(template, offsets=template.offsets * (height - ANKLE_HEIGHT) / measured,
+    return replace(template, offsets=template.offsets * (height - ANKLE_HEIGHT) / (stature(template) - ANKLE_HEIGHT),
                    name=f"{template.name}-{height:g}m")
+
+
+def stature(skeleton: Skeleton) -> float:
+    """The skeleton's standing height, metres: its rest pose's head top above its lower ankle, and the ankle's
+    :data:`ANKLE_HEIGHT` above the floor (what :func:`scaled_to_height` scales to)."""
+    rest = ForwardKinematics(skeleton, dtype=torch.float64)(np.zeros(skeleton.num_channels))[
+        eval15_indices(skeleton)].numpy()
+    return float(rest[2, 1] - min(rest[11, 1], rest[14, 1]) + ANKLE_HEIGHT)
 
 
 #: Height of a detector's ankle point above the floor, metres.

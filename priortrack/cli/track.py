@@ -209,7 +209,10 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     if args.json:
         print_json(summary)
         return
-    people_text = ", ".join(f"person {pid} ({v['ticks_present']} ticks)" for pid, v in summary["per_person"].items())
+    people_text = "; ".join(
+        f"person {pid} ({v['ticks_present']} ticks, {v['height_m']:.2f} m tall, seen in {v['frames_seen']} frames by "
+        f"{', '.join(v['cameras'])}, at {', '.join(f'{x:.2f}' for x in v['mean_position_m'])} m)"
+        for pid, v in summary["per_person"].items())
     skipped = "".join(f"; person {k} not tracked: {v}" for k, v in summary["skipped"].items())
     print(f"{args.filter}: {len(result.person_ids)} {'person' if len(result.person_ids) == 1 else 'people'}, "
           f"{summary['frames']} ticks at {result.fps:g} fps in "

@@ -173,13 +173,23 @@ class SceneTrack:
         """The JSON summary: people, ticks, seconds, and per person their frames present, median
         reprojection error per camera, mismatch fraction and body measures."""
         present = np.isfinite(self.joints[..., 0, 0])
+        columns = [self.association.person_ids.tolist().index(pid) for pid in self.person_ids]
+        seen = self.association.slots[:, :, columns] >= 0                                 # (T_frames, C, P)
+        names = self.people[0].camera_names if self.people else ()
+        per_person = {}
+        for p, (pid, result) in enumerate(zip(self.person_ids, self.people)):
+            own = result.summary()
+            with np.errstate(invalid="ignore"):
+                at = np.nanmean(self.joints[present[:, p], p, 0], axis=0) if present[:, p].any() else None
+            per_person[str(int(pid))] = {
+                "ticks_present": int(present[:, p].sum()), "frames_seen": int(seen[:, :, p].any(axis=1).sum()),
+                "cameras": [names[c] for c in np.flatnonzero(seen[:, :, p].any(axis=0))],
+                "mean_position_m": None if at is None else [float(v) for v in at],
+                "height_m": own["height_m"], "reprojection_px": own["reprojection_px"],
+                "mismatch_fraction": result.mismatch_fraction, "bones_m": own["bones_m"]}
         return {"people": [int(i) for i in self.person_ids], "frames": int(len(self.frames)), "fps": self.fps,
                 "seconds": self.seconds, "skipped": {str(k): v for k, v in self.skipped.items()},
-                "per_person": {str(int(pid)): {"ticks_present": int(present[:, p].sum()),
-                                               "reprojection_px": result.summary()["reprojection_px"],
-                                               "mismatch_fraction": result.mismatch_fraction,
-                                               "bones_m": result.summary()["bones_m"]}
-                               for p, (pid, result) in enumerate(zip(self.person_ids, self.people))}}
+                "per_person": per_person}
 
     def save(self, path: str | Path) -> list[Path]:
         """Write by suffix: ``.npz`` and ``.csv`` hold every person; ``.trc`` and ``.bvh`` are written one

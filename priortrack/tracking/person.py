@@ -73,7 +73,7 @@ import torch
 
 from priortrack.body.fk import joint_positions
 from priortrack.body.ik import (PoseSpread, body_measures, check_height, fitted_skeleton, inverse_kinematics,
-                                REWEIGHTS, inverse_kinematics_2d, scaled_to_height, unmeasured_measures)
+                                REWEIGHTS, inverse_kinematics_2d, scaled_to_height, stature, unmeasured_measures)
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -237,6 +237,7 @@ class DetectionTrack:
                 "smoothed": self.filtered_joints is not None, "lag": self.lag, "fit_check": self.fit_check,
                 "interrupted": self.interrupted,
                 "bones_m": None if self.skeleton is None else body_measures(self.skeleton, detector_map()),
+                "height_m": None if self.skeleton is None else stature(self.skeleton),
                 "bones_unmeasured": list(self.bones_unmeasured),
                 "up": self.up if isinstance(self.up, str) else [float(v) for v in self.up]}
 
@@ -538,6 +539,18 @@ def track_detections(detections: Detections, calibration: Calibration, preset: P
     return prepared(detections, calibration, preset, config, skeleton).tracked(progress)
 
 
+#: A body measured over a trial is no adult's under this standing height or with a thigh longer than this (metres).
+MIN_STATURE_M, MAX_THIGH_M = 1.2, 0.6
+
+
+def implausible_body(skeleton: Skeleton, M: np.ndarray) -> str:
+    """What makes the body (the skeleton fitted to a trial, in the detector's definitions M) no adult's: its standing
+    height under :data:`MIN_STATURE_M`, its thigh over :data:`MAX_THIGH_M`; "" where nothing does."""
+    height, thigh = stature(skeleton), body_measures(skeleton, M)["thigh"]
+    return ", ".join([f"{height:.2f} m tall (under {MIN_STATURE_M})"] * (height < MIN_STATURE_M) +
+                     [f"a thigh of {thigh:.2f} m (over {MAX_THIGH_M})"] * (thigh > MAX_THIGH_M))
+
+
 def data_rate(given: float | None, stated: float | None, source: str) -> float:
     """The detections' frame rate: ``given`` (--fps) where given, else the one their file ``stated``; where both are and
     differ, the given one, warned (its frames are then stepped at that rate: 60 fps frames taken at 30 last twice as
@@ -606,6 +619,10 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
         skeleton = (scaled_to_height(template, config.height) if single else
                     fitted_skeleton(template, X, M))
         unmeasured = () if single else tuple(unmeasured_measures(X))
+        unlikely = None if single else implausible_body(skeleton, M)
+        if unlikely:
+            log.warning("%s: the body measured over the trial is no adult's (%s): a false positive, two people's "
+                        "detections taken for one, or a wrong keypoint layout?", detections.source, unlikely)
     pose = pose_spread(preset, skeleton)
     if single:
         ticks = z[first:window][:, 0]
