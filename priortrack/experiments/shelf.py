@@ -17,8 +17,8 @@ the scene tracker follows every person with a preset from the detections alone
   on their distance to the truth's projection (the median over the limb joints, within :data:`ORACLE_GATE` of the
   actor's size in the image): the true association, which no tracker has; each actor's joints are then the
   confidence-weighted DLT of their detections (:func:`~priortrack.geometry.triangulation.triangulate`).
-- **identity switches**: per annotated actor (scored or not), the track an optimal assignment of actors to tracks gives them at a frame
-  (median limb-joint distance within :data:`MATCH_M`) changes between two such frames;
+- **identity switches**: per annotated actor (scored or not), the track an optimal assignment of actors to tracks
+  gives them at a frame (median limb-joint distance within :data:`MATCH_M`) changes between two such frames;
 - **false tracks**: tracks never so given to an annotated actor though most of their detections are annotated
   actors' (the oracle's): a second track of someone, or one made of different people's detections
   (:func:`false_tracks`; a track of someone the truth does not annotate there is not judged).
@@ -37,7 +37,7 @@ from scipy.optimize import linear_sum_assignment
 from priortrack.data.calibration import Calibration, read_calibration
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.scene_detections import SceneDetections, read_scene_detections
-from priortrack.data.shelf_truth import ShelfTruth, read_shelf_truth
+from priortrack.data.shelf_truth import read_shelf_truth
 from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import PCP_LIMB_PARTS, pcp
 from priortrack.geometry.camera import PinholeCamera
