@@ -1,6 +1,7 @@
 """The command line: data list, replay to a rerun recording (read back), bench fk, errors."""
 
 import json
+import shlex
 import subprocess
 import sys
 
@@ -37,7 +38,7 @@ def test_data_list(capsys):
     assert main(["data", "list"]) == 0
     out = capsys.readouterr().out
     assert "mocap.cs.cmu.edu" in out
-    command = out.splitlines()[-1].split()                            # the bundled real trial's command runs as shown
+    command = shlex.split(out.splitlines()[-1])                       # the bundled real trial's command runs as shown
     assert command[:2] == ["priortrack", "track"] and "--detections" in command
     assert main(command[1:-2] + ["--no-fit-check", "--json"]) == 0 and json.loads(capsys.readouterr().out)["frames"] > 0
 

@@ -33,12 +33,14 @@ def _data_list(args: argparse.Namespace) -> None:
         print(f"{c.name:<16} {c.subject:>7} {c.fps:>5g} {c.frames:>6}  {c.description}")
     print("\nThe data was obtained from mocap.cs.cmu.edu. "
           "The database was created with funding from NSF EIA-0196217.")
+    from shlex import quote
+
     from priortrack.data.bundled import POSE2SIM_DIR
 
     print(f"\nReal detections (no 3D truth): Pose2Sim's static demo trial, OpenPose BODY_25B from 4 phone cameras, 12 "
           f"frames at 60 fps, one person standing (BSD-3, {POSE2SIM_DIR / 'SOURCE.md'}):\n"
-          f"  priortrack track --detections {POSE2SIM_DIR / 'pose'} --cameras {POSE2SIM_DIR / 'Calib.toml'} "
-          f"--keypoints body25b --fps 60 --out person.npz")
+          f"  priortrack track --detections {quote(str(POSE2SIM_DIR / 'pose'))} --cameras "
+          f"{quote(str(POSE2SIM_DIR / 'Calib.toml'))} --keypoints body25b --fps 60 --out person.npz")
 
 
 def _replay(args: argparse.Namespace) -> None:
