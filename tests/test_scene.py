@@ -360,3 +360,21 @@ def test_a_person_whose_detector_never_gives_the_head_is_re_identified_by_the_ot
     few[:REID_MIN_BONES - 1] = bones[:REID_MIN_BONES - 1]
     scene = SimpleNamespace(frame=60, ended=[Track(3, JointKalman(body), 0, 40, bones=rows)], next_id=5)
     assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, Track(-1, JointKalman(body), 60, 60, bones=[few])) == 5
+
+
+def test_a_scenes_npz_holds_what_one_persons_does(demo, tmp_path):
+    """issue 60, item 3: --people's .npz lacked ess, reprojection_px, gated, camera_names and, smoothed, filtered_joints.
+    Each is one person's own on the scene's tick grid (every tick of the demo's two people: the same ticks)."""
+    scene, calibration = demo
+    result = track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60, smooth=True, fit_check=False),
+                         workers=1)
+    result.save(tmp_path / "s.npz")
+    with np.load(tmp_path / "s.npz") as f:
+        assert f["camera_names"].tolist() == list(scene.camera_names)
+        for p, person in enumerate(result.people):
+            assert len(person.frames) == len(f["frames"])
+            np.testing.assert_array_equal(f["reprojection_px"][:, p], person.reprojection_by_tick)
+            np.testing.assert_array_equal(f["gated"][:, p], person.gated)
+            np.testing.assert_array_equal(f["filtered_joints"][:, p], person.filtered_joints)
+            np.testing.assert_array_equal(f["ess"][:, p], person.ess)                # NaN: no particles
+            assert not np.allclose(f["filtered_joints"][:, p], f["joints"][:, p])       # joints: the smoother's

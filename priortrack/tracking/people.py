@@ -152,6 +152,10 @@ class SceneTrack:
         seconds: the whole run's wall time.
         detections, index: every detected person (for a recording's unassigned detections) and, per tick,
             the index of the detection frame it consumed (−1 where none).
+        ess: (T, P) each person's effective sample size (NaN where absent or the filter has no particles);
+        reprojection_px: (T, P, C) each person's median pixel error per camera and tick; gated: (T, P, C, 15) the
+            detections each person's validation gate held out; filtered_joints: (T, P, 15, 3) the filter's own joints
+            where the run was smoothed (``joints`` the smoother's), else None: one person's outputs, per person.
     """
 
     person_ids: np.ndarray
@@ -168,6 +172,14 @@ class SceneTrack:
     seconds: float = 0.0
     detections: SceneDetections | None = field(default=None, repr=False)
     index: np.ndarray | None = field(default=None, repr=False)
+    ess: np.ndarray | None = field(default=None, repr=False)
+    reprojection_px: np.ndarray | None = field(default=None, repr=False)
+    gated: np.ndarray | None = field(default=None, repr=False)
+    filtered_joints: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        return self.people[0].camera_names if self.people else ()
 
     def summary(self) -> dict:
         """The JSON summary: people, ticks, seconds, and per person their frames present, median
@@ -175,7 +187,7 @@ class SceneTrack:
         present = np.isfinite(self.joints[..., 0, 0])
         columns = [self.association.person_ids.tolist().index(pid) for pid in self.person_ids]
         seen = self.association.slots[:, :, columns] >= 0                                 # (T_frames, C, P)
-        names = self.people[0].camera_names if self.people else ()
+        names = self.camera_names
         per_person = {}
         for p, (pid, result) in enumerate(zip(self.person_ids, self.people)):
             own = result.summary()
@@ -207,14 +219,19 @@ class SceneTrack:
 
     def save_npz(self, path: str | Path) -> Path:
         """``joints`` (T, P, 15, 3), ``person_ids`` (P,), ``frames`` (T,), ``fps``, ``joint_names``,
-        ``spread`` (T, P, 15), ``loglik`` (T, P), ``mismatch`` (T, P), ``held_out_ratio`` (T, P), and the association's ``slots``
-        (T_frames, C, P) with ``detection_frames`` (T_frames,)."""
+        ``spread`` (T, P, 15), ``loglik`` (T, P), ``mismatch`` (T, P), ``held_out_ratio`` (T, P), ``ess`` (T, P),
+        ``camera_names`` (C,), ``reprojection_px`` (T, P, C), ``gated`` (T, P, C, 15), ``filtered_joints``
+        (T, P, 15, 3) where smoothed, and the association's ``slots`` (T_frames, C, P) with ``detection_frames``
+        (T_frames,): one person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
         path = output_path(path, "result file")
+        smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints}
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints, person_ids=self.person_ids, frames=self.frames, fps=np.array(self.fps),
                      joint_names=np.array(EVAL15_NAMES), spread=self.spread, loglik=self.loglik,
-                     mismatch=self.mismatch, held_out_ratio=self.held_out_ratio, slots=self.association.slots,
-                     detection_frames=self.association.frames)
+                     mismatch=self.mismatch, held_out_ratio=self.held_out_ratio, ess=self.ess,
+                     camera_names=np.array(self.camera_names), reprojection_px=self.reprojection_px,
+                     gated=self.gated, slots=self.association.slots, detection_frames=self.association.frames,
+                     **smoothed)
         return path
 
     def save_csv(self, path: str | Path) -> Path:
@@ -436,12 +453,16 @@ class _Pool:
 
 def _gathered(association: SceneAssociation, kept: list[int], results: list[DetectionTrack], index: np.ndarray,
               frames: np.ndarray, skipped: dict[int, str]) -> SceneTrack:
-    """The people's results on one tick grid (``index`` into the detection frames per tick), NaN where a
+    """The people's results on one tick grid (``index`` into the detection frames per tick), NaN (False) where a
     person is absent (:attr:`SceneAssociation.present`)."""
     tick_frames = np.where(index >= 0, frames[np.maximum(index, 0)], -1)
     T, P = len(index), len(kept)
-    joints, spread = np.full((T, P, 15, 3), np.nan), np.full((T, P, 15), np.nan)
-    loglik, mismatch, held_out = np.full((T, P), np.nan), np.zeros((T, P), dtype=bool), np.full((T, P), np.nan)
+    per_tick = {name: lambda r, name=name: getattr(r, name) for name in
+                ("joints", "spread", "loglik", "mismatch", "held_out_ratio", "ess", "gated", "filtered_joints")}
+    per_tick["reprojection_px"] = lambda r: r.reprojection_by_tick
+    smoothed = results[0].filtered_joints is not None
+    grids = {name: np.full((T, P) + np.shape(get(results[0]))[1:], False if name in ("mismatch", "gated") else np.nan)
+             for name, get in per_tick.items() if name != "filtered_joints" or smoothed}
     position = {int(f): t for t, f in enumerate(tick_frames) if f >= 0}
     # each tick's detection frame, a tick without one taking the last tick's (25 fps data at 30 fps ticks)
     nearest = np.maximum.accumulate(np.where(index >= 0, np.arange(T), 0))
@@ -451,8 +472,9 @@ def _gathered(association: SceneAssociation, kept: list[int], results: list[Dete
         ticks = position[int(result.frames[k0])] - k0 + np.arange(len(result.frames))   # the run's ticks on the grid
         keep = (ticks < T) & live[np.minimum(ticks, T - 1), p]
         t, k = ticks[keep], np.flatnonzero(keep)
-        joints[t, q], spread[t, q] = result.joints[k], result.spread[k]
-        loglik[t, q], mismatch[t, q] = result.loglik[k], result.mismatch[k]
-        held_out[t, q] = result.held_out_ratio[k]
-    return SceneTrack(association.person_ids[kept], tick_frames, results[0].fps, joints, spread, loglik, mismatch,
-                      held_out, results, association, skipped, index=index)
+        for name, grid in grids.items():
+            grid[t, q] = per_tick[name](result)[k]
+    return SceneTrack(association.person_ids[kept], tick_frames, results[0].fps, grids["joints"], grids["spread"],
+                      grids["loglik"], grids["mismatch"], grids["held_out_ratio"], results, association, skipped,
+                      index=index, ess=grids["ess"], reprojection_px=grids["reprojection_px"], gated=grids["gated"],
+                      filtered_joints=grids.get("filtered_joints"))
