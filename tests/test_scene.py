@@ -103,6 +103,8 @@ def test_each_person_is_within_30_mm_of_pose2sims_own_output(demo, tmp_path, cap
         assert len(summary[pid]["mean_position_m"]) == 3
     assert "(person 0): the body measured over the trial is no adult's (1.1" in caplog.text
     assert "(person 1): the body measured" not in caplog.text
+    flagged = [line for line in caplog.text.splitlines() if "flagged as mismatch" in line]   # each warning names its person
+    assert flagged and all("(person " in line for line in flagged)
     J = [EVAL15_NAMES.index(j) for j in LIMBS]
     ticks = np.flatnonzero(result.frames >= 0)
     for p, name in enumerate(("P1", "P2")):

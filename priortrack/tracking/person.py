@@ -771,9 +771,10 @@ class PersonRun:
             from priortrack.priors.support import verdict_rule
 
             better, unfitted = result.fit_check.get("better_prior"), result.fit_check.get("not_compared", [])
-            log.warning("fit-check: the tracked motion is %s the %s prior's support (%.0f%% of its frames below the "
+            log.warning("%s: fit-check: the tracked motion is %s the %s prior's support (%.0f%% of its frames below the "
                         "1st percentile of held-out training frames; %s); its estimate leans on a prior that does not "
-                        "know the motion: %s%s", "outside" if result.fit_check["verdict"] == "outside" else "partly in",
+                        "know the motion: %s%s", self.detections.source,
+                        "outside" if result.fit_check["verdict"] == "outside" else "partly in",
                         self.preset.prior_kind, 100 * result.fit_check["below_p1_fraction"], verdict_rule(),
                         "no shipped prior fits it better; fit one on motion like it (priortrack fit)" if better is None else
                         f"the {better['preset']} preset's prior fits it better ({better['verdict']}, "
@@ -781,8 +782,9 @@ class PersonRun:
                         "" if not unfitted else f" (not compared, their priors not fitted yet: {', '.join(unfitted)}; "
                                                 f"a run with that --filter fits one once, minutes)")
         if result.mismatch_fraction > 0:
-            log.warning(mismatch_message(result.mismatch, unlikely, lost, self.preset.prior_kind,
-                                         implausible is not None, worse))
+            log.warning("%s: %s", self.detections.source, mismatch_message(result.mismatch, unlikely, lost,
+                                                                            self.preset.prior_kind,
+                                                                            implausible is not None, worse))
         return result
 
 
