@@ -177,6 +177,24 @@ def test_track_smooth_prints_both_errors_and_records_both_skeletons(tmp_path, ca
     assert "--lag must be" in capsys.readouterr().err
 
 
+def test_off_a_terminal_progress_is_a_line_every_ten_seconds_and_the_last(monkeypatch, capsys):
+    """issue 60, item 6: with stderr not a terminal (a log, nohup, a notebook's !) nothing showed, even with -v. Now a
+    line every INTERVAL_S seconds, and the last one at the end; ticks, not frames."""
+    from priortrack.cli import common
+
+    clock = iter([0.0, 4.0, 11.0, 12.0, 13.0])
+    monkeypatch.setattr(common.time, "perf_counter", lambda: next(clock))
+    progress = common.Progress("track ukf-real", "tick {0} of {1}", rate=True)
+    assert not progress.shown                                          # pytest's captured stderr is no terminal
+    for step in (1, 5, 12, 13, 14):
+        progress(step, 100)
+    progress.close()
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split("  ")[0] for line in lines] == ["track ukf-real: tick 1 of 100", "track ukf-real: tick 12 of 100",
+                                                        "track ukf-real: tick 14 of 100"]
+    assert "ETA" in lines[-1]
+
+
 def test_the_progress_line_gives_the_rate_and_the_time_left(monkeypatch, capsys):
     """track's progress line: frames per second since the first update, and the time left at that rate."""
     from priortrack.cli import common

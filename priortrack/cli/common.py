@@ -8,33 +8,46 @@ import time
 
 
 class Progress:
-    """A one-line progress display on stderr: a step count and a value (objective, or total); with
-    ``rate``, the value is the total and the line adds steps per second and the time left (ETA) at the
-    rate since the first update. Shown only on a terminal: a log file would get every update on one line."""
+    """A progress display on stderr: a step count and a value (objective, or total); with ``rate``, the value is the
+    total and the line adds steps per second and the time left (ETA) at the rate since the first update. On a
+    terminal one line rewritten in place; elsewhere (a log file, nohup, a notebook's ``!``) a line every
+    :data:`INTERVAL_S` seconds and the last one at the end."""
+
+    #: Seconds between two progress lines off a terminal.
+    INTERVAL_S = 10.0
 
     def __init__(self, label: str, template: str = "step {0:5d}  objective {1:.6g}", rate: bool = False):
         self.label, self.template, self.rate = label, template, rate
         self.shown = sys.stderr.isatty()
         self.last = None
         self.first: tuple[int, float] | None = None
+        self.written: tuple[float, str] | None = None          # off a terminal: when the last line went, and it
+        self.line = ""
 
     def __call__(self, step: int, value: float) -> None:
-        if not self.shown:
-            return
         self.last = (step, value)
         line = self.template.format(step, value)
+        now = time.perf_counter()
         if self.rate:
-            now = time.perf_counter()
             self.first = self.first or (step, now)
             if step > self.first[0] and now > self.first[1]:
                 per_second = (step - self.first[0]) / (now - self.first[1])
                 left = max(value - step, 0) / per_second
                 line += f"  {per_second:.1f}/s  ETA {int(left // 60)}:{int(left % 60):02d}"
-        print(f"\r{self.label}: " + line + "   ", end="", file=sys.stderr, flush=True)
+        if self.shown:
+            print(f"\r{self.label}: " + line + "   ", end="", file=sys.stderr, flush=True)
+        elif self.written is None or now - self.written[0] >= self.INTERVAL_S:
+            print(f"{self.label}: {line}", file=sys.stderr, flush=True)
+            self.written = (now, line)
+        self.line = line
 
     def close(self) -> None:
-        if self.last is not None:
+        if self.last is None:
+            return
+        if self.shown:
             print(file=sys.stderr)
+        elif self.written is None or self.written[1] != self.line:
+            print(f"{self.label}: {self.line}", file=sys.stderr, flush=True)
 
 
 def print_json(result: dict) -> None:

@@ -27,7 +27,7 @@ def _track(args: argparse.Namespace) -> None:
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
         output_path(args.rrd, "rerun recording")
-    progress = Progress(f"track {args.filter}", "frame {0} of {1}", rate=True)
+    progress = Progress(f"track {args.filter}", "tick {0} of {1}", rate=True)
     try:
         run = track(args.motion, args.filter, args.scenario, args.seed, keep_snapshots=bool(args.rrd),
                     progress=progress, frames=args.frames, device=args.device, **_smoothing(args))
@@ -124,7 +124,7 @@ def _track_detections(args: argparse.Namespace) -> None:
     calibration = read_calibration(args.cameras, units=args.units)
     config = replace(config, keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True)
     scene = _every_person(args, calibration)
-    progress = Progress(f"track {args.filter}", "frame {0} of {1}", rate=True)
+    progress = Progress(f"track {args.filter}", "tick {0} of {1}", rate=True)
     try:
         if scene is not None and int(scene.people.max(initial=0)) > 1:      # a scene of one: the person seen longest
             from priortrack.tracking.people import track_scene
