@@ -2,6 +2,7 @@
 documented COCO, MediaPipe and NPZ layouts; the eval15 map; following one person; triangulation."""
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +23,14 @@ def _cameras():
     return [PinholeCamera.from_calibration(c) for c in read_calibration(POSE2SIM / "Calib.toml").cameras]
 
 
-def test_real_openpose_body25b_needs_its_layout_named_and_reads():
-    with pytest.raises(PriortrackError, match="25 keypoints fit body25 and body25b; say which with --keypoints"):
-        read_detections(POSE2SIM / "pose")
+def test_real_openpose_body25b_is_told_from_body25_and_reads(caplog):
+    """25 keypoints are BODY_25 or BODY_25B: without --keypoints the bundled BODY_25B trial is read as BODY_25B, said
+    in the log (its keypoint 8 is no midpoint of 9 and 12), as it is read with the layout named."""
+    with caplog.at_level(logging.INFO, logger="priortrack.data.keypoints"):
+        found = read_detections(POSE2SIM / "pose")
+    assert found.layout == "body25b" and "read as BODY_25B: keypoint 8 is not the midpoint" in caplog.text
     d = read_detections(POSE2SIM / "pose", keypoints="BODY_25B")
+    np.testing.assert_array_equal(found.keypoints, d.keypoints)
     assert d.keypoints.shape == (4, 12, 25, 3) and d.layout == "body25b"
     assert d.camera_names == ("cam01_json", "cam02_json", "cam03_json", "cam04_json")
     assert d.frames.tolist() == list(range(12)) and d.switches == (0, 0, 0, 0)
@@ -198,7 +203,7 @@ def test_a_25_keypoint_layout_read_as_the_other_is_refused_naming_it(tmp_path, c
     hips' midpoint, written here) read as BODY_25B are refused naming body25; each read as itself is taken, and a
     file with too few people-frames to tell is taken as named."""
     from priortrack.cli.main import main
-    from priortrack.data.keypoints import check_layout
+    from priortrack.data.keypoints import settled_layout
     from priortrack.data.scene_detections import read_scene_detections
 
     with pytest.raises(PriortrackError, match=r"read as BODY_25 \(--keypoints body25\), but its keypoint 8 is not "
@@ -216,9 +221,13 @@ def test_a_25_keypoint_layout_read_as_the_other_is_refused_naming_it(tmp_path, c
         (camera / f"walk_{t:012d}_keypoints.json").write_text(
             json.dumps({"people": [{"pose_keypoints_2d": kp.ravel().tolist()}]}))
     read_detections(tmp_path, keypoints="body25")
+    assert read_detections(tmp_path).layout == read_scene_detections(tmp_path).layout == "body25"     # told, unnamed
     with pytest.raises(PriortrackError, match=r"read as BODY_25B .*is the midpoint of 9 and 12.*--keypoints body25\b"):
         read_detections(tmp_path, keypoints="body25b")
-    check_layout(np.full((1, 5, 25, 3), 1.0), "body25b", "few")                  # nothing to tell it by
+    assert settled_layout(np.full((1, 5, 25, 3), 1.0), ("body25b",), "few") == "body25b"   # nothing to tell it by
+    with pytest.raises(PriortrackError, match=r"few: 25 keypoints fit body25 and body25b, and too few people-frames "
+                                              r"\(5\) show keypoints 8, 9 and 12 to tell which; say which"):
+        settled_layout(np.full((1, 5, 25, 3), 1.0), ("body25", "body25b"), "few")
     assert main(["track", "--detections", str(POSE2SIM / "pose"), "--cameras", str(POSE2SIM / "Calib.toml"),
                  "--keypoints", "body25", "--fps", "60", "--filter", "ukf-real"]) == 2
     assert "--keypoints body25b" in capsys.readouterr().err

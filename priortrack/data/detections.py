@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from priortrack.data.caliscope import is_caliscope_csv, read_caliscope
-from priortrack.data.keypoints import LAYOUTS, check_layout, layout_for, layout_of_names, to_eval15
+from priortrack.data.keypoints import LAYOUTS, layout_candidates, layout_for, layout_of_names, settled_layout, to_eval15
 from priortrack.data.npz import ArrayOnDisk, npz_member_on_disk, read_npz
 from priortrack.errors import PriortrackError
 
@@ -222,7 +222,9 @@ def _camera_folders(path: Path) -> list[Path]:
 
 
 def openpose_cameras(path: Path, keypoints: str | None):
-    """An OpenPose folder (or folder of camera folders): (camera names (C,), frames (T,), layout, K, people)
+    """An OpenPose folder (or folder of camera folders): (camera names (C,), frames (T,), the layouts it may have
+    (:func:`~priortrack.data.keypoints.layout_candidates`; :func:`~priortrack.data.keypoints.settled_layout` decides
+    once the keypoints are read), K, people)
     where ``people(c)`` yields camera c's frames' people, (K, 3) each, in frame order, one file parsed at a
     time and each person's keypoint count checked as it is read."""
     folders = _camera_folders(path)
@@ -235,16 +237,16 @@ def openpose_cameras(path: Path, keypoints: str | None):
     def people(c: int) -> Iterator[list[np.ndarray]]:
         return _with_count((_people(files[c][n]) if n in files[c] else [] for n in numbers), K, path)
 
-    return tuple(f.name for f in folders), frames, layout_for(keypoints, K, str(path)), K, people
+    return tuple(f.name for f in folders), frames, layout_candidates(keypoints, K, str(path)), K, people
 
 
 def _read_openpose(path: Path, keypoints: str | None, person: int | None) -> Detections:
     """Each camera's files parsed one at a time, in frame order, as its person is followed: a file's people
     are let go once the followed one is kept (an hour of several people's detections is not held at once)."""
-    cameras, frames, layout, K, people = openpose_cameras(path, keypoints)
+    cameras, frames, candidates, K, people = openpose_cameras(path, keypoints)
     out = np.full((len(cameras), len(frames), K, 3), np.nan, dtype=np.float32)
     switches = tuple(follow(people(c), out[c], person, name) for c, name in enumerate(cameras))
-    check_layout(out, layout, str(path))
+    layout = settled_layout(out, candidates, str(path))
     return Detections(layout, cameras, frames, None, str(path), switches, keypoints=out)
 
 
@@ -361,12 +363,12 @@ def coco_people(path: Path) -> tuple[dict[int, list[np.ndarray]], int]:
 
 def _read_coco_results(path: Path, keypoints: str | None, person: int | None) -> Detections:
     by_frame, K = coco_people(path)
-    layout = layout_for(keypoints, K, str(path))
+    candidates = layout_candidates(keypoints, K, str(path))
     frames = np.array(sorted(by_frame))
     check_frames(frames, str(path))
     followed = np.full((1, len(frames), K, 3), np.nan, dtype=np.float32)
     switches = follow([by_frame[int(n)] for n in frames], followed[0], person, path.stem)
-    check_layout(followed, layout, str(path))
+    layout = settled_layout(followed, candidates, str(path))
     return Detections(layout, (path.stem,), frames, None, str(path), (switches,), keypoints=followed)
 
 

@@ -28,12 +28,15 @@ an approximation, a few centimetres low).
 
 from __future__ import annotations
 
+import logging
 import re
 
 import numpy as np
 
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.errors import PriortrackError
+
+log = logging.getLogger(__name__)
 
 _LR = ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")
 
@@ -109,20 +112,28 @@ def detector_map() -> np.ndarray:
     return M
 
 
-def layout_for(name: str | None, count: int, where: str) -> str:
-    """The layout of keypoints that number ``count``: ``name`` (any case) checked against the count,
-    or the one layout with that many keypoints; BODY_25 and BODY_25B (both 25) need a name."""
+def layout_candidates(name: str | None, count: int, where: str) -> tuple[str, ...]:
+    """The layouts keypoints that number ``count`` may have: ``name`` (any case) checked against the count, or
+    every layout with that many keypoints (BODY_25 and BODY_25B both have 25: :func:`settled_layout` tells them
+    apart by the keypoints themselves)."""
     if name is not None:
         key = name.lower().replace("_", "").replace("-", "")
         if key not in LAYOUTS:
             raise PriortrackError(f"unknown keypoint layout {name!r}; layouts: {', '.join(LAYOUTS)}")
         if len(LAYOUTS[key]) != count:
             raise PriortrackError(f"{where}: {count} keypoints per person, but layout {key} has {len(LAYOUTS[key])}")
-        return key
-    matches = [k for k, names in LAYOUTS.items() if len(names) == count]
+        return (key,)
+    matches = tuple(k for k, names in LAYOUTS.items() if len(names) == count)
     if not matches:
         raise PriortrackError(f"{where}: {count} keypoints per person fit no layout "
                               f"({', '.join(f'{k}: {len(v)}' for k, v in LAYOUTS.items())})")
+    return matches
+
+
+def layout_for(name: str | None, count: int, where: str) -> str:
+    """The one layout of :func:`layout_candidates` (for a reader that cannot look at the keypoints: a name is
+    needed where two layouts have ``count`` keypoints)."""
+    matches = layout_candidates(name, count, where)
     if len(matches) > 1:
         raise PriortrackError(f"{where}: {count} keypoints fit {' and '.join(matches)}; say which with "
                               f"--keypoints ({', '.join(matches)})")
@@ -138,29 +149,49 @@ MIDHIP_TOLERANCE = 0.05
 MIN_JUDGED = 10
 
 
-def check_layout(keypoints: np.ndarray, layout: str, where: str, min_confidence: float = 0.3) -> None:
-    """Refuse keypoints (..., K, 3) read as ``layout`` that are the other 25-keypoint layout's (BODY_25 as BODY_25B or
-    the reverse: :data:`MIDHIP_TOLERANCE`); every point of a wrong layout is some other joint, and the bodies it makes
-    are no one's."""
-    if layout not in ("body25", "body25b"):
-        return
+_NAMES = {"body25": "BODY_25", "body25b": "BODY_25B"}
+
+
+def _midhip_gap(keypoints: np.ndarray, min_confidence: float) -> tuple[float | None, int]:
+    """The median over people-frames of |k8 − (k9 + k12) / 2| over the person's size (their keypoints' box diagonal)
+    of 25-keypoint detections (..., 25, 3), and the people-frames judged; None where fewer than ``MIN_JUDGED``."""
     kp = np.asarray(keypoints, dtype=np.float64).reshape(-1, 25, 3)
     xy = np.where((np.nan_to_num(kp[..., 2:]) > min_confidence) & np.isfinite(kp[..., :2]), kp[..., :2], np.nan)
     shown = np.isfinite(xy[:, [8, 9, 12]]).all(axis=(-1, -2))
     if shown.sum() < MIN_JUDGED:
-        return
+        return None, int(shown.sum())
     xy = xy[shown]
     size = np.linalg.norm(np.fmax.reduce(xy, axis=1) - np.fmin.reduce(xy, axis=1), axis=-1)
     gap = float(np.median(np.linalg.norm(xy[:, 8] - 0.5 * (xy[:, 9] + xy[:, 12]), axis=-1) / np.maximum(size, 1e-9)))
+    return gap, int(shown.sum())
+
+
+def settled_layout(keypoints: np.ndarray, candidates: tuple[str, ...], where: str, min_confidence: float = 0.3) -> str:
+    """The layout of keypoints (..., K, 3) among ``candidates`` (:func:`layout_candidates`). BODY_25 and BODY_25B are
+    told apart by keypoint 8 (:data:`MIDHIP_TOLERANCE`): where both were possible (no ``--keypoints``), the one the
+    keypoints show is taken and logged; where one was named, keypoints that are the other's are refused (every point
+    of a wrong layout is some other joint, and the bodies it makes are no one's); too few people-frames to tell: a
+    named layout is taken as named, two possible ones need a name."""
+    if not set(candidates) <= set(_NAMES):
+        return candidates[0]
+    gap, judged = _midhip_gap(keypoints, min_confidence)
+    if gap is None:
+        if len(candidates) == 1:
+            return candidates[0]
+        raise PriortrackError(f"{where}: 25 keypoints fit body25 and body25b, and too few people-frames ({judged}) show "
+                              f"keypoints 8, 9 and 12 to tell which; say which with --keypoints (body25, body25b)")
     midway = gap < MIDHIP_TOLERANCE
-    if midway != (layout == "body25"):
-        other = "body25b" if layout == "body25" else "body25"
-        name = {"body25": "BODY_25", "body25b": "BODY_25B"}
-        raise PriortrackError(
-            f"{where}: read as {name[layout]} (--keypoints {layout}), but its keypoint 8 is {'' if midway else 'not '}"
-            f"the midpoint of 9 and 12 (median distance {gap:.3f} of the person's size over {int(shown.sum())} "
-            f"people-frames; BODY_25's MidHip is within {MIDHIP_TOLERANCE}, BODY_25B's right elbow is not): "
-            f"{name[other]} detections? --keypoints {other}")
+    found = "body25" if midway else "body25b"
+    why = (f"keypoint 8 is {'' if midway else 'not '}the midpoint of 9 and 12 (median distance {gap:.3f} of the "
+           f"person's size over {judged} people-frames; BODY_25's MidHip is within {MIDHIP_TOLERANCE}, BODY_25B's right "
+           f"elbow is not)")
+    if len(candidates) > 1:
+        log.info("%s: read as %s: %s (--keypoints to say otherwise)", where, _NAMES[found], why)
+        return found
+    if found != candidates[0]:
+        raise PriortrackError(f"{where}: read as {_NAMES[candidates[0]]} (--keypoints {candidates[0]}), but its {why}: "
+                              f"{_NAMES[found]} detections? --keypoints {found}")
+    return found
 
 
 def to_eval15(keypoints: np.ndarray, names: tuple[str, ...], min_confidence: float) -> tuple[np.ndarray, np.ndarray]:

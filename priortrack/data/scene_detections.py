@@ -23,7 +23,7 @@ import numpy as np
 
 from priortrack.data.detections import (MAX_CAMERAS, MAX_NPZ_BYTES, Detections, DetectionsHeader, check_frames,
                                         cleaned_keypoints, coco_people, follow, npz_header, openpose_cameras)
-from priortrack.data.keypoints import check_layout, layout_for, to_eval15
+from priortrack.data.keypoints import layout_candidates, settled_layout, to_eval15
 from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
 
@@ -103,10 +103,10 @@ def _stacked(per_camera: list[list[list[np.ndarray]]], K: int, where: str) -> np
 
 
 def _openpose(path: Path, keypoints: str | None) -> SceneDetections:
-    cameras, frames, layout, K, people = openpose_cameras(path, keypoints)
+    cameras, frames, candidates, K, people = openpose_cameras(path, keypoints)
     per_camera = [[_seen(frame) for frame in people(c)] for c in range(len(cameras))]
     stacked = _stacked(per_camera, K, str(path))
-    check_layout(stacked, layout, str(path))
+    layout = settled_layout(stacked, candidates, str(path))
     return SceneDetections(layout, cameras, frames, None, str(path), keypoints=stacked)
 
 
@@ -115,8 +115,8 @@ def _coco(path: Path, keypoints: str | None) -> SceneDetections:
     frames = np.array(sorted(by_frame))
     check_frames(frames, str(path))
     per_camera = [[_seen(by_frame[int(n)]) for n in frames]]
-    layout, stacked = layout_for(keypoints, K, str(path)), _stacked(per_camera, K, str(path))
-    check_layout(stacked, layout, str(path))
+    stacked = _stacked(per_camera, K, str(path))
+    layout = settled_layout(stacked, layout_candidates(keypoints, K, str(path)), str(path))
     return SceneDetections(layout, (path.stem,), frames, None, str(path), keypoints=stacked)
 
 
