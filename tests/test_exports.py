@@ -10,6 +10,7 @@ from priortrack.body.fk import ForwardKinematics
 from priortrack.cli.main import main
 from priortrack.data.bundled import POSE2SIM_DIR
 from priortrack.data.bvh import read_bvh
+from priortrack.data.eval15 import EVAL15_MARKER_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -20,17 +21,19 @@ def run(tmp_path_factory):
                  "--keypoints", "body25b", "--fps", "60", "--filter", "pf-lie", "--out", str(folder / "r.npz"),
                  "--out", str(folder / "r.trc"), "--out", str(folder / "r.bvh")]) == 0
     with np.load(folder / "r.npz") as z:
-        return folder, z["joints"], [str(n) for n in z["joint_names"]]
+        return folder, z["joints"], [str(n) for n in z["joint_names"]], z["frames"]
 
 
 def test_opensim_reads_the_trc_y_up_in_metres(run):
     import opensim
 
-    folder, joints, names = run
+    folder, joints, names, frames = run
     table = opensim.TimeSeriesTableVec3(str(folder / "r.trc"))
-    assert table.getNumRows() == len(joints) and list(table.getColumnLabels()) == names
-    assert table.getTableMetaDataAsString("Units") == "m" and float(table.getTableMetaDataAsString("DataRate")) == 30
-    np.testing.assert_allclose(list(table.getIndependentColumn()), np.arange(len(joints)) / 30, atol=1e-12)
+    # the detections' 60 fps frames (every one, the last half a tick after the filter's last), OpenSim's names
+    assert table.getNumRows() == len(joints) == 12 and frames.tolist() == list(range(12))
+    assert list(table.getColumnLabels()) == list(EVAL15_MARKER_NAMES)
+    assert table.getTableMetaDataAsString("Units") == "m" and float(table.getTableMetaDataAsString("DataRate")) == 60
+    np.testing.assert_allclose(list(table.getIndependentColumn()), np.arange(len(joints)) / 60, atol=1e-12)
     markers = np.array([[[table.getRowAtIndex(t)[j].get(k) for k in range(3)] for j in range(len(names))]
                         for t in range(len(joints))])
     np.testing.assert_allclose(markers, joints[..., [1, 2, 0]], atol=1e-12)      # Pose2Sim's zup2yup
@@ -44,7 +47,7 @@ def test_blender_imports_the_bvh_at_scale_0_01_to_our_joints(run):
     world, to 1e-6 m; the tracked head stands 1.3 m above the ankles along Blender's Z."""
     import bpy
 
-    folder, joints, names = run
+    folder, joints, names, _ = run
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_anim.bvh(filepath=str(folder / "r.bvh"), global_scale=0.01, axis_forward="-Z", axis_up="Y")
     armature = bpy.context.selected_objects[0]

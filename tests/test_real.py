@@ -36,7 +36,7 @@ def outputs(tmp_path_factory):
     argv = ["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",
             "--filter", "pf-lie", "--out", str(folder / "r.npz"), "--out", str(folder / "r.csv"),
             "--out", str(folder / "r.trc"), "--out", str(folder / "r.bvh"),
-            "--rrd", str(folder / "r.rrd"), "--json"]
+            "--rrd", str(folder / "r.rrd"), "--rate", "ticks", "--json"]
     return folder, argv
 
 
@@ -85,7 +85,8 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
     assert trc_text[0].startswith("PathFileType\t4\t(X/Y/Z)\tr.trc") and trc_text[2].split("\t")[:5] == [
         "30", "30", "6", "15", "m"]
     trc, names, fps = read_trc(folder / "r.trc", up="z")
-    assert names == EVAL15_NAMES and fps == 30.0
+    assert [n.lower() for n in names] == ["hip", "neck", "head"] + list(EVAL15_NAMES[3:]) and fps == 30.0
+    assert names[:4] == ("Hip", "Neck", "Head", "LShoulder")                    # Pose2Sim's and OpenSim's names
     np.testing.assert_allclose(trc, joints, atol=1e-12)
     np.testing.assert_allclose(read_trc(folder / "r.trc")[0][..., [2, 0, 1]], joints, atol=1e-12)
     # BVH: the body's motion, Y-up, read back by our reader to the joints the filter tracked (IK: mm).
@@ -364,8 +365,9 @@ def test_ctrl_c_writes_what_was_tracked(tmp_path, capsys, monkeypatch):
     assert "interrupted: writing the 4 ticks tracked until then" in captured.err
     assert json.loads(captured.out)["interrupted"] is True
     with np.load(tmp_path / "r.npz") as z:
-        assert z["joints"].shape == (4, 15, 3) and np.isfinite(z["joints"]).all() and z["frames"].tolist() == [0, 2, 4, 6]
-    assert np.loadtxt(tmp_path / "r.csv", delimiter=",", skiprows=1).shape[0] == 4
+        # the 4 ticks at the detections' 60 fps: frames 0–6 and the one half a tick after the last
+        assert z["joints"].shape == (8, 15, 3) and np.isfinite(z["joints"]).all() and z["frames"].tolist() == list(range(8))
+    assert np.loadtxt(tmp_path / "r.csv", delimiter=",", skiprows=1).shape[0] == 8
     detections, calibration = read_detections(POSE, keypoints="body25b"), read_calibration(CALIB)
 
     def interrupt(t, T):

@@ -22,7 +22,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.viz.replay import replay
 
     for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory",
-                 "workers", "association", "no_fit_check"):                                   # (--height has a default)
+                 "workers", "association", "no_fit_check", "rate"):                                   # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -146,7 +146,7 @@ def _track_detections(args: argparse.Namespace) -> None:
         progress.close()
     if result.interrupted:
         print(f"priortrack: interrupted: writing the {len(result.joints)} ticks tracked until then", file=sys.stderr)
-    written = [str(result.save(path)) for path in args.out or []]
+    written = [str(result_at_rate(result, args.rate).save(path)) for path in args.out or []]
     if args.rrd:
         from priortrack.viz.real import record_detections
 
@@ -159,6 +159,16 @@ def _track_detections(args: argparse.Namespace) -> None:
     print(f"{result.filter}: {summary['frames']} frames at {result.fps:g} fps in {summary['seconds']:.1f} s; "
           f"median reprojection {errors}; mismatch {100 * summary['mismatch_fraction']:.0f}% of frames"
           + (f"; wrote {', '.join(written)}" if written else ""))
+
+
+#: ``--rate``: the outputs' frames, the detections' own (the default) or the filter's ticks.
+RATES = ("detections", "ticks")
+
+
+def result_at_rate(result, rate: str | None):
+    """A tracked result (one person's or a scene's) at the frames ``--rate`` asks for: the detections' own (None
+    too), each frame's estimate carried to its time (:mod:`priortrack.tracking.resample`), or the filter's ticks."""
+    return result if rate == "ticks" else result.at_detection_frames()
 
 
 def _every_person(args: argparse.Namespace, calibration):
@@ -200,7 +210,7 @@ def _track_scene(args: argparse.Namespace, config) -> None:
                              progress=progress)
     finally:
         progress.close()
-    written = [str(p) for path in args.out or [] for p in result.save(path)]
+    written = [str(p) for path in args.out or [] for p in result_at_rate(result, args.rate).save(path)]
     if args.rrd:
         from priortrack.viz.scene import record_scene
 
@@ -263,6 +273,10 @@ def add_parsers(verbs) -> None:
                        help="write the result by suffix: .npz (joints, spread, ESS, log-likelihood, flags), .csv, "
                             ".trc (Y up, metres: OpenSim) or .bvh (Y up, centimetres: Blender); may repeat "
                             "(docs/formats.md)")
+    track.add_argument("--rate", choices=RATES,
+                       help="--detections: the outputs' frames: the detections' own, at their rate (the default: "
+                            "each frame's estimate carried to its time by a cubic spline through the filter's "
+                            "ticks), or the filter's ticks at its prior's rate (30 fps for the bundled presets)")
     track.add_argument("--filter", default="ukf-real",
                        help="a preset name (priortrack presets) or a .toml file (default %(default)s)")
     track.add_argument("--scenario", default="clean",

@@ -19,3 +19,12 @@ EVAL15_NAMES = (
 EVAL15_MIRROR_PAIRS = np.array([(3, 6), (4, 7), (5, 8), (9, 12), (10, 13), (11, 14)])
 #: (15,) parent of each eval15 joint, -1 for the pelvis.
 EVAL15_PARENTS = np.array([-1, 0, 1, 1, 3, 4, 1, 6, 7, 0, 9, 10, 0, 12, 13])
+#: Each eval15 joint's marker name in Pose2Sim's TRC files and its OpenSim marker sets (HALPE_26's names: ``Hip`` the
+#: mid-hips, ``Neck`` the mid-shoulders, ``Head`` the head top), in :data:`EVAL15_NAMES`' order.
+EVAL15_MARKER_NAMES = (
+    "Hip", "Neck", "Head",
+    "LShoulder", "LElbow", "LWrist",
+    "RShoulder", "RElbow", "RWrist",
+    "LHip", "LKnee", "LAnkle",
+    "RHip", "RKnee", "RAnkle",
+)

@@ -39,6 +39,7 @@ from priortrack.tracking.person import (DetectionTrack, TrackConfig, data_rate, 
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.presets import Preset, load_preset
 from priortrack.tracking.reassociation import predicts, reassociated
+from priortrack.tracking.resample import frame_times, interpolated, nearest_tick
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
 
 log = logging.getLogger(__name__)
@@ -176,6 +177,8 @@ class SceneTrack:
     reprojection_px: np.ndarray | None = field(default=None, repr=False)
     gated: np.ndarray | None = field(default=None, repr=False)
     filtered_joints: np.ndarray | None = field(default=None, repr=False)
+    #: The detections' frame rate (tick k is at k / fps from the first detection frame).
+    data_fps: float | None = None
 
     @property
     def camera_names(self) -> tuple[str, ...]:
@@ -202,6 +205,35 @@ class SceneTrack:
         return {"people": [int(i) for i in self.person_ids], "frames": int(len(self.frames)), "fps": self.fps,
                 "seconds": self.seconds, "skipped": {str(k): v for k, v in self.skipped.items()},
                 "per_person": per_person}
+
+    def at_detection_frames(self) -> "SceneTrack":
+        """The scene at every detection frame and the detections' rate, each person's joints and spread carried to
+        each frame's time and their verdicts the nearest tick's, absent where the person is
+        (:mod:`~priortrack.tracking.resample`; one person's :meth:`~priortrack.tracking.person.DetectionTrack.at_detection_frames`
+        each). What a file is written from."""
+        frames = self.association.frames
+        ticks, times = np.arange(len(self.frames)) / self.fps, frame_times(frames, self.data_fps)
+        near = nearest_tick(ticks, times)
+        joints = np.stack([interpolated(self.joints[:, p], ticks, times) for p in range(len(self.person_ids))], axis=1)
+        present = np.isfinite(joints).all(axis=(2, 3))                                 # (F, P)
+
+        def spline(grid):
+            if grid is None:
+                return None
+            out = np.stack([interpolated(grid[:, p], ticks, times) for p in range(grid.shape[1])], axis=1)
+            out[~present] = np.nan
+            return out
+
+        def nearest(grid, absent=np.nan):
+            out = grid[near].copy()
+            out[~present] = absent
+            return out
+
+        return replace(self, frames=np.asarray(frames), fps=self.data_fps, joints=joints, spread=spline(self.spread),
+                       loglik=nearest(self.loglik), mismatch=nearest(self.mismatch, False),
+                       held_out_ratio=nearest(self.held_out_ratio), people=[r.at_detection_frames() for r in self.people],
+                       index=np.arange(len(frames)), ess=nearest(self.ess), reprojection_px=nearest(self.reprojection_px),
+                       gated=nearest(self.gated, False), filtered_joints=spline(self.filtered_joints))
 
     def save(self, path: str | Path) -> list[Path]:
         """Write by suffix: ``.npz`` and ``.csv`` hold every person; ``.trc`` and ``.bvh`` are written one
@@ -242,10 +274,11 @@ class SceneTrack:
             writer = csv.writer(f)
             writer.writerow(["frame", "time_s", "person"] + [f"{n}_{a}" for n in EVAL15_NAMES for a in "xyz"] +
                             [f"{n}_spread" for n in EVAL15_NAMES] + ["loglik", "mismatch"])
+            times = np.arange(len(self.frames)) / self.fps                    # from the first tick or frame
             for t, frame in enumerate(self.frames):
                 for p, pid in enumerate(self.person_ids):
                     if np.isfinite(self.joints[t, p]).any():
-                        writer.writerow([int(frame), f"{t / self.fps:.9g}", int(pid)] +
+                        writer.writerow([int(frame), f"{times[t]:.9g}", int(pid)] +
                                         [f"{v:.9g}" for v in self.joints[t, p].ravel()] +
                                         [f"{v:.9g}" for v in self.spread[t, p]] +
                                         [f"{self.loglik[t, p]:.9g}", int(self.mismatch[t, p])])
@@ -317,7 +350,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
         raise PriortrackError(f"{scene.source}: no person could be tracked ({'; '.join(skipped.values())})")
     gathered = _gathered(association, kept, results, schedule(scene.frames, data_fps, results[0].fps), scene.frames,
                          skipped)
-    gathered.detections, gathered.seconds = scene, time.perf_counter() - start
+    gathered.detections, gathered.seconds, gathered.data_fps = scene, time.perf_counter() - start, data_fps
     return gathered
 
 

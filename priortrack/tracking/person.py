@@ -82,11 +82,12 @@ from priortrack.data.skeleton import Skeleton
 from priortrack.data.trc import write_trc
 from priortrack.filters.smoothing import (PARTICLE_SMOOTHERS, TRAJECTORIES, FixedLagSmoother, joint_spread,
                                          smooth as smooth_run)
-from priortrack.data.eval15 import EVAL15_NAMES
+from priortrack.data.eval15 import EVAL15_MARKER_NAMES, EVAL15_NAMES
 from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
 from priortrack.tracking.held_out import MIN_CAMERAS, WORSE_RATIO, held_out_errors, held_out_ratio
 from priortrack.tracking.presets import UNSCENTED_KINDS, Preset, load_preset
+from priortrack.tracking.resample import frame_times, interpolated, nearest_tick
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.filters.step_store import DEFAULT_MEMORY, StepStore
 from priortrack.geometry.camera import PinholeCamera, pixel_errors
@@ -214,6 +215,11 @@ class DetectionTrack:
     #: (T,) the filter's held-out ratio q a tick (:mod:`~priortrack.tracking.held_out`; over ``WORSE_RATIO``: worse
     #: than triangulation), NaN where not judged or with fewer than three cameras.
     held_out_ratio: np.ndarray | None = field(default=None, repr=False)
+    #: (T,) each tick's time, seconds from the detections' first frame; the detections' rate and every frame number
+    #: (F,) they hold (:meth:`at_detection_frames`).
+    tick_times: np.ndarray | None = field(default=None, repr=False)
+    data_fps: float | None = None
+    data_frames: np.ndarray | None = field(default=None, repr=False)
 
     def in_world(self, body: np.ndarray, definitions: bool = True) -> np.ndarray:
         """Points (..., 3) of the filter's Y-up working frame (a snapshot's estimate, best or cloud, the
@@ -225,6 +231,27 @@ class DetectionTrack:
     @property
     def mismatch_fraction(self) -> float:
         return float(self.mismatch[KNOWN_FRAMES:].mean()) if len(self.mismatch) > KNOWN_FRAMES else 0.0
+
+    def at_detection_frames(self) -> "DetectionTrack":
+        """This result at the detections' own frames and rate (:mod:`~priortrack.tracking.resample`): each detection
+        frame within half a tick of the tracked ticks, its joints, spread and body the cubic spline through the ticks',
+        its verdicts (ESS, log-likelihood, mismatch, reprojection, gate, held-out ratio) the nearest tick's; ``fps`` the
+        detections'. What a file is written from; the filter's snapshots and observations stay with the ticks."""
+        times = frame_times(self.data_frames, self.data_fps)
+        joints = interpolated(self.joints, self.tick_times, times)
+        keep = np.isfinite(joints).all(axis=(1, 2))
+        times, joints = times[keep], joints[keep]
+        near = nearest_tick(self.tick_times, times)
+
+        def spline(values):
+            return None if values is None else interpolated(values, self.tick_times, times)
+
+        return replace(self, joints=joints, frames=self.data_frames[keep], fps=self.data_fps, tick_times=times,
+                       spread=spline(self.spread), ess=self.ess[near], loglik=self.loglik[near],
+                       mismatch=self.mismatch[near], body_joints=spline(self.body_joints),
+                       filtered_joints=spline(self.filtered_joints), filtered_spread=spline(self.filtered_spread),
+                       reprojection_by_tick=self.reprojection_by_tick[near], gated=self.gated[near],
+                       held_out_ratio=self.held_out_ratio[near], observations=None, snapshots=None, steps=None)
 
     def summary(self) -> dict:
         """The JSON summary: frames, seconds, median reprojection error per camera, mismatch fraction, the
@@ -261,21 +288,24 @@ class DetectionTrack:
         return path
 
     def save_csv(self, path: str | Path) -> Path:
-        """One row per tick: frame, time (s), each joint's x, y, z (metres), spread, ESS, loglik, mismatch."""
+        """One row per tick: frame, time (s from the detections' first frame), each joint's x, y, z (metres), spread,
+        ESS, loglik, mismatch."""
         path = output_path(path, "result file")
         header = ["frame", "time_s"] + [f"{n}_{a}" for n in EVAL15_NAMES for a in "xyz"] + \
                  [f"{n}_spread" for n in EVAL15_NAMES] + ["ess", "loglik", "mismatch"]
-        rows = np.column_stack([self.frames, np.arange(len(self.frames)) / self.fps, self.joints.reshape(len(self.joints), -1),
+        times = np.arange(len(self.frames)) / self.fps if self.tick_times is None else self.tick_times
+        rows = np.column_stack([self.frames, times, self.joints.reshape(len(self.joints), -1),
                                 self.spread, self.ess, self.loglik, self.mismatch.astype(int)])
         np.savetxt(path, rows, delimiter=",", header=",".join(header), comments="", fmt="%.9g")
         return path
 
     def save_trc(self, path: str | Path) -> Path:
         """The joints as a TRC file (:mod:`priortrack.data.trc`: Y-up, Pose2Sim's axes for a Z-up world;
-        a world with another up axis is written in the Y-up working frame)."""
+        a world with another up axis is written in the Y-up working frame), under Pose2Sim's and its OpenSim
+        marker sets' names (:data:`~priortrack.data.eval15.EVAL15_MARKER_NAMES`)."""
         if isinstance(self.up, str) and self.up in ("y", "z"):
-            return write_trc(path, self.joints, EVAL15_NAMES, self.fps, self.up, int(max(self.frames[0], 0)))
-        return write_trc(path, self.joints @ self.working_to_world.T, EVAL15_NAMES, self.fps, "y",
+            return write_trc(path, self.joints, EVAL15_MARKER_NAMES, self.fps, self.up, int(max(self.frames[0], 0)))
+        return write_trc(path, self.joints @ self.working_to_world.T, EVAL15_MARKER_NAMES, self.fps, "y",
                          int(max(self.frames[0], 0)))
 
     def save_bvh(self, path: str | Path) -> Path:
@@ -638,7 +668,8 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
     z, index = z.between(first), index[first:]         # from here on, tick 0 is the filter's first
     return PersonRun(detections, config, preset, prior, model, filt, z, index, None if single else X[first:], A, up,
-                     cameras, world_cameras, M, skeleton, pose, unmeasured, rejected, known, initial, start_time)
+                     cameras, world_cameras, M, skeleton, pose, unmeasured, rejected, known, initial, start_time,
+                     first_tick=first, data_fps=data_fps)
 
 
 @dataclass(eq=False)
@@ -671,6 +702,9 @@ class PersonRun:
     known: Motion
     initial: dict
     start_time: float
+    #: The filter's first tick on the detections' schedule, and their frame rate.
+    first_tick: int = 0
+    data_fps: float | None = None
 
     def __post_init__(self):
         config = self.config
@@ -758,7 +792,9 @@ class PersonRun:
                                 self.config.lag if self.config.smooth else None,
                                 filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
                                 gated=gated, pose_spread=self.pose, bones_unmeasured=self.unmeasured,
-                                held_out_ratio=np.full(T, np.nan) if held_out is None else held_out)
+                                held_out_ratio=np.full(T, np.nan) if held_out is None else held_out,
+                                tick_times=(self.first_tick + np.arange(T)) / float(self.prior.fps),
+                                data_fps=self.data_fps, data_frames=np.asarray(self.detections.frames))
         result.fit_check, implausible = (tracked_fit_check(self.preset, self.prior, result, self.config.cache)
                                          if self.config.fit_check else (None, None))
         if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
