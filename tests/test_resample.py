@@ -88,3 +88,49 @@ def test_a_scene_is_written_at_the_detections_rate_each_person_where_present(tmp
         trc, names, fps = read_trc(path, up="z")
         assert fps == 60.0 and len(trc) == len(person.joints) and names[0] == "Hip"
         np.testing.assert_allclose(trc, person.joints, atol=1e-12)
+
+
+def test_the_lowpass_is_a_zero_lag_fourth_order_butterworth():
+    """A sinusoid through the filter, far from the ends, keeps its phase and is scaled by the dual pass's gain
+    1 / (1 + (tan(π f / fs) / tan(π f_c / fs))⁴) (the bilinear transform's prewarped Butterworth, squared); a joint's
+    gaps are kept and a run too short to pad is left as it is; a cut-off at or over Nyquist is refused."""
+    from priortrack.errors import PriortrackError
+    from priortrack.tracking.lowpass import PADLEN, lowpassed
+
+    fps, cutoff = 60.0, 6.0
+    t = np.arange(1200) / fps
+    for f in (1.0, 6.0, 12.0):
+        wave = np.stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.zeros_like(t)], axis=-1)[:, None]
+        out = lowpassed(wave, fps, cutoff)
+        gain = 1 / (1 + (np.tan(np.pi * f / fps) / np.tan(np.pi * cutoff / fps)) ** 4)
+        np.testing.assert_allclose(out[400:800], gain * wave[400:800], atol=1e-6)
+    assert gain < 0.06                                                           # 12 Hz: an octave over, −25 dB
+    noisy = np.random.default_rng(0).normal(size=(100, 2, 3))
+    noisy[40:42, 0] = np.nan                                                     # joint 0 absent two frames
+    noisy[:50, 1] = noisy[50 + PADLEN:, 1] = np.nan                             # joint 1 seen for PADLEN frames
+    out = lowpassed(noisy, fps, cutoff)
+    np.testing.assert_array_equal(np.isnan(out), np.isnan(noisy))
+    assert np.abs(out[:40, 0] - noisy[:40, 0]).max() > 0.1                       # filtered either side of the gap
+    np.testing.assert_array_equal(out[50:50 + PADLEN, 1], noisy[50:50 + PADLEN, 1])     # too short: as it was
+    for bad in (30.0, 45.0, 0.0, float("nan")):
+        with pytest.raises(PriortrackError, match="the cut-off must lie between 0 and half the output's 60 fps"):
+            lowpassed(noisy, fps, bad)
+
+
+def test_lowpass_on_the_command_line(tmp_path, capsys):
+    """--lowpass 6 low-passes what is written (npz lowpass_hz; the acceleration of the wrists falls), not the
+    summary; a cut-off of 0 is refused before tracking, one over the output's Nyquist frequency by name."""
+    base = ["track", "--detections", str(POSE2SIM_DIR / "pose"), "--cameras", str(POSE2SIM_DIR / "Calib.toml"),
+            "--fps", "60", "--filter", "ukf-real"]
+    assert main(base + ["--out", str(tmp_path / "raw.npz")]) == 0
+    assert main(base + ["--out", str(tmp_path / "low.npz"), "--lowpass", "6"]) == 0
+    with np.load(tmp_path / "raw.npz") as raw, np.load(tmp_path / "low.npz") as low:
+        assert "lowpass_hz" not in raw.files and float(low["lowpass_hz"]) == 6.0
+        accel = [np.abs(np.diff(z["joints"][:, [5, 8]], 2, axis=0)).mean() for z in (raw, low)]
+        assert accel[1] < 0.5 * accel[0], accel
+        assert np.abs(low["joints"] - raw["joints"]).max() < 0.05
+    capsys.readouterr()
+    assert main(base + ["--lowpass", "0"]) == 2
+    assert "--lowpass is a cut-off frequency in Hz above 0, got 0" in capsys.readouterr().err
+    assert main(base + ["--lowpass", "20", "--rate", "ticks", "--out", str(tmp_path / "x.npz")]) == 2
+    assert "between 0 and half the output's 30 fps (15 Hz)" in capsys.readouterr().err

@@ -22,7 +22,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.viz.replay import replay
 
     for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory",
-                 "workers", "association", "no_fit_check", "rate"):                                   # (--height has a default)
+                 "workers", "association", "no_fit_check", "rate", "lowpass"):                                   # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -103,6 +103,8 @@ def _track_detections(args: argparse.Namespace) -> None:
         output_path(args.rrd, "rerun recording")
     if args.rrd_every < 1:
         raise PriortrackError(f"--rrd-every must be a whole number of ticks ≥ 1, got {args.rrd_every}")
+    if args.lowpass is not None and not args.lowpass > 0:
+        raise PriortrackError(f"--lowpass is a cut-off frequency in Hz above 0, got {args.lowpass:g}")
     camera_map = None
     if args.camera_map:
         pairs = [item.split("=", 1) for item in args.camera_map.split(",")]
@@ -146,7 +148,8 @@ def _track_detections(args: argparse.Namespace) -> None:
         progress.close()
     if result.interrupted:
         print(f"priortrack: interrupted: writing the {len(result.joints)} ticks tracked until then", file=sys.stderr)
-    written = [str(result_at_rate(result, args.rate).save(path)) for path in args.out or []]
+    output = for_output(result, args) if args.out else None
+    written = [str(output.save(path)) for path in args.out or []]
     if args.rrd:
         from priortrack.viz.real import record_detections
 
@@ -165,10 +168,13 @@ def _track_detections(args: argparse.Namespace) -> None:
 RATES = ("detections", "ticks")
 
 
-def result_at_rate(result, rate: str | None):
-    """A tracked result (one person's or a scene's) at the frames ``--rate`` asks for: the detections' own (None
-    too), each frame's estimate carried to its time (:mod:`priortrack.tracking.resample`), or the filter's ticks."""
-    return result if rate == "ticks" else result.at_detection_frames()
+def for_output(result, args: argparse.Namespace):
+    """A tracked result (one person's or a scene's) as the files are written from it: at the frames ``--rate`` asks
+    for, the detections' own (the default: each frame's estimate carried to its time,
+    :mod:`priortrack.tracking.resample`) or the filter's ticks, then low-passed where ``--lowpass`` asks
+    (:mod:`priortrack.tracking.lowpass`)."""
+    result = result if args.rate == "ticks" else result.at_detection_frames()
+    return result if args.lowpass is None else result.low_passed(args.lowpass)
 
 
 def _every_person(args: argparse.Namespace, calibration):
@@ -210,7 +216,8 @@ def _track_scene(args: argparse.Namespace, config) -> None:
                              progress=progress)
     finally:
         progress.close()
-    written = [str(p) for path in args.out or [] for p in result_at_rate(result, args.rate).save(path)]
+    output = for_output(result, args) if args.out else None
+    written = [str(p) for path in args.out or [] for p in output.save(path)]
     if args.rrd:
         from priortrack.viz.scene import record_scene
 
@@ -277,6 +284,10 @@ def add_parsers(verbs) -> None:
                        help="--detections: the outputs' frames: the detections' own, at their rate (the default: "
                             "each frame's estimate carried to its time by a cubic spline through the filter's "
                             "ticks), or the filter's ticks at its prior's rate (30 fps for the bundled presets)")
+    track.add_argument("--lowpass", type=float, metavar="HZ",
+                       help="--detections: the outputs' joints also through a zero-lag Butterworth low-pass at HZ "
+                            "(4th order, as Pose2Sim filters its markers; 6 is its default), after the filter or "
+                            "smoother; the recording keeps the filter's own")
     track.add_argument("--filter", default="ukf-real",
                        help="a preset name (priortrack presets) or a .toml file (default %(default)s)")
     track.add_argument("--scenario", default="clean",

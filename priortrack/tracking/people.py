@@ -39,6 +39,7 @@ from priortrack.tracking.person import (DetectionTrack, TrackConfig, data_rate, 
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.presets import Preset, load_preset
 from priortrack.tracking.reassociation import predicts, reassociated
+from priortrack.tracking.lowpass import lowpassed
 from priortrack.tracking.resample import frame_times, interpolated, nearest_tick
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
 
@@ -179,6 +180,8 @@ class SceneTrack:
     filtered_joints: np.ndarray | None = field(default=None, repr=False)
     #: The detections' frame rate (tick k is at k / fps from the first detection frame).
     data_fps: float | None = None
+    #: The cut-off of the Butterworth low-pass the joints went through (:meth:`low_passed`), None where none.
+    lowpass_hz: float | None = None
 
     @property
     def camera_names(self) -> tuple[str, ...]:
@@ -205,6 +208,12 @@ class SceneTrack:
         return {"people": [int(i) for i in self.person_ids], "frames": int(len(self.frames)), "fps": self.fps,
                 "seconds": self.seconds, "skipped": {str(k): v for k, v in self.skipped.items()},
                 "per_person": per_person}
+
+    def low_passed(self, cutoff_hz: float) -> "SceneTrack":
+        """The scene with every person's joints through a zero-lag Butterworth low-pass at ``cutoff_hz``, each over
+        the frames they are present (:mod:`~priortrack.tracking.lowpass`), and each person's own result so."""
+        return replace(self, joints=lowpassed(self.joints, self.fps, cutoff_hz), lowpass_hz=cutoff_hz,
+                       people=[r.low_passed(cutoff_hz) for r in self.people])
 
     def at_detection_frames(self) -> "SceneTrack":
         """The scene at every detection frame and the detections' rate, each person's joints and spread carried to
@@ -254,9 +263,11 @@ class SceneTrack:
         ``spread`` (T, P, 15), ``loglik`` (T, P), ``mismatch`` (T, P), ``held_out_ratio`` (T, P), ``ess`` (T, P),
         ``camera_names`` (C,), ``reprojection_px`` (T, P, C), ``gated`` (T, P, C, 15), ``filtered_joints``
         (T, P, 15, 3) where smoothed, and the association's ``slots`` (T_frames, C, P) with ``detection_frames``
-        (T_frames,): one person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
+        (T_frames,), ``lowpass_hz`` where the joints were low-passed: one person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
         path = output_path(path, "result file")
         smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints}
+        if self.lowpass_hz is not None:
+            smoothed["lowpass_hz"] = np.array(float(self.lowpass_hz))
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints, person_ids=self.person_ids, frames=self.frames, fps=np.array(self.fps),
                      joint_names=np.array(EVAL15_NAMES), spread=self.spread, loglik=self.loglik,

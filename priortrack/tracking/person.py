@@ -87,6 +87,7 @@ from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
 from priortrack.tracking.held_out import MIN_CAMERAS, WORSE_RATIO, held_out_errors, held_out_ratio
 from priortrack.tracking.presets import UNSCENTED_KINDS, Preset, load_preset
+from priortrack.tracking.lowpass import lowpassed
 from priortrack.tracking.resample import frame_times, interpolated, nearest_tick
 from priortrack.filters.snapshot import KNOWN_FRAMES
 from priortrack.filters.step_store import DEFAULT_MEMORY, StepStore
@@ -220,6 +221,8 @@ class DetectionTrack:
     tick_times: np.ndarray | None = field(default=None, repr=False)
     data_fps: float | None = None
     data_frames: np.ndarray | None = field(default=None, repr=False)
+    #: The cut-off of the Butterworth low-pass the joints went through (:meth:`low_passed`), None where none.
+    lowpass_hz: float | None = None
 
     def in_world(self, body: np.ndarray, definitions: bool = True) -> np.ndarray:
         """Points (..., 3) of the filter's Y-up working frame (a snapshot's estimate, best or cloud, the
@@ -231,6 +234,12 @@ class DetectionTrack:
     @property
     def mismatch_fraction(self) -> float:
         return float(self.mismatch[KNOWN_FRAMES:].mean()) if len(self.mismatch) > KNOWN_FRAMES else 0.0
+
+    def low_passed(self, cutoff_hz: float) -> "DetectionTrack":
+        """This result with its joints, and the body's joints a BVH is fitted to, through a zero-lag Butterworth
+        low-pass at ``cutoff_hz`` (:mod:`~priortrack.tracking.lowpass`)."""
+        body = None if self.body_joints is None else lowpassed(self.body_joints, self.fps, cutoff_hz)
+        return replace(self, joints=lowpassed(self.joints, self.fps, cutoff_hz), body_joints=body, lowpass_hz=cutoff_hz)
 
     def at_detection_frames(self) -> "DetectionTrack":
         """This result at the detections' own frames and rate (:mod:`~priortrack.tracking.resample`): each detection
@@ -273,12 +282,14 @@ class DetectionTrack:
         ``frames`` (T,), ``spread`` (T, 15), ``ess`` (T,), ``loglik`` (T,), ``mismatch`` (T,) bool,
         ``camera_names`` (C,), ``reprojection_px`` (T, C) each tick's median pixel error per camera and
         ``gated`` (T, C, 15) bool the detections the validation gate held out, ``held_out_ratio`` (T,) the
-        filter's held-out ratio (NaN: not judged); a smoothed run adds
+        filter's held-out ratio (NaN: not judged), ``lowpass_hz`` where the joints were low-passed; a smoothed run adds
         ``filtered_joints`` (T, 15, 3) and ``filtered_spread`` (T, 15), the filter's own (``joints`` and
         ``spread`` are the smoother's)."""
         path = output_path(path, "result file")
         smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints.astype(np.float64),
                                                             "filtered_spread": self.filtered_spread}
+        if self.lowpass_hz is not None:
+            smoothed["lowpass_hz"] = np.array(float(self.lowpass_hz))
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints.astype(np.float64), joint_names=np.array(EVAL15_NAMES),
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,

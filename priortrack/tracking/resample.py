@@ -30,7 +30,7 @@ def frame_times(frames: np.ndarray, fps: float) -> np.ndarray:
     return (frames - frames[0]) / fps
 
 
-def _runs(finite: np.ndarray) -> list[tuple[int, int]]:
+def finite_runs(finite: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) of each run of True in ``finite`` (T,)."""
     edges = np.diff(np.concatenate([[0], finite.astype(np.int8), [0]]))
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
@@ -47,7 +47,7 @@ def interpolated(values: np.ndarray, tick_times: np.ndarray, times: np.ndarray) 
     period = float(tick_times[1] - tick_times[0]) if len(tick_times) > 1 else np.inf
     reach = REACH_TICKS * period + 1e-9
     finite = np.isfinite(values.reshape(len(values), -1)).all(axis=1)
-    for start, stop in _runs(finite):
+    for start, stop in finite_runs(finite):
         inside = (times >= tick_times[start] - reach) & (times <= tick_times[stop - 1] + reach)
         if not inside.any():
             continue
