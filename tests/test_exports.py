@@ -31,11 +31,17 @@ def test_opensim_reads_the_trc_y_up_in_metres(run):
     table = opensim.TimeSeriesTableVec3(str(folder / "r.trc"))
     # the detections' 60 fps frames (every one, the last half a tick after the filter's last), OpenSim's names
     assert table.getNumRows() == len(joints) == 12 and frames.tolist() == list(range(12))
-    assert list(table.getColumnLabels()) == list(EVAL15_MARKER_NAMES)
+    labels = list(table.getColumnLabels())                           # the 15 joints, then the detector's others
+    assert labels[:15] == list(EVAL15_MARKER_NAMES) and labels[15:] == ["Nose", "LEye", "REye", "LEar", "REar",
+                                                                        "LBigToe", "LSmallToe", "LHeel", "RBigToe",
+                                                                        "RSmallToe", "RHeel"]
     assert table.getTableMetaDataAsString("Units") == "m" and float(table.getTableMetaDataAsString("DataRate")) == 60
     np.testing.assert_allclose(list(table.getIndependentColumn()), np.arange(len(joints)) / 60, atol=1e-12)
-    markers = np.array([[[table.getRowAtIndex(t)[j].get(k) for k in range(3)] for j in range(len(names))]
+    markers = np.array([[[table.getRowAtIndex(t)[j].get(k) for k in range(3)] for j in range(len(labels))]
                         for t in range(len(joints))])
+    heels, ankles_ = markers[:, [labels.index("LHeel"), labels.index("RHeel")]], markers[:, [11, 14]]
+    assert (np.linalg.norm(heels - ankles_, axis=-1) < 0.15).all()                   # each heel by its ankle
+    markers = markers[:, :15]
     np.testing.assert_allclose(markers, joints[..., [1, 2, 0]], atol=1e-12)      # Pose2Sim's zup2yup
     head, ankles = names.index("head"), [names.index("lankle"), names.index("rankle")]
     assert (markers[:, head, 1] - markers[:, ankles, 1].max(axis=1) > 1.3).all()  # Y is OpenSim's vertical

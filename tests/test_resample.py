@@ -86,8 +86,8 @@ def test_a_scene_is_written_at_the_detections_rate_each_person_where_present(tmp
     written = frames.save(tmp_path / "s.trc")
     for path, person in zip(written, frames.people):
         trc, names, fps = read_trc(path, up="z")
-        assert fps == 60.0 and len(trc) == len(person.joints) and names[0] == "Hip"
-        np.testing.assert_allclose(trc, person.joints, atol=1e-12)
+        assert fps == 60.0 and len(trc) == len(person.joints) and names[0] == "Hip" and names[15] == "Nose"
+        np.testing.assert_allclose(trc[:, :15], person.joints, atol=1e-12)
 
 
 def test_the_lowpass_is_a_zero_lag_fourth_order_butterworth():

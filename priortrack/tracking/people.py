@@ -263,11 +263,14 @@ class SceneTrack:
         ``spread`` (T, P, 15), ``loglik`` (T, P), ``mismatch`` (T, P), ``held_out_ratio`` (T, P), ``ess`` (T, P),
         ``camera_names`` (C,), ``reprojection_px`` (T, P, C), ``gated`` (T, P, C, 15), ``filtered_joints``
         (T, P, 15, 3) where smoothed, and the association's ``slots`` (T_frames, C, P) with ``detection_frames``
-        (T_frames,), ``lowpass_hz`` where the joints were low-passed: one person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
+        (T_frames,), ``lowpass_hz`` where the joints were low-passed, ``keypoints`` (T, P, E, 3) and ``keypoint_names``
+        (E,) the detector's further keypoints where carried (at the detections' frames): one person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
         path = output_path(path, "result file")
         smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints}
         if self.lowpass_hz is not None:
             smoothed["lowpass_hz"] = np.array(float(self.lowpass_hz))
+        if self.people and all(r.keypoints is not None for r in self.people):
+            smoothed.update(keypoints=self._keypoints(), keypoint_names=np.array(self.people[0].keypoint_names, dtype=str))
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints, person_ids=self.person_ids, frames=self.frames, fps=np.array(self.fps),
                      joint_names=np.array(EVAL15_NAMES), spread=self.spread, loglik=self.loglik,
@@ -276,6 +279,14 @@ class SceneTrack:
                      gated=self.gated, slots=self.association.slots, detection_frames=self.association.frames,
                      **smoothed)
         return path
+
+    def _keypoints(self) -> np.ndarray:
+        """(T, P, E, 3) every person's further keypoints on this result's frames, NaN where they have none."""
+        row = {int(f): t for t, f in enumerate(self.frames) if f >= 0}
+        out = np.full((len(self.frames), len(self.people)) + self.people[0].keypoints.shape[1:], np.nan)
+        for p, result in enumerate(self.people):
+            out[[row[int(f)] for f in result.frames], p] = result.keypoints
+        return out
 
     def save_csv(self, path: str | Path) -> Path:
         """One row per tick and present person: frame, time (s), person, each joint's x, y, z, spread,

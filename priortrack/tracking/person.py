@@ -87,6 +87,7 @@ from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
 from priortrack.tracking.held_out import MIN_CAMERAS, WORSE_RATIO, held_out_errors, held_out_ratio
 from priortrack.tracking.presets import UNSCENTED_KINDS, Preset, load_preset
+from priortrack.tracking.extra_keypoints import carried
 from priortrack.tracking.lowpass import lowpassed
 from priortrack.tracking.resample import frame_times, interpolated, nearest_tick
 from priortrack.filters.snapshot import KNOWN_FRAMES
@@ -223,6 +224,13 @@ class DetectionTrack:
     data_frames: np.ndarray | None = field(default=None, repr=False)
     #: The cut-off of the Butterworth low-pass the joints went through (:meth:`low_passed`), None where none.
     lowpass_hz: float | None = None
+    #: The person's detections and the confidence below which a keypoint is missing (for the keypoints beyond the
+    #: 15 joints, :mod:`~priortrack.tracking.extra_keypoints`); at the detections' frames, those keypoints (F, E, 3)
+    #: in the calibration's world (NaN where absent) and their marker names (E,).
+    detections: object = field(default=None, repr=False)
+    min_confidence: float = 0.3
+    keypoints: np.ndarray | None = field(default=None, repr=False)
+    keypoint_names: tuple[str, ...] = ()
 
     def in_world(self, body: np.ndarray, definitions: bool = True) -> np.ndarray:
         """Points (..., 3) of the filter's Y-up working frame (a snapshot's estimate, best or cloud, the
@@ -236,21 +244,29 @@ class DetectionTrack:
         return float(self.mismatch[KNOWN_FRAMES:].mean()) if len(self.mismatch) > KNOWN_FRAMES else 0.0
 
     def low_passed(self, cutoff_hz: float) -> "DetectionTrack":
-        """This result with its joints, and the body's joints a BVH is fitted to, through a zero-lag Butterworth
-        low-pass at ``cutoff_hz`` (:mod:`~priortrack.tracking.lowpass`)."""
-        body = None if self.body_joints is None else lowpassed(self.body_joints, self.fps, cutoff_hz)
-        return replace(self, joints=lowpassed(self.joints, self.fps, cutoff_hz), body_joints=body, lowpass_hz=cutoff_hz)
+        """This result with its joints, the detector's further keypoints and the body's joints a BVH is fitted to
+        through a zero-lag Butterworth low-pass at ``cutoff_hz`` (:mod:`~priortrack.tracking.lowpass`)."""
+        def passed(values):
+            return None if values is None else lowpassed(values, self.fps, cutoff_hz)
+
+        return replace(self, joints=passed(self.joints), body_joints=passed(self.body_joints),
+                       keypoints=passed(self.keypoints), lowpass_hz=cutoff_hz)
 
     def at_detection_frames(self) -> "DetectionTrack":
         """This result at the detections' own frames and rate (:mod:`~priortrack.tracking.resample`): each detection
         frame within half a tick of the tracked ticks, its joints, spread and body the cubic spline through the ticks',
-        its verdicts (ESS, log-likelihood, mismatch, reprojection, gate, held-out ratio) the nearest tick's; ``fps`` the
-        detections'. What a file is written from; the filter's snapshots and observations stay with the ticks."""
+        its verdicts (ESS, log-likelihood, mismatch, reprojection, gate, held-out ratio) the nearest tick's, and the
+        detector's keypoints beyond the 15 joints carried by them (:mod:`~priortrack.tracking.extra_keypoints`; two
+        cameras or more); ``fps`` the detections'. What a file is written from; the filter's snapshots and
+        observations stay with the ticks."""
         times = frame_times(self.data_frames, self.data_fps)
         joints = interpolated(self.joints, self.tick_times, times)
         keep = np.isfinite(joints).all(axis=(1, 2))
         times, joints = times[keep], joints[keep]
         near = nearest_tick(self.tick_times, times)
+        extra, names = (None, ()) if self.detections is None else carried(
+            self.detections.load().keypoints[:, keep], self.detections.layout, self.cameras, joints, self.data_fps,
+            self.min_confidence, (DEFAULT_SIGMA_PX, DEFAULT_NU))
 
         def spline(values):
             return None if values is None else interpolated(values, self.tick_times, times)
@@ -260,7 +276,8 @@ class DetectionTrack:
                        mismatch=self.mismatch[near], body_joints=spline(self.body_joints),
                        filtered_joints=spline(self.filtered_joints), filtered_spread=spline(self.filtered_spread),
                        reprojection_by_tick=self.reprojection_by_tick[near], gated=self.gated[near],
-                       held_out_ratio=self.held_out_ratio[near], observations=None, snapshots=None, steps=None)
+                       held_out_ratio=self.held_out_ratio[near], observations=None, snapshots=None, steps=None,
+                       keypoints=extra, keypoint_names=names)
 
     def summary(self) -> dict:
         """The JSON summary: frames, seconds, median reprojection error per camera, mismatch fraction, the
@@ -282,7 +299,8 @@ class DetectionTrack:
         ``frames`` (T,), ``spread`` (T, 15), ``ess`` (T,), ``loglik`` (T,), ``mismatch`` (T,) bool,
         ``camera_names`` (C,), ``reprojection_px`` (T, C) each tick's median pixel error per camera and
         ``gated`` (T, C, 15) bool the detections the validation gate held out, ``held_out_ratio`` (T,) the
-        filter's held-out ratio (NaN: not judged), ``lowpass_hz`` where the joints were low-passed; a smoothed run adds
+        filter's held-out ratio (NaN: not judged), ``lowpass_hz`` where the joints were low-passed, ``keypoints`` (T, E,
+        3) and ``keypoint_names`` (E,) the detector's further keypoints where carried; a smoothed run adds
         ``filtered_joints`` (T, 15, 3) and ``filtered_spread`` (T, 15), the filter's own (``joints`` and
         ``spread`` are the smoother's)."""
         path = output_path(path, "result file")
@@ -290,6 +308,8 @@ class DetectionTrack:
                                                             "filtered_spread": self.filtered_spread}
         if self.lowpass_hz is not None:
             smoothed["lowpass_hz"] = np.array(float(self.lowpass_hz))
+        if self.keypoints is not None:
+            smoothed.update(keypoints=self.keypoints, keypoint_names=np.array(self.keypoint_names, dtype=str))
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints.astype(np.float64), joint_names=np.array(EVAL15_NAMES),
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,
@@ -313,11 +333,13 @@ class DetectionTrack:
     def save_trc(self, path: str | Path) -> Path:
         """The joints as a TRC file (:mod:`priortrack.data.trc`: Y-up, Pose2Sim's axes for a Z-up world;
         a world with another up axis is written in the Y-up working frame), under Pose2Sim's and its OpenSim
-        marker sets' names (:data:`~priortrack.data.eval15.EVAL15_MARKER_NAMES`)."""
+        marker sets' names (:data:`~priortrack.data.eval15.EVAL15_MARKER_NAMES`), the detector's further keypoints
+        after them where carried (``keypoints``: LBigToe, LHeel, Nose…)."""
+        names = EVAL15_MARKER_NAMES + self.keypoint_names
+        points = self.joints if self.keypoints is None else np.concatenate([self.joints, self.keypoints], axis=1)
         if isinstance(self.up, str) and self.up in ("y", "z"):
-            return write_trc(path, self.joints, EVAL15_MARKER_NAMES, self.fps, self.up, int(max(self.frames[0], 0)))
-        return write_trc(path, self.joints @ self.working_to_world.T, EVAL15_MARKER_NAMES, self.fps, "y",
-                         int(max(self.frames[0], 0)))
+            return write_trc(path, points, names, self.fps, self.up, int(max(self.frames[0], 0)))
+        return write_trc(path, points @ self.working_to_world.T, names, self.fps, "y", int(max(self.frames[0], 0)))
 
     def save_bvh(self, path: str | Path) -> Path:
         """The tracked body's motion as a BVH file: the body's channels fitted by inverse kinematics to
@@ -805,7 +827,8 @@ class PersonRun:
                                 gated=gated, pose_spread=self.pose, bones_unmeasured=self.unmeasured,
                                 held_out_ratio=np.full(T, np.nan) if held_out is None else held_out,
                                 tick_times=(self.first_tick + np.arange(T)) / float(self.prior.fps),
-                                data_fps=self.data_fps, data_frames=np.asarray(self.detections.frames))
+                                data_fps=self.data_fps, data_frames=np.asarray(self.detections.frames),
+                                detections=self.detections, min_confidence=self.config.min_confidence)
         result.fit_check, implausible = (tracked_fit_check(self.preset, self.prior, result, self.config.cache)
                                          if self.config.fit_check else (None, None))
         if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
