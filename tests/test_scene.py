@@ -380,3 +380,35 @@ def test_a_scenes_npz_holds_what_one_persons_does(demo, tmp_path):
             np.testing.assert_array_equal(f["filtered_joints"][:, p], person.filtered_joints)
             np.testing.assert_array_equal(f["ess"][:, p], person.ess)                # NaN: no particles
             assert not np.allclose(f["filtered_joints"][:, p], f["joints"][:, p])       # joints: the smoother's
+
+
+@pytest.mark.parametrize("how", ["filter", "joints"])
+def test_ctrl_c_in_a_scene_writes_what_was_tracked(tmp_path, capsys, monkeypatch, how):
+    """Issue 60, item 3: Ctrl-C in ``--people`` wrote nothing. Now, with the filters in lockstep (filter), Ctrl-C at
+    tick 20 ends every person's run there and both are written; tracked one after the other (joints, one worker),
+    Ctrl-C after the first person writes them and skips the second, saying why; exit 0 and ``interrupted``."""
+    import priortrack.cli.track as cli_track
+    from priortrack.cli.common import Progress
+    from priortrack.tracking.people import INTERRUPTED
+
+    stop_at = 20 if how == "filter" else 1
+
+    class Interrupting(Progress):
+        def __call__(self, step, total):
+            if step == stop_at:
+                raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_track, "Progress", Interrupting)
+    assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--fps", "60", "--people", "all",
+                 "--association", how, "--workers", "1", "--out", str(tmp_path / "s.npz"), "--json"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["interrupted"] is True and "priortrack: interrupted: writing the" in captured.err
+    with np.load(tmp_path / "s.npz") as z:
+        present = np.isfinite(z["joints"][..., 0, 0])                        # (frames, people) at 60 fps
+    if how == "filter":
+        assert summary["people"] == [0, 1] and summary["skipped"] == {}
+        assert present[:30].all() and not present[45:].any()                 # 20 ticks of 30 fps: 40 frames
+    else:
+        assert summary["people"] == [0] and summary["skipped"] == {"1": INTERRUPTED}
+        assert present.shape[1] == 1 and present.all()

@@ -212,10 +212,13 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     calibration = read_calibration(args.cameras, units=args.units)
     progress = Progress(f"track {args.filter}", "{0} of {1}")          # people tracked (one person: ticks)
     try:
-        result = track_scene(scene, calibration, args.filter, config, scene_config, people=people, workers=workers,
-                             progress=progress)
+        result = track_scene(scene, calibration, args.filter, replace(config, interruptible=True), scene_config,
+                             people=people, workers=workers, progress=progress)
     finally:
         progress.close()
+    if result.interrupted:
+        print(f"priortrack: interrupted: writing the {len(result.person_ids)} "
+              f"{'person' if len(result.person_ids) == 1 else 'people'} tracked until then", file=sys.stderr)
     output = for_output(result, args) if args.out else None
     written = [str(p) for path in args.out or [] for p in output.save(path)]
     if args.rrd:

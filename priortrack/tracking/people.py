@@ -182,6 +182,8 @@ class SceneTrack:
     data_fps: float | None = None
     #: The cut-off of the Butterworth low-pass the joints went through (:meth:`low_passed`), None where none.
     lowpass_hz: float | None = None
+    #: Ctrl-C ended the run: it holds what was tracked until then.
+    interrupted: bool = False
 
     @property
     def camera_names(self) -> tuple[str, ...]:
@@ -206,7 +208,7 @@ class SceneTrack:
                 "height_m": own["height_m"], "reprojection_px": own["reprojection_px"],
                 "mismatch_fraction": result.mismatch_fraction, "bones_m": own["bones_m"]}
         return {"people": [int(i) for i in self.person_ids], "frames": int(len(self.frames)), "fps": self.fps,
-                "seconds": self.seconds, "skipped": {str(k): v for k, v in self.skipped.items()},
+                "seconds": self.seconds, "interrupted": self.interrupted, "skipped": {str(k): v for k, v in self.skipped.items()},
                 "per_person": per_person}
 
     def low_passed(self, cutoff_hz: float) -> "SceneTrack":
@@ -314,8 +316,10 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     says (:class:`~priortrack.tracking.scene.SceneConfig`), each person as ``config`` says
     (:class:`~priortrack.tracking.person.TrackConfig`: its frame rate, up, camera map, confidence threshold
     and seed are the scene's too). ``workers``: processes that track people side by side (None: one per core
-    this process may use; 1: every person in this process; an ``interruptible`` run, and the filters'
-    association, are tracked here); a person's run in a worker is the one here, up to rounding where the worker's
+    this process may use; 1: every person in this process; the filters' association is tracked here). An
+    ``interruptible`` run (``config.interruptible``) that Ctrl-C stops keeps what was tracked: the filters in lockstep
+    end at the tick reached; tracked one by one, the person being tracked ends there and those not yet tracked are
+    skipped (in workers, those not finished are); ``interrupted`` is set; a person's run in a worker is the one here, up to rounding where the worker's
     torch has fewer threads. ``progress(done, total)``: a scene of one's ticks as its filter goes, or the ticks of
     the filters stepped together, else the people tracked so far. A scene of one (``people=1``, or one id) may
     take their own body (``skeleton``)."""
@@ -335,7 +339,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     if in_lockstep and config.smooth and config.lag is not None:
         raise PriortrackError("the filters' association decides each tick as the filters go: smooth the whole run "
                               "(--smooth without --lag), or decide by the joint model (--association joints)")
-    pool = _Pool(1 if config.interruptible or skeleton is not None or in_lockstep else worker_count(workers))  # now
+    pool = _Pool(1 if skeleton is not None or in_lockstep else worker_count(workers))      # its workers start now
     association, cameras = associated(scene, calibration, data_fps, config, scene_config)
     chosen = chosen_people(association, people, scene)
     if skeleton is not None and len(chosen) > 1:
@@ -359,7 +363,8 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     if in_lockstep:
         association, runs = _in_lockstep(scene, association, chosen, jobs, scene_config.gate, progress)
     else:
-        runs = pool.track([job + (progress if one else None,) for job in jobs], None if one else progress)
+        runs = pool.track([job + (progress if one else None,) for job in jobs], None if one else progress,
+                          config.interruptible)
     results, kept, skipped = [], [], {}
     for p, (result, error) in zip(chosen, runs):
         if error is None:
@@ -367,12 +372,16 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
             kept.append(p)
         else:
             skipped[int(association.person_ids[p])] = error
-            log.warning("person %d cannot be tracked: %s", association.person_ids[p], error)
+            if error != INTERRUPTED:
+                log.warning("person %d cannot be tracked: %s", association.person_ids[p], error)
     if not results:
+        if INTERRUPTED in skipped.values():
+            raise KeyboardInterrupt
         raise PriortrackError(f"{scene.source}: no person could be tracked ({'; '.join(skipped.values())})")
     gathered = _gathered(association, kept, results, schedule(scene.frames, data_fps, results[0].fps), scene.frames,
                          skipped)
     gathered.detections, gathered.seconds, gathered.data_fps = scene, time.perf_counter() - start, data_fps
+    gathered.interrupted = INTERRUPTED in skipped.values() or any(r.interrupted for r in results)
     return gathered
 
 
@@ -413,6 +422,10 @@ def _in_lockstep(scene: SceneDetections, association: SceneAssociation, chosen: 
                                            run.config.min_confidence, gate, progress, run.config.interruptible)
         results = {p: runs[p].finished(track) for p, track in tracks.items()}
     return association, [(results.get(p), errors.get(p)) for p in chosen]
+
+
+#: Why a person was not tracked: Ctrl-C came first.
+INTERRUPTED = "interrupted (Ctrl-C) before their run"
 
 
 def _track_person(job) -> tuple[DetectionTrack | None, str | None]:
@@ -480,15 +493,28 @@ class _Pool:
             for _ in range(workers):             # the executor starts its processes for waiting tasks
                 self.executor.submit(_ready)
 
-    def track(self, jobs: list, progress: Callable[[int, int], None] | None = None) -> list:
-        """Each job's :func:`_track_person`, in the jobs' order, ``progress(done, total)`` after each."""
-        outcomes = map(_track_person, jobs) if self.executor is None or len(jobs) == 1 else self._in_workers(jobs)
+    def track(self, jobs: list, progress: Callable[[int, int], None] | None = None, interruptible: bool = False) -> list:
+        """Each job's :func:`_track_person`, in the jobs' order, ``progress(done, total)`` after each. ``interruptible``:
+        Ctrl-C (a run that ended interrupted, or KeyboardInterrupt between runs or while waiting for the workers)
+        keeps the outcomes so far, the other jobs' (None, :data:`INTERRUPTED`)."""
+        in_workers = self.executor is not None and len(jobs) > 1
+        outcomes = self._in_workers(jobs) if in_workers else map(_track_person, jobs)
         results = []
-        for outcome in outcomes:
-            results.append(outcome)
-            if progress is not None:
-                progress(len(results), len(jobs))
-        return results
+        try:
+            for outcome in outcomes:
+                results.append(outcome)
+                if outcome[0] is not None and outcome[0].interrupted:
+                    break
+                if progress is not None:
+                    progress(len(results), len(jobs))
+        except KeyboardInterrupt:
+            if not interruptible:
+                raise
+            if in_workers:
+                self.executor.shutdown(wait=False, kill_workers=True)
+        if len(results) < len(jobs):
+            log.warning("interrupted: %d of %d people tracked; the others are not", len(results), len(jobs))
+        return results + [(None, INTERRUPTED)] * (len(jobs) - len(results))
 
     def _in_workers(self, jobs: list):
         """The jobs' outcomes from the workers as they come, in order, each worker's log records re-logged here."""
