@@ -139,7 +139,7 @@ def add_parsers(verbs) -> None:
     grid.add_argument("--joints", nargs="+", help="--detections: the eval15 joints scored (default shoulders to "
                                                   "ankles; e.g. the arms' six for a person seated at a desk)")
     grid.add_argument("--people", nargs="+", metavar="WHO",
-                      help="--detections of several people: compare each (all; N seen longest; id:A,B; at:CAMERA:X,Y; "
+                      help="--detections of several people: compare each (all; N seen most; id:A,B; at:CAMERA:X,Y; "
                            "box:CAMERA:X0,Y0,X1,Y1, as track --people), each in OUT/person<id>/")
     grid.add_argument("--seeds", type=int, default=1, help="seeds per motion and scenario (1)")
     grid.add_argument("--frames", type=int, help="track only the first N frames of each motion")

@@ -128,10 +128,10 @@ def _track_detections(args: argparse.Namespace) -> None:
     scene = _every_person(args, calibration)
     progress = Progress(f"track {args.filter}", "tick {0} of {1}", rate=True)
     try:
-        if scene is not None and int(scene.people.max(initial=0)) > 1:      # a scene of one: the person seen longest
+        if scene is not None and int(scene.people.max(initial=0)) > 1:      # a scene of one: the person seen most
             from priortrack.tracking.people import track_scene
 
-            log.warning("%s holds up to %d people in a frame: tracking the one seen longest (--people all tracks "
+            log.warning("%s holds up to %d people in a frame: tracking the one seen most (the most keypoints detected; --people all tracks "
                         "each, --people at:CAMERA:X,Y the one there)", args.detections, scene.people.max())
             result = track_scene(scene, calibration, args.filter, config, people=1, skeleton=skeleton,
                                  progress=progress).people[0]
@@ -261,7 +261,7 @@ def add_parsers(verbs) -> None:
     track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
     track.add_argument("--person", type=int, help="follow this index of each frame's people list")
     track.add_argument("--people", nargs="+", metavar="WHO",
-                       help="track every person of the scene, each with an identity: all; N (the N seen longest); "
+                       help="track every person of the scene, each with an identity: all; N (the N seen most: keypoints detected); "
                             "id:A,B; at:CAMERA:X,Y or box:CAMERA:X0,Y0,X1,Y1 (the person there in that camera's "
                             "first frame). Outputs hold every person: .npz joints (T, P, 15, 3), .csv with a person "
                             "column, a .trc/.bvh per person; the recording colours and labels each")
