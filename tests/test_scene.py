@@ -266,6 +266,24 @@ def test_compare_detections_per_person_scores_each_persons_held_out_cameras(tmp_
     assert len(every) == 1 and every[0]["mpjpe_mm"] < 40, every          # measured 29.9 (its DLT 20.9)
 
 
+def test_compare_detections_without_people_compares_the_one_seen_most_and_says_so(tmp_path, capsys, caplog):
+    """Issue 60, item 2: ``compare --detections`` on files of several people, without ``--people``, scored whoever the
+    single-person reader followed, without a word. It takes the person ``track`` takes (seen most: the participant)
+    and warns; its all-camera run against Pose2Sim's 3D of the participant is under 40 mm."""
+    from priortrack.experiments.compare_detections import _associated
+
+    _associated.cache_clear()
+    with caplog.at_level("WARNING"):
+        assert main(["compare", "--filters", "ukf-real", "--detections", str(POSE), "--cameras", str(QCA), "--fps",
+                     "60", "--frames", "60", "--truth", str(POSE2SIM_3D["P2"]), "--out", str(tmp_path / "c"),
+                     "--json"]) == 0
+    assert any("holds up to 4 people in a frame: comparing the one seen most, person 1" in r.getMessage()
+               for r in caplog.records), [r.getMessage() for r in caplog.records]
+    rows = json.loads(capsys.readouterr().out.splitlines()[-1])["rows"]
+    every = [r for r in rows if r["held_out"] == ""]
+    assert len(every) == 1 and every[0]["mpjpe_mm"] < 40, every
+
+
 def test_people_are_chosen_by_count_id_point_and_box(demo):
     scene, calibration = demo
     cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import logging
 
 from priortrack.cli.common import Progress, print_json
 from priortrack.errors import PriortrackError
+
+log = logging.getLogger(__name__)
 
 
 def _compare(args: argparse.Namespace) -> None:
@@ -25,7 +28,7 @@ def _compare(args: argparse.Namespace) -> None:
             raise PriortrackError("compare --detections needs the cameras' calibration (--cameras)")
         configs = plan_detections(args.filters, args.detections, args.cameras, args.seeds, args.truth,
                                   args.keypoints, args.fps, args.frames, args.smooth,
-                                  args.joints or LIMBS)
+                                  args.joints or LIMBS, person=_seen_most(args))
     else:
         for name in ("cameras", "truth", "keypoints", "fps", "joints"):
             if getattr(args, name) is not None:
@@ -78,6 +81,25 @@ def _compare(args: argparse.Namespace) -> None:
     if recordings:
         print(f"recordings (truth, estimate, particle cloud, camera view), one per run: rerun {recordings[0]}  (or any of "
               f"{args.out}/recordings/*.rrd)")
+
+
+def _seen_most(args: argparse.Namespace) -> int | None:
+    """The scene tracker's id of the person seen most (as ``track`` takes without ``--people``) where an OpenPose
+    folder holds several people in a frame, said in a warning; else None (one person followed per camera)."""
+    from pathlib import Path
+
+    from priortrack.data.scene_detections import read_scene_detections
+    from priortrack.experiments.compare_detections import scene_people
+
+    if not Path(args.detections).is_dir():
+        return None
+    scene = read_scene_detections(args.detections, keypoints=args.keypoints)
+    if int(scene.people.max(initial=0)) < 2:
+        return None
+    person = scene_people(args.detections, args.cameras, 1, args.keypoints, args.fps, args.frames)[0]
+    log.warning("%s holds up to %d people in a frame: comparing the one seen most, person %d (the most keypoints "
+                "detected; --people all compares each)", args.detections, scene.people.max(), person)
+    return person
 
 
 def _compare_people(args: argparse.Namespace) -> None:
