@@ -436,3 +436,36 @@ def test_ctrl_c_in_a_scene_writes_what_was_tracked(tmp_path, capsys, monkeypatch
     else:
         assert summary["people"] == [0] and summary["skipped"] == {"1": INTERRUPTED}
         assert present.shape[1] == 1 and present.all()
+
+
+def test_someone_only_one_camera_sees_is_named_not_dropped_silently(demo, caplog):
+    """Issue 60, item 2: a person seen by one camera only vanished without a word. The demo's static false positive
+    (cam01 and cam02, SOURCE.md) is reported as someone nobody tracked; with the participant taken out of every camera
+    but cam01, cam01's detections of them are reported too, in every frame, where the participant stands."""
+    from dataclasses import replace
+
+    from priortrack.tracking.people import associated
+
+    scene, calibration = demo
+    with caplog.at_level("WARNING"):
+        result = track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), workers=1)
+    assert result.unclaimed == {"cam01_json": 100, "cam02_json": 90}
+    assert any("cam02_json detects someone who is none of the people tracked in 90 of 100 frames" in r.getMessage()
+               for r in caplog.records)
+    association, _ = associated(scene, calibration, 60.0, TrackConfig(fps=60))
+    keypoints = scene.keypoints.copy()
+    t, c = np.nonzero(association.slots[:, :, 1] >= 0)
+    alone = c > 0
+    keypoints[c[alone], t[alone], association.slots[t[alone], c[alone], 1]] = np.nan     # the participant: cam01 only
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        result = track_scene(replace(scene, keypoints=keypoints), calibration, "ukf-real", TrackConfig(fps=60),
+                             workers=1)
+    assert result.person_ids.tolist() == [0] and result.unclaimed["cam01_json"] == 100
+    said = [r.getMessage() for r in caplog.records if "cam01_json detects someone" in r.getMessage()]
+    assert len(said) == 1 and "in 100 of 100 frames (first in frame 0, about pixel" in said[0]
+    x, y = (float(v) for v in said[0].split("about pixel ")[1].split(")")[0].split(", "))
+    nobody = [n for n in range(keypoints.shape[2]) if n not in association.slots[0, 0, [0]]]  # cam01, frame 0
+    strong = [keypoints[0, 0, n][keypoints[0, 0, n, :, 2] >= 0.3, :2] for n in nobody]
+    centres = [np.median(points, axis=0) for points in strong if len(points) >= 8]
+    assert min(np.linalg.norm(centre - [x, y]) for centre in centres) < 1.0, (x, y, centres)

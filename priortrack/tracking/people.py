@@ -198,6 +198,8 @@ class SceneTrack:
     lowpass_hz: float | None = None
     #: Ctrl-C ended the run: it holds what was tracked until then.
     interrupted: bool = False
+    #: {camera: frames} where a camera detected someone who is nobody for a second or more (not tracked).
+    unclaimed: dict = field(default_factory=dict)
 
     @property
     def camera_names(self) -> tuple[str, ...]:
@@ -222,7 +224,7 @@ class SceneTrack:
                 "height_m": own["height_m"], "reprojection_px": own["reprojection_px"],
                 "mismatch_fraction": result.mismatch_fraction, "bones_m": own["bones_m"]}
         return {"people": [int(i) for i in self.person_ids], "frames": int(len(self.frames)), "fps": self.fps,
-                "seconds": self.seconds, "interrupted": self.interrupted, "skipped": {str(k): v for k, v in self.skipped.items()},
+                "seconds": self.seconds, "interrupted": self.interrupted, "unclaimed_frames": self.unclaimed, "skipped": {str(k): v for k, v in self.skipped.items()},
                 "per_person": per_person}
 
     def low_passed(self, cutoff_hz: float) -> "SceneTrack":
@@ -364,6 +366,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
              ", ".join(map(str, association.person_ids.tolist())),
              ", ".join(str(association.person_ids[p]) for p in chosen))
+    unclaimed = _unclaimed(association, scene, data_fps, config.min_confidence)
     detections = {p: association.detections_of(scene, p) for p in chosen}
     up = config.up
     if up is None and calibration.up is None:                # one up for every person: the longest-seen's
@@ -396,6 +399,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
                          skipped)
     gathered.detections, gathered.seconds, gathered.data_fps = scene, time.perf_counter() - start, data_fps
     gathered.interrupted = INTERRUPTED in skipped.values() or any(r.interrupted for r in results)
+    gathered.unclaimed = unclaimed
     return gathered
 
 
@@ -544,6 +548,25 @@ class _Pool:
             log.debug("loky: %s", exc)
             raise PriortrackError("a worker process tracking a person ended abruptly (killed out of memory, or a "
                                   "crash): track the people one at a time (workers=1, --workers 1)") from None
+
+
+#: Seconds of a camera's detections of nobody (:meth:`~priortrack.tracking.scene.SceneAssociation.unclaimed`) worth a
+#: warning.
+UNCLAIMED_S = 1.0
+
+
+def _unclaimed(association: SceneAssociation, scene: SceneDetections, fps: float, min_confidence: float) -> dict:
+    """{camera: frames} of each camera's detections of someone who is nobody for :data:`UNCLAIMED_S` or more, each
+    warned: a person only that camera sees is not tracked."""
+    frames, first = association.unclaimed(scene, min_confidence)
+    out = {}
+    for c in np.flatnonzero(frames >= UNCLAIMED_S * fps):
+        out[scene.camera_names[c]] = int(frames[c])
+        log.warning("%s: %s detects someone who is none of the people tracked in %d of %d frames (first in frame %d, "
+                    "about pixel %.0f, %.0f): a person only that camera sees starts no track (or a detector's false "
+                    "positive)", scene.source, scene.camera_names[c], frames[c], len(scene.frames),
+                    scene.frames[int(first[c, 0])], first[c, 1], first[c, 2])
+    return out
 
 
 def _gathered(association: SceneAssociation, kept: list[int], results: list[DetectionTrack], index: np.ndarray,

@@ -354,6 +354,10 @@ def median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return np.where(k[..., 0] > 0, (low + high) / 2, np.inf)
 
 
+#: The keypoints a detection needs to count as someone's in :meth:`SceneAssociation.unclaimed`.
+UNCLAIMED_KEYPOINTS = 8
+
+
 @dataclass
 class SceneAssociation:
     """What the scene tracker decided over a recording.
@@ -383,6 +387,26 @@ class SceneAssociation:
         keypoints[c, t] = scene.keypoints[c, t, self.slots[t, c, p]]
         return Detections(scene.layout, scene.camera_names, scene.frames, scene.fps,
                           f"{scene.source} (person {self.person_ids[p]})", keypoints=keypoints)
+
+    def unclaimed(self, scene: SceneDetections, min_confidence: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+        """Per camera, the frames (C,) with a detection of someone (at least :data:`UNCLAIMED_KEYPOINTS` keypoints
+        at ``min_confidence``) that is nobody's, and the first such detection: its frame index and the median of its
+        keypoints (C, 3: t, x, y; NaN where none): a person only that camera sees (no birth without a second view),
+        or a detector's false positive."""
+        kp = scene.keypoints                                                           # (C, T, N, K, 3)
+        found = np.isfinite(kp[..., 0]) & (np.nan_to_num(kp[..., 2]) >= min_confidence)
+        someone = found.sum(axis=-1) >= UNCLAIMED_KEYPOINTS                             # (C, T, N)
+        C, T, N = someone.shape
+        claimed = np.zeros((C, T, N + 1), dtype=bool)                                  # slot −1 → column N
+        t, c, p = np.nonzero(np.ones_like(self.slots, dtype=bool))
+        claimed[c, t, np.where(self.slots[t, c, p] >= 0, self.slots[t, c, p], N)] = True
+        nobodys = someone & ~claimed[..., :N]
+        first = np.full((C, 3), np.nan)
+        for camera in np.flatnonzero(nobodys.any(axis=(1, 2))):
+            t, n = np.argwhere(nobodys[camera])[0]
+            points = kp[camera, t, n][found[camera, t, n], :2]
+            first[camera] = (t, *np.median(points, axis=0))
+        return nobodys.any(axis=2).sum(axis=1), first
 
     @property
     def present(self) -> np.ndarray:
