@@ -144,7 +144,7 @@ def test_bad_input_is_named(tmp_path, capsys):
     for argv, message in [
         (["track", "--detections", POSE, "--filter", "pf-lie"], "--detections with --cameras"),
         (["track", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie", "--out", str(tmp_path / "x.c3d")],
-         "results are written as .npz, .csv, .trc, .bvh"),
+         "results are written as .npz, .csv, .trc, .mot, .bvh"),
         (["track", "cmu:07_10", "--detections", POSE, "--cameras", CALIB, "--filter", "pf-lie"], "not both"),
         (["track", "cmu:07_10", "--cameras", CALIB, "--filter", "pf-lie"], "--cameras is for tracking --detections"),
         (["track", "--detections", POSE, "--cameras", CALIB, "--keypoints", "body25b", "--fps", "60",

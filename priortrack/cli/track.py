@@ -281,8 +281,8 @@ def add_parsers(verbs) -> None:
                        help="the person's standing height, metres (one camera: the body's size and depth; 1.7)")
     track.add_argument("--out", action="append",
                        help="write the result by suffix: .npz (joints, spread, ESS, log-likelihood, flags), .csv, "
-                            ".trc (Y up, metres: OpenSim) or .bvh (Y up, centimetres: Blender); may repeat "
-                            "(docs/formats.md)")
+                            ".trc (Y up, metres, every keypoint: OpenSim), .mot (joint angles, degrees: OpenSim) or "
+                            ".bvh (Y up, centimetres: Blender); may repeat (docs/formats.md)")
     track.add_argument("--rate", choices=RATES,
                        help="--detections: the outputs' frames: the detections' own, at their rate (the default: "
                             "each frame's estimate carried to its time by a cubic spline through the filter's "

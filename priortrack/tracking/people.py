@@ -263,7 +263,7 @@ class SceneTrack:
                        gated=nearest(self.gated, False), filtered_joints=spline(self.filtered_joints))
 
     def save(self, path: str | Path) -> list[Path]:
-        """Write by suffix: ``.npz`` and ``.csv`` hold every person; ``.trc`` and ``.bvh`` are written one
+        """Write by suffix: ``.npz`` and ``.csv`` hold every person; ``.trc``, ``.mot`` and ``.bvh`` are written one
         per person, ``<stem>_person<id><suffix>``. Returns the files written."""
         path = Path(path)
         suffix = path.suffix.lower()
@@ -271,10 +271,10 @@ class SceneTrack:
             return [self.save_npz(path)]
         if suffix == ".csv":
             return [self.save_csv(path)]
-        if suffix in (".trc", ".bvh"):
+        if suffix in (".trc", ".mot", ".bvh"):
             return [result.save(path.with_name(f"{path.stem}_person{pid}{path.suffix}"))
                     for pid, result in zip(self.person_ids, self.people)]
-        raise PriortrackError(f"{path}: a scene is written as .npz, .csv, .trc or .bvh")
+        raise PriortrackError(f"{path}: a scene is written as .npz, .csv, .trc, .mot or .bvh")
 
     def save_npz(self, path: str | Path) -> Path:
         """``joints`` (T, P, 15, 3), ``person_ids`` (P,), ``frames`` (T,), ``fps``, ``joint_names``,

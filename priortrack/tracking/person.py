@@ -341,6 +341,20 @@ class DetectionTrack:
             return write_trc(path, points, names, self.fps, self.up, int(max(self.frames[0], 0)))
         return write_trc(path, points @ self.working_to_world.T, names, self.fps, "y", int(max(self.frames[0], 0)))
 
+    def save_mot(self, path: str | Path) -> Path:
+        """Joint angles (:mod:`priortrack.body.angles`, degrees) as an OpenSim ``.mot`` file, a row per frame at its
+        time from the detections' first frame; the ankles' from the heel and big toe where carried (``keypoints``)."""
+        from priortrack.body.angles import joint_angles
+        from priortrack.data.mot import write_mot
+
+        feet = {}
+        for part, names in (("heel", ("LHeel", "RHeel")), ("toe", ("LBigToe", "RBigToe")),
+                            ("toe", ("LFootIndex", "RFootIndex"))):
+            if self.keypoints is not None and all(n in self.keypoint_names for n in names):
+                feet[part] = self.keypoints[:, [self.keypoint_names.index(n) for n in names]]
+        times = np.arange(len(self.frames)) / self.fps if self.tick_times is None else self.tick_times
+        return write_mot(path, times, joint_angles(self.joints, feet.get("heel"), feet.get("toe")))
+
     def save_bvh(self, path: str | Path) -> Path:
         """The tracked body's motion as a BVH file: the body's channels fitted by inverse kinematics to
         its tracked joints, in the Y-up working frame (BVH's convention; Blender turns it Z-up on
@@ -354,15 +368,16 @@ class DetectionTrack:
         return path
 
     def save(self, path: str | Path) -> Path:
-        """Write the result by the file's suffix: ``.npz``, ``.csv``, ``.trc`` or ``.bvh``."""
-        writers = {".npz": self.save_npz, ".csv": self.save_csv, ".trc": self.save_trc, ".bvh": self.save_bvh}
+        """Write the result by the file's suffix: ``.npz``, ``.csv``, ``.trc``, ``.mot`` or ``.bvh``."""
+        writers = {".npz": self.save_npz, ".csv": self.save_csv, ".trc": self.save_trc, ".mot": self.save_mot,
+                   ".bvh": self.save_bvh}
         suffix = Path(path).suffix.lower()
         if suffix not in writers:
             raise PriortrackError(f"{path}: results are written as {', '.join(writers)}")
         return writers[suffix](path)
 
 
-RESULT_SUFFIXES = (".npz", ".csv", ".trc", ".bvh")
+RESULT_SUFFIXES = (".npz", ".csv", ".trc", ".mot", ".bvh")
 #: The fewest tracked ticks a fit-check judges.
 MIN_FIT_CHECK_TICKS = 10
 #: The shipped presets whose priors a motion outside the running prior's support is checked against
