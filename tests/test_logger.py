@@ -117,3 +117,23 @@ def test_step_events_name_what_happened():
     quiet = StepRecord(8, 4.0, 4, False, ("no-observation",))
     assert step_events(8, quiet, observed=False) == [("frame 8: nothing observed: the prediction stands", "WARN")]
     assert step_events(9, None, observed=False) == [("frame 9: missing: nothing observed", "WARN")]
+
+
+def test_a_clouds_colours_span_four_decades_of_weight(tmp_path):
+    """Issue 60, item 6: weights from 1e-120 to 1 coloured by their share of the heaviest showed one colour. Levels
+    are 1 + clip(log10(w / max), −4, 0) / 4; a recorded cloud's colours go from dark blue to yellow by them."""
+    from priortrack.viz.recording import Recording
+    from priortrack.viz.weights import DECADES, weight_levels
+
+    w = np.array([1.0, 1e-1, 1e-2, 1e-4, 1e-120, 0.0]) * 0.3
+    np.testing.assert_allclose(weight_levels(w), [1.0, 0.75, 0.5, 0.0, 0.0, 0.0])
+    assert DECADES == 4 and weight_levels(np.zeros(3)).tolist() == [1.0, 1.0, 1.0]
+    path = tmp_path / "cloud.rrd"
+    with Recording(path, "cloud") as recording:
+        recording.frame(0)
+        recording.cloud("estimate", np.zeros((6, 15, 3)), w)
+    colors = [row for c in _chunks(path) if str(c.entity_path) == "/world/estimate/cloud"
+              for row in c.to_record_batch().column("Points3D:colors").to_pylist() if row][0]
+    rgba = np.array([[(v >> s) & 255 for s in (24, 16, 8)] for v in colors[::15]])     # one joint a particle
+    np.testing.assert_array_equal(rgba[[0, 3]], [[255, 230, 40], [30, 40, 120]])
+    np.testing.assert_array_equal(rgba[1], (np.array([30, 40, 120]) + 0.75 * np.array([225, 190, -80])).astype(int))

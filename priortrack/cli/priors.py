@@ -1,4 +1,5 @@
-"""``priortrack fit``, ``sample`` and ``plot``: a prior fitted to motions, rolled out, its latent space drawn."""
+"""``priortrack fit``, ``sample`` and ``plot``: a prior fitted to motions, rolled out, its latent space (or a tracked
+result) drawn."""
 
 from __future__ import annotations
 
@@ -66,8 +67,16 @@ def _plot(args: argparse.Namespace) -> None:
     from priortrack.priors import load_prior
     from priortrack.priors.registry import PRIOR_KINDS
     from priortrack.viz.latent_plot import plot_latent
+    from priortrack.viz.result_plot import is_result, plot_result
 
-    prior = load_prior(args.prior)
+    if is_result(args.prior):
+        plot_result(args.prior, args.out)
+        print(f"wrote {args.out}")
+        return
+    try:
+        prior = load_prior(args.prior)
+    except PriortrackError as exc:
+        raise PriortrackError(f"{args.prior}: neither a result of track --detections nor a prior file ({exc})") from None
     if "latent" not in PRIOR_KINDS[prior.kind].capabilities:
         raise PriortrackError(f"{args.prior} is a {prior.kind} prior; 'plot' draws the latent space of a gpdm or bgpdm")
     plot_latent(prior, args.out)
@@ -102,7 +111,10 @@ def add_parsers(verbs) -> None:
     sample.add_argument("--out", required=True, help="the .rrd file to write")
     sample.set_defaults(run=_sample)
 
-    plot = verbs.add_parser("plot", help="a GPDM's latent trajectories over its log reconstruction variance")
-    plot.add_argument("prior", help="a gpdm or bgpdm prior file")
+    plot = verbs.add_parser("plot", help="a tracked result over time (where each person went, each camera's "
+                                         "reprojection error, how sure, flagged ticks), or a GPDM's latent space")
+    plot.add_argument("prior", metavar="FILE", help="a result .npz of track --detections (one person or a scene), or "
+                                                    "a gpdm or bgpdm prior file (its latent trajectories over its log "
+                                                    "reconstruction variance)")
     plot.add_argument("--out", required=True, help="the image to write (.png)")
     plot.set_defaults(run=_plot)

@@ -35,6 +35,7 @@ from scipy.spatial.transform import Rotation
 from priortrack.data.eval15 import EVAL15_NAMES, EVAL15_PARENTS
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.output import output_path
+from priortrack.viz.weights import weight_levels
 
 log = logging.getLogger(__name__)
 
@@ -139,13 +140,13 @@ class Recording:
                 show_labels=True))
 
     def cloud(self, name: str, joints, weights) -> None:
-        """Log particles' joints (P, 15, 3) metres at ``world/<name>/cloud``, coloured by weight:
-        dark blue (lowest) to yellow (highest), by each weight's share of the largest."""
-        joints, weights = np.asarray(joints), np.asarray(weights, dtype=float)
-        top = weights.max() if weights.size and weights.max() > 0 else 1.0
-        share = np.clip(weights / top, 0.0, 1.0)
+        """Log particles' joints (P, 15, 3) metres at ``world/<name>/cloud``, coloured by weight: dark blue
+        (:data:`~priortrack.viz.weights.DECADES` decades below the heaviest, and lower) to yellow (the heaviest), by
+        :func:`~priortrack.viz.weights.weight_levels`."""
+        joints = np.asarray(joints)
+        level = weight_levels(weights)
         low, high = np.array([30, 40, 120]), np.array([255, 230, 40])
-        colors = (low + share[:, None] * (high - low)).astype(np.uint8)
+        colors = (low + level[:, None] * (high - low)).astype(np.uint8)
         self.stream.log(f"world/{name}/cloud", rr.Points3D(
             joints.reshape(-1, 3), colors=np.repeat(colors, joints.shape[1], axis=0), radii=0.01))
 
