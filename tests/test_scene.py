@@ -469,3 +469,25 @@ def test_someone_only_one_camera_sees_is_named_not_dropped_silently(demo, caplog
     strong = [keypoints[0, 0, n][keypoints[0, 0, n, :, 2] >= 0.3, :2] for n in nobody]
     centres = [np.median(points, axis=0) for points in strong if len(points) >= 8]
     assert min(np.linalg.norm(centre - [x, y]) for centre in centres) < 1.0, (x, y, centres)
+
+
+def test_a_scenes_recording_has_each_persons_particle_cloud_ess_and_events(tmp_path):
+    """Issue 60, item 3: ``--people`` recorded no particle cloud, ESS or events. With pf-diffusion-local, each
+    person's cloud at every ``--rrd-every`` 2nd tick of their run, their ESS fraction at every tick and their events
+    (resampling), prefixed by who they are."""
+    rrd = tmp_path / "scene.rrd"
+    assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--fps", "60", "--filter",
+                 "pf-diffusion-local", "--people", "all", "--frames", "24", "--rrd", str(rrd), "--rrd-every", "2"]) == 0
+    chunks = list(rr.chunk.RrdReader(rrd).stream().to_chunks())
+    rows = {}
+    for chunk in chunks:
+        rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
+    for pid in (0, 1):
+        assert rows[f"/world/person{pid}/cloud"] == 5                       # ticks 2, 4, 6, 8, 10 of 12
+        ess = [v for c in chunks if str(c.entity_path) == f"/metrics/ess_fraction/person{pid}"
+               for name in c.to_record_batch().schema.names if name.startswith("Scalars")
+               for v in c.to_record_batch().column(name).to_pylist() if v]
+        assert len(ess) == 10 and all(0 < v[0] <= 1 for v in ess)            # every filtered tick, a fraction
+    texts = [str(t) for c in chunks if str(c.entity_path) == "/events"
+             for t in c.to_record_batch().column("TextLog:text").to_pylist()]
+    assert any(t.startswith("['person 1: frame") and "resampled" in t for t in texts), texts[:5]

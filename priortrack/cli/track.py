@@ -212,7 +212,9 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     calibration = read_calibration(args.cameras, units=args.units)
     progress = Progress(f"track {args.filter}", "{0} of {1}")          # people tracked (one person: ticks)
     try:
-        result = track_scene(scene, calibration, args.filter, replace(config, interruptible=True), scene_config,
+        result = track_scene(scene, calibration, args.filter,
+                             replace(config, interruptible=True, keep_snapshots=bool(args.rrd),
+                                     snapshot_every=args.rrd_every), scene_config,
                              people=people, workers=workers, progress=progress)
     finally:
         progress.close()

@@ -200,6 +200,8 @@ class SceneTrack:
     interrupted: bool = False
     #: {camera: frames} where a camera detected someone who is nobody for a second or more (not tracked).
     unclaimed: dict = field(default_factory=dict)
+    #: (P,) the tick of this result's grid at which each person's own run (``people[p]``) starts.
+    starts: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def camera_names(self) -> tuple[str, ...]:
@@ -585,9 +587,11 @@ def _gathered(association: SceneAssociation, kept: list[int], results: list[Dete
     # each tick's detection frame, a tick without one taking the last tick's (25 fps data at 30 fps ticks)
     nearest = np.maximum.accumulate(np.where(index >= 0, np.arange(T), 0))
     live = association.present[np.maximum(index[nearest], 0)]                      # (T, P_all)
+    starts = np.zeros(len(kept), dtype=int)
     for q, (p, result) in enumerate(zip(kept, results)):
         k0 = int(np.flatnonzero(result.frames >= 0)[0])
-        ticks = position[int(result.frames[k0])] - k0 + np.arange(len(result.frames))   # the run's ticks on the grid
+        starts[q] = position[int(result.frames[k0])] - k0
+        ticks = starts[q] + np.arange(len(result.frames))                               # the run's ticks on the grid
         keep = (ticks < T) & live[np.minimum(ticks, T - 1), p]
         t, k = ticks[keep], np.flatnonzero(keep)
         for name, grid in grids.items():
@@ -595,4 +599,4 @@ def _gathered(association: SceneAssociation, kept: list[int], results: list[Dete
     return SceneTrack(association.person_ids[kept], tick_frames, results[0].fps, grids["joints"], grids["spread"],
                       grids["loglik"], grids["mismatch"], grids["held_out_ratio"], results, association, skipped,
                       index=index, ess=grids["ess"], reprojection_px=grids["reprojection_px"], gated=grids["gated"],
-                      filtered_joints=grids.get("filtered_joints"))
+                      filtered_joints=grids.get("filtered_joints"), starts=starts)

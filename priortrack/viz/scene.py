@@ -5,8 +5,11 @@ their own colour with a label (``person <id>``) at ``world/person<id>``; in each
 detections the scene tracker gave each person, in that person's colour, the detections it gave nobody
 in grey (``unassigned``: false positives, people seen by one camera), each person's estimate
 reprojected, and the association (``association/person<id>``: a segment from each joint of a detection to
-the same joint of the estimate of the person it was given to); per-frame scalars per person: each camera's
-median reprojection error, the log-likelihood, the mismatch flag and the held-out ratio (these three in the person's colour). A mismatch tick draws the person's skeleton in the mismatch colour.
+the same joint of the estimate of the person it was given to); each person's particle cloud coloured by weight
+(``person<id>/cloud``, at the ticks whose snapshots their run kept) and per-frame scalars per person: each camera's
+median reprojection error, the ESS fraction (particles), the log-likelihood, the mismatch flag and the held-out ratio
+(these in the person's colour); each person's events (resampling, the filter's flags, mismatch), prefixed
+``person <id>:``. A mismatch tick draws the person's skeleton in the mismatch colour.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import torch
 
 from priortrack.data.keypoints import to_eval15
 from priortrack.geometry.frames import nearest_axis, up_vector
+from priortrack.viz.logger import step_events
 from priortrack.viz.real import MISMATCH_COLOR
 from priortrack.viz.recording import Recording
 
@@ -31,6 +35,23 @@ def person_color(person_id: int) -> tuple[int, int, int]:
     return PERSON_COLORS[int(person_id) % len(PERSON_COLORS)]
 
 
+def _own_step(rec: Recording, scene, p: int, t: int, snapshots: dict, steps: dict) -> None:
+    """Person p's own run at the scene's tick t: their particle cloud (``snapshots`` {tick: snapshot} of their run,
+    where kept), ESS fraction and events (``steps`` {tick: step record})."""
+    result, pid = scene.people[p], int(scene.person_ids[p])
+    k = t - int(scene.starts[p]) if scene.starts is not None else -1
+    if not 0 <= k < len(result.joints):
+        return
+    if k in snapshots:
+        cloud = result.in_world(snapshots[k].joints.detach().cpu().numpy(), definitions=False)
+        rec.cloud(f"person{pid}", cloud, snapshots[k].weights.detach().cpu().numpy())
+    step = steps.get(k)
+    if step is not None and np.isfinite(result.ess[k]):                  # particles (sigma points have no ESS)
+        rec.scalar(f"ess_fraction/person{pid}", step.ess / step.points, person_color(pid))
+    for text, level in step_events(int(result.frames[k]), step, bool(result.mismatch[k])):
+        rec.event(f"person {pid}: {text}", level)
+
+
 def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
     """Write ``scene`` (a SceneTrack) to the ``.rrd`` file ``path``."""
     first = scene.people[0]
@@ -38,6 +59,7 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
     slots = scene.association.slots                                          # (T_frames, C, P_all)
     columns = [int(np.flatnonzero(scene.association.person_ids == pid)[0]) for pid in scene.person_ids]
     colors = [person_color(pid) for pid in scene.person_ids] + [MISMATCH_COLOR, UNASSIGNED_COLOR]
+    own = [({s.frame: s for s in r.snapshots or []}, {s.frame: s for s in r.steps or []}) for r in scene.people]
     with Recording(path, up=nearest_axis(first.up), up_vector=up_vector(first.up),
                    name=f"{first.filter} · scene of {len(scene.person_ids)}", colors=colors) as rec:
         for name, camera in zip(names, cameras):
@@ -55,6 +77,7 @@ def record_scene(scene, path: str | Path, min_confidence: float = 0.3) -> Path:
                     uv = camera.project(torch.as_tensor(joints))[0].numpy()
                     estimates[pid, name] = uv
                     rec.points_2d(f"estimate/person{pid}", uv, person_color(pid), camera=name, radius=2.0)
+                _own_step(rec, scene, p, t, *own[p])
                 rec.scalar(f"loglik/person{pid}", scene.loglik[t, p], person_color(pid))
                 rec.scalar(f"mismatch/person{pid}", float(scene.mismatch[t, p]), person_color(pid))
                 if np.isfinite(scene.held_out_ratio[t, p]):
