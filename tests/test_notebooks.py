@@ -1,7 +1,7 @@
 """The notebooks, executed as Jupyter does (nbclient, a fresh ipykernel each): no cell fails, each
 shows its figures inline (image/png outputs) and prints the numbers it is about, what it writes
-goes to the scratch folder (PRIORTRACK_SCRATCH), never into notebooks/; and they are stored without
-outputs."""
+goes to the scratch folder (PRIORTRACK_SCRATCH), never into notebooks/; and they are stored with the
+outputs of such a run (issue 60, item 6: a reader on GitHub sees the figures without running anything)."""
 
 import json
 from pathlib import Path
@@ -21,14 +21,30 @@ EXPECTED = {
                               ["comparison/results.csv", "comparison/plots/summary.png"]),
     "5_real_detections_from_four_cameras": (["ticks at 30 fps; median reprojection", "held out", "mean spread",
                                              "scene: 3 people tracked, ids [0, 1, 2]"], 3, ["crossing/cam01"]),
+    "6_a_particle_cloud_on_real_detections": (["person 1 of the scene: 30 ticks at 30 fps", "ESS: min",
+                                               "distinct particles kept", "median spread, mm"], 4, []),
 }
 
 
-def test_every_notebook_is_checked_and_stored_without_outputs():
+def _shown(cells) -> tuple[str, list, list]:
+    """What code cells printed, their inline images and their errors."""
+    outputs = [o for c in cells if c["cell_type"] == "code" for o in c["outputs"]]
+    printed = "".join("".join(o.get("text", "")) for o in outputs if o["output_type"] == "stream")
+    images = [o for o in outputs if o["output_type"] == "display_data" and "image/png" in o.get("data", {})]
+    return printed, images, [o for o in outputs if o["output_type"] == "error"]
+
+
+def test_every_notebook_is_checked_and_stored_with_its_outputs():
+    """Each stored notebook is one run from the top (execution counts 1, 2, …), without errors, showing the numbers
+    and figures its run shows."""
     assert sorted(p.stem for p in FOLDER.glob("*.ipynb")) == sorted(EXPECTED)
     for path in FOLDER.glob("*.ipynb"):
         cells = json.loads(path.read_text())["cells"]
-        assert all(not c.get("outputs") and c.get("execution_count") is None for c in cells if c["cell_type"] == "code")
+        code = [c for c in cells if c["cell_type"] == "code"]
+        assert [c["execution_count"] for c in code] == list(range(1, len(code) + 1)), path.name
+        printed, images, errors = _shown(cells)
+        texts, fewest, _ = EXPECTED[path.stem]
+        assert not errors and len(images) >= fewest and all(t in printed for t in texts), path.name
         assert not any("matplotlib.use(" in "".join(c["source"]) for c in cells)      # the kernel's inline backend
 
 
@@ -38,10 +54,8 @@ def test_notebook_runs_in_a_kernel(name, tmp_path, monkeypatch):
     monkeypatch.setenv("PRIORTRACK_SCRATCH", str(tmp_path / "scratch"))
     notebook = nbformat.read(FOLDER / f"{name}.ipynb", as_version=4)
     NotebookClient(notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
-    outputs = [o for c in notebook.cells if c.cell_type == "code" for o in c.outputs]
-    assert not [o for o in outputs if o.output_type == "error"]
-    printed = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
-    images = [o for o in outputs if o.output_type == "display_data" and "image/png" in o.get("data", {})]
+    printed, images, errors = _shown(notebook.cells)
+    assert not errors
     texts, fewest, files = EXPECTED[name]
     for text in texts:
         assert text in printed, (text, printed)
