@@ -384,6 +384,27 @@ def test_ctrl_c_writes_what_was_tracked(tmp_path, capsys, monkeypatch):
     assert main(argv) == 130 and capsys.readouterr().err.strip() == "priortrack: interrupted"
 
 
+@pytest.mark.parametrize("phase", ["smooth_run", "tracked_fit_check"])
+def test_ctrl_c_while_smoothing_or_fit_checking_writes_the_result(tmp_path, capsys, monkeypatch, phase):
+    """Issue 60, item 1: Ctrl-C after the last tick (the smoother, the fit-check) printed "interrupted" and wrote
+    nothing. Now the result is written, the filter's own where the smoother was stopped, without the fit-check where
+    that was; exit 0, the summary says interrupted."""
+    import priortrack.tracking.person as person
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(person, phase, stop)
+    assert main(["track", "--detections", POSE, "--cameras", CALIB, "--fps", "60", "--filter", "pf-lie", "--smooth",
+                 "--out", str(tmp_path / "r.npz"), "--json"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["interrupted"] is True and summary["smoothed"] is (phase != "smooth_run")
+    with np.load(tmp_path / "r.npz") as z:
+        assert z["joints"].shape == (12, 15, 3) and np.isfinite(z["joints"]).all()
+        assert ("filtered_joints" in z.files) is (phase != "smooth_run")
+
+
 def test_the_mismatch_warning_says_what_it_measured_and_names_no_weaker_preset():
     """Issue 28: a run with 99.6 % of its ticks explained was told "explains 100 % … try pf-diffusion-local"
     (the preset it ran). The warning counts the ticks and gives each cause's count, and names no preset."""

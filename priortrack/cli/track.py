@@ -210,7 +210,7 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     if args.frames is not None:
         scene = scene.head(args.frames)
     calibration = read_calibration(args.cameras, units=args.units)
-    progress = Progress(f"track {args.filter}", "{0} of {1}")          # people tracked (one person: ticks)
+    progress = Progress(f"track {args.filter}", "{0} of {1}", rate=True)    # people tracked (one person: ticks)
     try:
         result = track_scene(scene, calibration, args.filter,
                              replace(config, interruptible=True, keep_snapshots=bool(args.rrd),

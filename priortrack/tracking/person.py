@@ -799,6 +799,11 @@ class PersonRun:
                 smoothed = smooth_run(self.filt, replace(run, snapshots=self.for_smoother), z[:len(run.estimates)],
                                       self.config.trajectories, None, self.config.seed,
                                       method=self.config.particle_smoother)
+            except KeyboardInterrupt:
+                if not self.config.interruptible:
+                    raise
+                log.warning("interrupted while smoothing: the filter's estimate is kept, not smoothed")
+                smoothed, run = None, replace(run, interrupted=True)
             finally:
                 self.for_smoother.close()                    # the smoother has them; let them go
         else:
@@ -844,8 +849,15 @@ class PersonRun:
                                 tick_times=(self.first_tick + np.arange(T)) / float(self.prior.fps),
                                 data_fps=self.data_fps, data_frames=np.asarray(self.detections.frames),
                                 detections=self.detections, min_confidence=self.config.min_confidence)
-        result.fit_check, implausible = (tracked_fit_check(self.preset, self.prior, result, self.config.cache)
-                                         if self.config.fit_check else (None, None))
+        result.fit_check, implausible = None, None
+        if self.config.fit_check:
+            try:
+                result.fit_check, implausible = tracked_fit_check(self.preset, self.prior, result, self.config.cache)
+            except KeyboardInterrupt:
+                if not self.config.interruptible:
+                    raise
+                log.warning("interrupted during the fit-check: the result is kept without it")
+                result.interrupted = True
         if implausible is not None:          # a mismatch is also a tick the prior itself finds implausible
             result.mismatch = result.mismatch & implausible
         unlikely = result.mismatch.copy()
