@@ -58,11 +58,29 @@ def test_bones_no_frame_measures_take_the_measured_bones_scale(walk):
     arms, legs = index[[4, 5, 7, 8]], index[[10, 11, 13, 14]]        # elbows, wrists; knees, ankles
     np.testing.assert_allclose(seated.offsets[arms], whole.offsets[arms], rtol=1e-12)
     rest = joint_positions(Motion(template, np.zeros((1, template.num_channels)), 30.0, "rest"))
-    factors = measured_distances(upper) / measured_distances(rest)
+    factors = measured_distances(upper) / measured_distances(rest, own_side=True)
     assert np.isfinite(factors).sum() == 7                           # head, shoulders ×2, upper arms ×2, forearms ×2
     np.testing.assert_allclose(seated.offsets[legs], np.nanmedian(factors) * template.offsets[legs], rtol=1e-12)
     with pytest.raises(PriortrackError, match="no bone is measured"):
         fitted_skeleton(template, np.full_like(walk, np.nan))
+
+
+def test_left_and_right_limbs_come_out_equal_though_the_template_differs(walk):
+    """Issue 59, item 4 (the README: left = right): CMU 35's template has an upper arm 3 % longer on one side, and a
+    body scaled by one factor per measure kept that (Pose2Sim's demo participant: 277 / 293 mm). Each side is now
+    scaled to the measured length (left and right averaged): equal to 0.1 mm, the measured mean."""
+    from priortrack.data.motion import Motion
+
+    template = cmu_skeleton("35")
+    rest = joint_positions(Motion(template, np.zeros((1, template.num_channels)), 30.0, "rest"))
+    sides = measured_distances(rest, own_side=True)
+    assert abs(sides[3] / sides[6] - 1) > 0.02                                   # upper arms: the template's differ
+    targets = walk.copy()
+    targets[:, 7] = targets[:, 6] + 1.1 * (targets[:, 7] - targets[:, 6])        # a right upper arm 10 % longer
+    fitted = joint_positions(Motion(fitted_skeleton(template, targets), np.zeros((1, template.num_channels)), 30.0, "r"))
+    lengths = measured_distances(fitted, own_side=True)
+    np.testing.assert_allclose(lengths[[3, 4, 9, 10]], lengths[[6, 7, 12, 13]], atol=1e-4)   # arms, forearms, legs
+    np.testing.assert_allclose(lengths[3], measured_distances(targets)[3], atol=1e-4)
 
 
 def test_missing_joints_follow_their_neighbours(walk):

@@ -7,7 +7,8 @@ then compared through M X. Without M, the targets are the body's eval15 joints t
 **The body.** A template skeleton (CMU subject 35's by default, whose channel layout every bundled
 prior uses) is scaled to the targets: each eval15 bone (joint j to its parent) gets the factor
 s = d_measured / d_template of the distance that measures it in the targets' definitions (medians
-over frames; left and right averaged): upper arm, forearm, thigh and shin for the limbs, the
+over frames; left and right averaged, and d_template the bone's own side, so that a template whose sides differ
+(CMU 35's upper arms, 3 % apart) gives both sides the measured length: left = right): upper arm, forearm, thigh and shin for the limbs, the
 shoulder and hip widths for the neck→shoulder and pelvis→hip bones, mid-hips to mid-shoulders for the
 trunk, mid-shoulders to the head for the head. The factor scales the rest offsets of the skeleton
 joints on the bone's path (CMU's clavicles and neck both start at the thorax's end). A bone no frame
@@ -107,13 +108,23 @@ def _distance(X: np.ndarray, pair) -> np.ndarray:
     return np.linalg.norm(a - b, axis=-1)
 
 
-def measured_distances(X: np.ndarray) -> np.ndarray:
+#: The eval15 joints whose bones are on the right: their own distance is the mirror pair of :data:`_MEASURES`.
+_RIGHT = (7, 8, 13, 14)
+
+
+def measured_distances(X: np.ndarray, own_side: bool = False) -> np.ndarray:
     """(14,) the median over frames X (T, 15, 3) of the distance measuring each eval15 bone (left and
-    right averaged), NaN frames left out; NaN for a bone no frame measures."""
+    right averaged; with ``own_side``, each limb bone's own side alone), NaN frames left out; NaN for a bone no
+    frame measures."""
     X = np.asarray(X, dtype=np.float64)
     out = np.full(14, np.nan)
     for j, (pair, mirror) in _MEASURES.items():
-        values = _distance(X, pair) if mirror is None else np.concatenate([_distance(X, pair), _distance(X, mirror)])
+        if mirror is None:
+            values = _distance(X, pair)
+        elif own_side:
+            values = _distance(X, mirror if j in _RIGHT else pair)
+        else:
+            values = np.concatenate([_distance(X, pair), _distance(X, mirror)])
         if np.isfinite(values).any():
             out[j - 1] = np.nanmedian(values)
     return out
@@ -158,8 +169,8 @@ def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | N
     offsets = template.offsets.copy()
     points, rest = _rest(template)
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-    measured = measured_distances(X)
-    scale = measured / measured_distances((M @ rest)[None])
+    measured = measured_distances(X)                                  # left and right averaged …
+    scale = measured / measured_distances((M @ rest)[None], own_side=True)   # … given to each side of the template
     unmeasured = ~np.isfinite(scale)
     if unmeasured.all():
         raise PriortrackError("body size: no bone is measured (no frame has both ends of any eval15 bone)")
