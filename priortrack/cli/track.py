@@ -261,7 +261,9 @@ def add_parsers(verbs) -> None:
                                     "X,Y,Z; else the file's, else found from the person (ankles to neck)")
     track.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
     track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
-    track.add_argument("--person", type=int, help="follow this index of each frame's people list")
+    track.add_argument("--person", type=int, metavar="INDEX",
+                       help="files whose people keep their order: follow this index of each frame's people list "
+                            "(one person, no scene tracker); to choose among people by who they are, --people")
     track.add_argument("--people", nargs="+", metavar="WHO",
                        help="track every person of the scene, each with an identity: all; N (the N seen most: keypoints detected); "
                             "id:A,B; at:CAMERA:X,Y or box:CAMERA:X0,Y0,X1,Y1 (the person there in that camera's "
