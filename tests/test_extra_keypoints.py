@@ -111,7 +111,8 @@ def participant(tmp_path_factory):
     folder = tmp_path_factory.mktemp("feet")
     assert main(["track", "--detections", str(MULTIPERSON / "pose"), "--cameras",
                  str(MULTIPERSON / "calibration" / "Calib.qca.txt"), "--fps", "60", "--people", "all", "--smooth",
-                 "--lowpass", "6", "--out", str(folder / "s.trc"), "--out", str(folder / "s.npz")]) == 0
+                 "--lowpass", "6", "--out", str(folder / "s.trc"), "--out", str(folder / "s.npz"),
+                 "--out", str(folder / "s.csv")]) == 0
     return folder
 
 
@@ -139,3 +140,9 @@ def test_the_demo_participants_trc_has_every_keypoint_at_60_fps_near_pose2sims_a
     with np.load(participant / "s.npz") as z:
         assert z["keypoints"].shape == (100, 2, 11, 3) and "RHeel" in z["keypoint_names"].tolist()
         assert float(z["fps"]) == 60.0 and float(z["lowpass_hz"]) == 6.0
+        heels = z["keypoints"][:, 1, list(z["keypoint_names"]).index("RHeel")]
+    rows = np.genfromtxt(participant / "s.csv", delimiter=",", names=True)
+    mine = rows[rows["person"] == 1]
+    from_csv = np.column_stack([mine["RHeel_x"], mine["RHeel_y"], mine["RHeel_z"]])        # the world's axes
+    np.testing.assert_allclose(from_csv, heels, atol=1e-8)
+    np.testing.assert_allclose(from_csv, ours[:, names.index("RHeel")], atol=1e-8)      # the TRC read back to them

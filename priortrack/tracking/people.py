@@ -309,13 +309,17 @@ class SceneTrack:
         return out
 
     def save_csv(self, path: str | Path) -> Path:
-        """One row per tick and present person: frame, time (s), person, each joint's x, y, z, spread,
-        loglik, mismatch."""
+        """One row per tick (or frame) and present person: frame, time (s), person, each joint's x, y, z, spread,
+        loglik, mismatch, then each of the detector's further keypoints' x, y, z where carried."""
         path = output_path(path, "result file")
+        carried = bool(self.people) and all(r.keypoints is not None for r in self.people)
+        names = self.people[0].keypoint_names if carried else ()
+        extra = self._keypoints() if carried else np.zeros(self.joints.shape[:2] + (0, 3))
         with open(path, "w", newline="") as f:
             writer = csv.writer(f)
             writer.writerow(["frame", "time_s", "person"] + [f"{n}_{a}" for n in EVAL15_NAMES for a in "xyz"] +
-                            [f"{n}_spread" for n in EVAL15_NAMES] + ["loglik", "mismatch"])
+                            [f"{n}_spread" for n in EVAL15_NAMES] + ["loglik", "mismatch"] +
+                            [f"{n}_{a}" for n in names for a in "xyz"])
             times = np.arange(len(self.frames)) / self.fps                    # from the first tick or frame
             for t, frame in enumerate(self.frames):
                 for p, pid in enumerate(self.person_ids):
@@ -323,7 +327,8 @@ class SceneTrack:
                         writer.writerow([int(frame), f"{times[t]:.9g}", int(pid)] +
                                         [f"{v:.9g}" for v in self.joints[t, p].ravel()] +
                                         [f"{v:.9g}" for v in self.spread[t, p]] +
-                                        [f"{self.loglik[t, p]:.9g}", int(self.mismatch[t, p])])
+                                        [f"{self.loglik[t, p]:.9g}", int(self.mismatch[t, p])] +
+                                        [f"{v:.9g}" for v in extra[t, p].ravel()])
         return path
 
 

@@ -319,14 +319,16 @@ class DetectionTrack:
         return path
 
     def save_csv(self, path: str | Path) -> Path:
-        """One row per tick: frame, time (s from the detections' first frame), each joint's x, y, z (metres), spread,
-        ESS, loglik, mismatch."""
+        """One row per tick (or frame): frame, time (s from the detections' first frame), each joint's x, y, z (metres),
+        spread, ESS, loglik, mismatch, then each of the detector's further keypoints' x, y, z where carried."""
         path = output_path(path, "result file")
         header = ["frame", "time_s"] + [f"{n}_{a}" for n in EVAL15_NAMES for a in "xyz"] + \
-                 [f"{n}_spread" for n in EVAL15_NAMES] + ["ess", "loglik", "mismatch"]
+                 [f"{n}_spread" for n in EVAL15_NAMES] + ["ess", "loglik", "mismatch"] + \
+                 [f"{n}_{a}" for n in self.keypoint_names for a in "xyz"]
         times = np.arange(len(self.frames)) / self.fps if self.tick_times is None else self.tick_times
+        extra = np.zeros((len(self.joints), 0)) if self.keypoints is None else self.keypoints.reshape(len(self.joints), -1)
         rows = np.column_stack([self.frames, times, self.joints.reshape(len(self.joints), -1),
-                                self.spread, self.ess, self.loglik, self.mismatch.astype(int)])
+                                self.spread, self.ess, self.loglik, self.mismatch.astype(int), extra])
         np.savetxt(path, rows, delimiter=",", header=",".join(header), comments="", fmt="%.9g")
         return path
 
