@@ -58,17 +58,19 @@ def test_bones_no_frame_measures_take_the_measured_bones_scale(walk):
     arms, legs = index[[4, 5, 7, 8]], index[[10, 11, 13, 14]]        # elbows, wrists; knees, ankles
     np.testing.assert_allclose(seated.offsets[arms], whole.offsets[arms], rtol=1e-12)
     rest = joint_positions(Motion(template, np.zeros((1, template.num_channels)), 30.0, "rest"))
-    factors = measured_distances(upper) / measured_distances(rest, own_side=True)
+    factors = measured_distances(upper, own_side=True) / measured_distances(rest, own_side=True)
     assert np.isfinite(factors).sum() == 7                           # head, shoulders ×2, upper arms ×2, forearms ×2
     np.testing.assert_allclose(seated.offsets[legs], np.nanmedian(factors) * template.offsets[legs], rtol=1e-12)
     with pytest.raises(PriortrackError, match="no bone is measured"):
         fitted_skeleton(template, np.full_like(walk, np.nan))
 
 
-def test_left_and_right_limbs_come_out_equal_though_the_template_differs(walk):
-    """Issue 59, item 4 (the README: left = right): CMU 35's template has an upper arm 3 % longer on one side, and a
-    body scaled by one factor per measure kept that (Pose2Sim's demo participant: 277 / 293 mm). Each side is now
-    scaled to the measured length (left and right averaged): equal to 0.1 mm, the measured mean."""
+def test_each_side_takes_its_own_measured_length_not_the_templates_asymmetry(walk):
+    """Issue 59, item 4: CMU 35's template has an upper arm 3 % longer on one side, and a body scaled by one factor
+    per measure (left and right averaged) kept that for everyone (Pose2Sim's demo participant: 277 / 293 mm). Each
+    side is now scaled to its own measured length (medians over frames): a right upper arm 10 % longer comes out so,
+    the left as measured, and equal sides come out equal."""
+    from priortrack.body.ik import limb_sides
     from priortrack.data.motion import Motion
 
     template = cmu_skeleton("35")
@@ -77,10 +79,18 @@ def test_left_and_right_limbs_come_out_equal_though_the_template_differs(walk):
     assert abs(sides[3] / sides[6] - 1) > 0.02                                   # upper arms: the template's differ
     targets = walk.copy()
     targets[:, 7] = targets[:, 6] + 1.1 * (targets[:, 7] - targets[:, 6])        # a right upper arm 10 % longer
-    fitted = joint_positions(Motion(fitted_skeleton(template, targets), np.zeros((1, template.num_channels)), 30.0, "r"))
+    for X in (walk, targets):
+        skeleton = fitted_skeleton(template, X)
+        fitted = joint_positions(Motion(skeleton, np.zeros((1, template.num_channels)), 30.0, "r"))
+        np.testing.assert_allclose(measured_distances(fitted, own_side=True)[[3, 6, 9, 12]],
+                                   measured_distances(X, own_side=True)[[3, 6, 9, 12]], atol=1e-4)
+        assert limb_sides(skeleton)["upper_arm"] == pytest.approx(measured_distances(X, own_side=True)[[3, 6]], abs=1e-4)
+    mirror = walk.copy()
+    mirror[:, [6, 7, 8]] = mirror[:, [3, 4, 5]] * [-1, 1, 1]                     # the right arm the left's mirror
+    mirror[:, [12, 13, 14]] = mirror[:, [9, 10, 11]] * [-1, 1, 1]
+    fitted = joint_positions(Motion(fitted_skeleton(template, mirror), np.zeros((1, template.num_channels)), 30.0, "m"))
     lengths = measured_distances(fitted, own_side=True)
-    np.testing.assert_allclose(lengths[[3, 4, 9, 10]], lengths[[6, 7, 12, 13]], atol=1e-4)   # arms, forearms, legs
-    np.testing.assert_allclose(lengths[3], measured_distances(targets)[3], atol=1e-4)
+    np.testing.assert_allclose(lengths[[3, 4, 9, 10]], lengths[[6, 7, 12, 13]], atol=1e-4)   # equal sides: equal
 
 
 def test_missing_joints_follow_their_neighbours(walk):

@@ -7,8 +7,8 @@ then compared through M X. Without M, the targets are the body's eval15 joints t
 **The body.** A template skeleton (CMU subject 35's by default, whose channel layout every bundled
 prior uses) is scaled to the targets: each eval15 bone (joint j to its parent) gets the factor
 s = d_measured / d_template of the distance that measures it in the targets' definitions (medians
-over frames; left and right averaged, and d_template the bone's own side, so that a template whose sides differ
-(CMU 35's upper arms, 3 % apart) gives both sides the measured length: left = right): upper arm, forearm, thigh and shin for the limbs, the
+over frames, each limb bone's own side: a person's sides may differ, and a template's own asymmetry, CMU 35's upper
+arms 3 % apart, is not carried to someone else): upper arm, forearm, thigh and shin for the limbs, the
 shoulder and hip widths for the neck→shoulder and pelvis→hip bones, mid-hips to mid-shoulders for the
 trunk, mid-shoulders to the head for the head. The factor scales the rest offsets of the skeleton
 joints on the bone's path (CMU's clavicles and neck both start at the thorax's end). A bone no frame
@@ -154,10 +154,22 @@ def _unmeasured(distances: np.ndarray) -> list[str]:
 
 def body_measures(skeleton: Skeleton, joint_map: np.ndarray | None = None) -> dict[str, float]:
     """{measure: metres} of :data:`BODY_MEASURES` on the skeleton's rest pose, in the targets'
-    definitions (``joint_map`` M applied): the body a tracker fitted, as a person would measure it."""
+    definitions (``joint_map`` M applied): the body a tracker fitted, as a person would measure it (a limb's
+    left and right averaged; :func:`limb_sides` gives each)."""
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
     distances = measured_distances((M @ _rest(skeleton)[1])[None])
     return {name: float(distances[j - 1]) for name, j in BODY_MEASURES.items()}
+
+
+#: The limb measures of :data:`BODY_MEASURES`, by their left and right eval15 joints.
+LIMB_SIDES = {"upper_arm": (4, 7), "forearm": (5, 8), "thigh": (10, 13), "shin": (11, 14)}
+
+
+def limb_sides(skeleton: Skeleton, joint_map: np.ndarray | None = None) -> dict[str, list[float]]:
+    """{limb: [left, right] metres} of the skeleton's rest pose (:data:`LIMB_SIDES`), in the targets' definitions."""
+    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+    distances = measured_distances((M @ _rest(skeleton)[1])[None], own_side=True)
+    return {name: [float(distances[a - 1]), float(distances[b - 1])] for name, (a, b) in LIMB_SIDES.items()}
 
 
 def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | None = None) -> Skeleton:
@@ -169,8 +181,8 @@ def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | N
     offsets = template.offsets.copy()
     points, rest = _rest(template)
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-    measured = measured_distances(X)                                  # left and right averaged …
-    scale = measured / measured_distances((M @ rest)[None], own_side=True)   # … given to each side of the template
+    measured = measured_distances(X, own_side=True)                   # each side's own length …
+    scale = measured / measured_distances((M @ rest)[None], own_side=True)   # … given to that side of the template
     unmeasured = ~np.isfinite(scale)
     if unmeasured.all():
         raise PriortrackError("body size: no bone is measured (no frame has both ends of any eval15 bone)")

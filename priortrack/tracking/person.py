@@ -73,7 +73,8 @@ import torch
 
 from priortrack.body.fk import joint_positions
 from priortrack.body.ik import (PoseSpread, body_measures, check_height, fitted_skeleton, inverse_kinematics,
-                                REWEIGHTS, inverse_kinematics_2d, scaled_to_height, stature, unmeasured_measures)
+                                REWEIGHTS, inverse_kinematics_2d, limb_sides, scaled_to_height, stature,
+                                unmeasured_measures)
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -282,7 +283,8 @@ class DetectionTrack:
     def summary(self) -> dict:
         """The JSON summary: frames, seconds, median reprojection error per camera, mismatch fraction, the
         world's up (an axis, or the vector given or found from the person), the tracked body's measures
-        (:func:`~priortrack.body.ik.body_measures`, metres) and those of them no tick measured."""
+        (:func:`~priortrack.body.ik.body_measures`, metres; each limb's left and right,
+        :func:`~priortrack.body.ik.limb_sides`) and those of them no tick measured."""
         return {"filter": self.filter, "frames": int(len(self.joints)), "fps": self.fps, "seconds": self.seconds,
                 "reprojection_px": {n: float(e) for n, e in zip(self.camera_names, self.reprojection_px)},
                 "mismatch_fraction": self.mismatch_fraction, "cross_view_rejections": self.cross_view_rejections,
@@ -290,6 +292,7 @@ class DetectionTrack:
                 "smoothed": self.filtered_joints is not None, "lag": self.lag, "fit_check": self.fit_check,
                 "interrupted": self.interrupted,
                 "bones_m": None if self.skeleton is None else body_measures(self.skeleton, detector_map()),
+                "limbs_left_right_m": None if self.skeleton is None else limb_sides(self.skeleton, detector_map()),
                 "height_m": None if self.skeleton is None else stature(self.skeleton),
                 "bones_unmeasured": list(self.bones_unmeasured),
                 "up": self.up if isinstance(self.up, str) else [float(v) for v in self.up]}
