@@ -128,6 +128,7 @@ def test_a_clouds_colours_span_four_decades_of_weight(tmp_path):
     w = np.array([1.0, 1e-1, 1e-2, 1e-4, 1e-120, 0.0]) * 0.3
     np.testing.assert_allclose(weight_levels(w), [1.0, 0.75, 0.5, 0.0, 0.0, 0.0])
     assert DECADES == 4 and weight_levels(np.zeros(3)).tolist() == [1.0, 1.0, 1.0]
+    assert weight_levels([-0.2, np.nan, 0.6]).tolist() == [0.0, 0.0, 1.0]    # a sigma point's negative weight: lowest
     path = tmp_path / "cloud.rrd"
     with Recording(path, "cloud") as recording:
         recording.frame(0)

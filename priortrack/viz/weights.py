@@ -18,10 +18,13 @@ DECADES = 4
 
 
 def weight_levels(weights) -> np.ndarray:
-    """ℓ (P,) in [0, 1] of weights (P,) ≥ 0 (module docstring); all 1 where every weight is 0."""
-    w = np.asarray(weights, dtype=np.float64)
+    """ℓ (P,) in [0, 1] of weights (P,) (module docstring); a weight ≤ 0 or NaN (an unscented filter's centre point
+    may weigh less than nothing) at 0; all 1 where no weight is above 0."""
+    w = np.nan_to_num(np.asarray(weights, dtype=np.float64), nan=0.0)
     top = w.max() if w.size else 0.0
     if not top > 0:
         return np.ones_like(w)
-    with np.errstate(divide="ignore"):
-        return 1.0 + np.clip(np.log10(w / top), -DECADES, 0.0) / DECADES
+    positive = w > 0
+    logs = np.full_like(w, -np.inf)
+    logs[positive] = np.log10(w[positive] / top)
+    return 1.0 + np.clip(logs, -DECADES, 0.0) / DECADES
