@@ -158,6 +158,24 @@ def _eval_scenes(args: argparse.Namespace) -> None:
               f"{c['min_pcp']:.1f} | {c['mpjpe_mm']:.1f} | {c['max_ratio_to_alone']:.2f} |")
 
 
+def _eval_against_trc(args: argparse.Namespace) -> None:
+    from priortrack.experiments.against_trc import against_trc
+
+    result = against_trc(args.detections, args.cameras, args.reference, args.fps, args.filter, args.keypoints)
+    if args.json:
+        print_json(result)
+        return
+    print(f"{args.filter}, person {result['person']} ({result['frames']} frames at {result['fps']:g} fps) against "
+          f"{args.reference}: median distance of the 12 limb joints and of the feet markers, mm; the right wrist's "
+          f"acceleration RMS, m/s² (the reference's: "
+          + ("—" if result["reference_wrist_m_s2"] is None else f"{result['reference_wrist_m_s2']:.1f}") + ")")
+    print("| run | limbs mm | feet mm | right wrist m/s² |")
+    print("|---|---|---|---|")
+    for row in result["rows"]:
+        feet = "—" if row["feet_mm"] is None else f"{row['feet_mm']:.1f}"
+        print(f"| {row['run']} | {row['limbs_mm']:.1f} | {feet} | {row['wrist_m_s2']:.1f} |")
+
+
 def _shelf_diagnosis(args: argparse.Namespace) -> None:
     from priortrack.experiments.shelf import LAGS, SMOOTHING_WIDTH, diagnose
 
@@ -342,6 +360,18 @@ def add_parsers(verbs) -> None:
                              "person's own filter (track --association; default %(default)s)")
     scenes.add_argument("--json", action="store_true", help="print every run's scores and the table as JSON")
     scenes.set_defaults(run=_eval_scenes)
+    against = evaluate.add_parser("against-trc", help="your recording tracked as track --people all would, filtered "
+                                                       "and smoothed, with and without --lowpass 6, beside another "
+                                                       "tool's TRC of one person (Pose2Sim's): distance, smoothness")
+    against.add_argument("--detections", required=True, help="the detections, any layout track reads")
+    against.add_argument("--cameras", required=True, help="their calibration")
+    against.add_argument("--reference", required=True, help="the other tool's .trc of one person (its rows the "
+                                                            "detections' frames from the first, as Pose2Sim writes)")
+    against.add_argument("--fps", type=float, help="the detections' frame rate (if their files do not say it)")
+    against.add_argument("--keypoints", help="the detections' layout, where it cannot be told")
+    against.add_argument("--filter", default="ukf-real", help="the preset (default %(default)s)")
+    against.add_argument("--json", action="store_true")
+    against.set_defaults(run=_eval_against_trc)
     shelf = evaluate.add_parser("shelf", help="several real people seen by few cameras, scored against manual 3D truth "
                                               "(Shelf or Campus as 4D Association ships them: you download them) "
                                               "beside per-frame DLT given the true association")
