@@ -170,3 +170,16 @@ def test_eval_against_trc_gives_issue_60s_figures(tmp_path, capsys):
     write_trc(tmp_path / "nolimbs.trc", np.zeros((100, 1, 3)), ["Nose"], 60.0, up="z")
     assert main(common + ["--reference", str(tmp_path / "nolimbs.trc")]) == 2
     assert "nolimbs.trc: none of its markers is a limb joint's" in capsys.readouterr().err
+
+
+def test_one_camera_writes_no_further_keypoints(tmp_path):
+    """One camera triangulates nothing: its TRC and npz carry the 15 joints only (no empty marker columns)."""
+    from priortrack.data.bundled import POSE2SIM_DIR
+
+    assert main(["track", "--detections", str(POSE2SIM_DIR / "pose" / "cam01_json"), "--cameras",
+                 str(POSE2SIM_DIR / "Calib.toml"), "--camera-map", "cam01_json=cam_01", "--fps", "60", "--out",
+                 str(tmp_path / "one.trc"), "--out", str(tmp_path / "one.npz")]) == 0
+    _, names, fps = read_trc(tmp_path / "one.trc", up="z")
+    assert len(names) == 15 and fps == 60.0
+    with np.load(tmp_path / "one.npz") as z:
+        assert "keypoints" not in z.files

@@ -265,7 +265,7 @@ class DetectionTrack:
         keep = np.isfinite(joints).all(axis=(1, 2))
         times, joints = times[keep], joints[keep]
         near = nearest_tick(self.tick_times, times)
-        extra, names = (None, ()) if self.detections is None else carried(
+        extra, names = (None, ()) if self.detections is None or len(self.cameras) < 2 else carried(
             self.detections.load().keypoints[:, keep], self.detections.layout, self.cameras, joints, self.data_fps,
             self.min_confidence, (DEFAULT_SIGMA_PX, DEFAULT_NU))
 
