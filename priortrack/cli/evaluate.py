@@ -370,7 +370,7 @@ def add_parsers(verbs) -> None:
     against.add_argument("--fps", type=float, help="the detections' frame rate (if their files do not say it)")
     against.add_argument("--keypoints", help="the detections' layout, where it cannot be told")
     against.add_argument("--filter", default="ukf-real", help="the preset (default %(default)s)")
-    against.add_argument("--json", action="store_true")
+    against.add_argument("--json", action="store_true", help="print the table as JSON")
     against.set_defaults(run=_eval_against_trc)
     shelf = evaluate.add_parser("shelf", help="several real people seen by few cameras, scored against manual 3D truth "
                                               "(Shelf or Campus as 4D Association ships them: you download them) "
