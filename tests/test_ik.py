@@ -93,6 +93,39 @@ def test_each_side_takes_its_own_measured_length_not_the_templates_asymmetry(wal
     np.testing.assert_allclose(lengths[[3, 4, 9, 10]], lengths[[6, 7, 12, 13]], atol=1e-4)   # equal sides: equal
 
 
+def test_sides_differ_only_beyond_their_medians_noise():
+    """person_lengths: a walk's joints with 2 cm of noise a joint and frame (its 76 frames' errors independent): a
+    right upper arm 3 mm longer than the left is within the noise of the sides' medians (both take their average);
+    60 or 20 mm longer, each side takes its own; noise that persists from frame to frame (an AR(1) of ρ = 0.95) widens
+    the medians' error, and 20 mm is then within it."""
+    from priortrack.body.ik import person_lengths
+
+    X = joint_positions(load_motion("cmu:07_10").resample(30))
+    rng = np.random.default_rng(0)
+    white = rng.normal(0, 0.02, X.shape)
+    persistent = np.empty_like(X)
+    persistent[0] = rng.normal(0, 0.02, X.shape[1:])
+    for t in range(1, len(X)):                                          # AR(1), ρ = 0.95, σ 2 cm
+        persistent[t] = 0.95 * persistent[t - 1] + rng.normal(0, 0.02 * np.sqrt(1 - 0.95 ** 2), X.shape[1:])
+
+    def longer(by: float, noise: np.ndarray) -> np.ndarray:
+        """The walk with its right upper arm the left's length plus ``by`` (07's own differ by 14 mm), and noise."""
+        Y = X.copy()
+        along = (Y[:, 7] - Y[:, 6]) / np.linalg.norm(Y[:, 7] - Y[:, 6], axis=-1, keepdims=True)
+        left = np.linalg.norm(Y[:, 4] - Y[:, 3], axis=-1, keepdims=True)
+        elbow = Y[:, 6] + (left + by) * along
+        Y[:, 8] += elbow - Y[:, 7]                                      # the forearm moves with the elbow
+        Y[:, 7] = elbow
+        return Y + noise
+
+    for by, noise, split in ((0.003, white, False), (0.06, white, True), (0.02, white, True),
+                             (0.02, persistent, False)):
+        lengths = person_lengths(longer(by, noise))
+        assert (abs(lengths[3] - lengths[6]) > 1e-9) == split, (by, lengths[3], lengths[6])
+        if not split:
+            assert lengths[3] == measured_distances(longer(by, noise))[3]
+
+
 def test_missing_joints_follow_their_neighbours(walk):
     holes = walk.copy()
     holes[2, [10, 11]] = np.nan                                   # a leg unseen in one frame
