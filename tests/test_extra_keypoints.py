@@ -140,6 +140,7 @@ def test_the_demo_participants_trc_has_every_keypoint_at_60_fps_near_pose2sims_a
     with np.load(participant / "s.npz") as z:
         assert z["keypoints"].shape == (100, 2, 11, 3) and "RHeel" in z["keypoint_names"].tolist()
         assert float(z["fps"]) == 60.0 and float(z["lowpass_hz"]) == 6.0
+        assert z["limbs_left_right_m"].shape == (2, 4, 2) and 1.6 < z["height_m"][1] < 1.8    # each person's body
         heels = z["keypoints"][:, 1, list(z["keypoint_names"]).index("RHeel")]
     rows = np.genfromtxt(participant / "s.csv", delimiter=",", names=True)
     mine = rows[rows["person"] == 1]

@@ -49,7 +49,12 @@ def test_the_command_tracks_the_real_trial_and_writes_every_output(outputs, caps
     assert all(e < 35 for e in summary["reprojection_px"].values()) and summary["mismatch_fraction"] == 0.0
     with np.load(folder / "r.npz") as z:
         assert set(z.files) == {"joints", "joint_names", "fps", "frames", "spread", "ess", "loglik", "mismatch",
-                                "camera_names", "reprojection_px", "gated", "held_out_ratio"}
+                                "camera_names", "reprojection_px", "gated", "held_out_ratio", "body_measure_names",
+                                "body_measures_m", "limb_names", "limbs_left_right_m", "height_m"}
+        # the tracked body (issue 59, item 4: in the npz, not only the JSON summary), as the summary gives it
+        assert dict(zip(z["body_measure_names"], z["body_measures_m"])) == pytest.approx(summary["bones_m"])
+        np.testing.assert_allclose(z["limbs_left_right_m"], [summary["limbs_left_right_m"][n] for n in z["limb_names"]])
+        assert float(z["height_m"]) == pytest.approx(summary["height_m"])
         joints = z["joints"]
         by_tick, gated = z["reprojection_px"], z["gated"]
         assert tuple(z["camera_names"]) == ("cam01_json", "cam02_json", "cam03_json", "cam04_json")

@@ -284,13 +284,18 @@ class SceneTrack:
         ``camera_names`` (C,), ``reprojection_px`` (T, P, C), ``gated`` (T, P, C, 15), ``filtered_joints``
         (T, P, 15, 3) where smoothed, and the association's ``slots`` (T_frames, C, P) with ``detection_frames``
         (T_frames,), ``lowpass_hz`` where the joints were low-passed, ``keypoints`` (T, P, E, 3) and ``keypoint_names``
-        (E,) the detector's further keypoints where carried (at the detections' frames): one person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
+        (E,) the detector's further keypoints where carried (at the detections' frames), each person's body (``height_m``
+        (P,), ``body_measures_m`` (P, 8), ``limbs_left_right_m`` (P, 4, 2) and their names): one person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
         path = output_path(path, "result file")
         smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints}
         if self.lowpass_hz is not None:
             smoothed["lowpass_hz"] = np.array(float(self.lowpass_hz))
         if self.people and all(r.keypoints is not None for r in self.people):
             smoothed.update(keypoints=self._keypoints(), keypoint_names=np.array(self.people[0].keypoint_names, dtype=str))
+        bodies = [r.body_arrays() for r in self.people]
+        if bodies and all(bodies):                                   # each person's body: (P, …), names once
+            smoothed.update({k: (v if k.endswith("names") else np.stack([b[k] for b in bodies]))
+                             for k, v in bodies[0].items()})
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints, person_ids=self.person_ids, frames=self.frames, fps=np.array(self.fps),
                      joint_names=np.array(EVAL15_NAMES), spread=self.spread, loglik=self.loglik,

@@ -303,7 +303,8 @@ class DetectionTrack:
         ``camera_names`` (C,), ``reprojection_px`` (T, C) each tick's median pixel error per camera and
         ``gated`` (T, C, 15) bool the detections the validation gate held out, ``held_out_ratio`` (T,) the
         filter's held-out ratio (NaN: not judged), ``lowpass_hz`` where the joints were low-passed, ``keypoints`` (T, E,
-        3) and ``keypoint_names`` (E,) the detector's further keypoints where carried; a smoothed run adds
+        3) and ``keypoint_names`` (E,) the detector's further keypoints where carried, the tracked body
+        (:meth:`body_arrays`); a smoothed run adds
         ``filtered_joints`` (T, 15, 3) and ``filtered_spread`` (T, 15), the filter's own (``joints`` and
         ``spread`` are the smoother's)."""
         path = output_path(path, "result file")
@@ -313,6 +314,7 @@ class DetectionTrack:
             smoothed["lowpass_hz"] = np.array(float(self.lowpass_hz))
         if self.keypoints is not None:
             smoothed.update(keypoints=self.keypoints, keypoint_names=np.array(self.keypoint_names, dtype=str))
+        smoothed.update(self.body_arrays())
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints.astype(np.float64), joint_names=np.array(EVAL15_NAMES),
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,
@@ -320,6 +322,17 @@ class DetectionTrack:
                      camera_names=np.array(self.camera_names), reprojection_px=self.reprojection_by_tick,
                      gated=self.gated.astype(bool), held_out_ratio=self.held_out_ratio, **smoothed)
         return path
+
+    def body_arrays(self) -> dict[str, np.ndarray]:
+        """The tracked body as the ``.npz`` holds it (none where there is no skeleton): ``body_measure_names`` (8,) and
+        ``body_measures_m`` (8,) (:data:`~priortrack.body.ik.BODY_MEASURES`, a limb's sides averaged),
+        ``limb_names`` (4,) and ``limbs_left_right_m`` (4, 2), ``height_m`` ()."""
+        if self.skeleton is None:
+            return {}
+        measures, sides = body_measures(self.skeleton, detector_map()), limb_sides(self.skeleton, detector_map())
+        return {"body_measure_names": np.array(list(measures), dtype=str),
+                "body_measures_m": np.array(list(measures.values())), "limb_names": np.array(list(sides), dtype=str),
+                "limbs_left_right_m": np.array(list(sides.values())), "height_m": np.array(stature(self.skeleton))}
 
     def save_csv(self, path: str | Path) -> Path:
         """One row per tick (or frame): frame, time (s from the detections' first frame), each joint's x, y, z (metres),
