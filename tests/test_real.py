@@ -2,6 +2,7 @@
 from the command line, with every output read back; the lab bench on a held-out walk; bad input."""
 
 import json
+import re
 from pathlib import Path
 from dataclasses import replace
 
@@ -408,6 +409,16 @@ def test_ctrl_c_while_smoothing_or_fit_checking_writes_the_result(tmp_path, caps
     with np.load(tmp_path / "r.npz") as z:
         assert z["joints"].shape == (12, 15, 3) and np.isfinite(z["joints"]).all()
         assert ("filtered_joints" in z.files) is (phase != "smooth_run")
+
+
+def test_the_printed_summary_says_ticks_frames_written_and_the_body(tmp_path, capsys):
+    """Issue 59, item 4 (a readable summary, not only --json) and issue 60 (frames and ticks told apart): the line
+    gives the filter's ticks, the frames written at the detections' rate and the body, height and each limb's sides."""
+    assert main(["track", "--detections", POSE, "--cameras", CALIB, "--fps", "60", "--out", str(tmp_path / "r.npz")]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("ukf-real: 6 ticks at 30 fps in ") and "mismatch 0% of ticks" in line
+    assert re.search(r"body 1\.\d\d m tall, left / right m: upper arm 0\.\d\d / 0\.\d\d, forearm .* shin", line), line
+    assert line.endswith(f"wrote {tmp_path / 'r.npz'} (12 frames at 60 fps)")
 
 
 def test_the_mismatch_warning_says_what_it_measured_and_names_no_weaker_preset():

@@ -159,9 +159,19 @@ def _track_detections(args: argparse.Namespace) -> None:
         print_json(summary)
         return
     errors = ", ".join(f"{n} {e:.1f} px" for n, e in summary["reprojection_px"].items())
-    print(f"{result.filter}: {summary['frames']} frames at {result.fps:g} fps in {summary['seconds']:.1f} s; "
-          f"median reprojection {errors}; mismatch {100 * summary['mismatch_fraction']:.0f}% of frames"
-          + (f"; wrote {', '.join(written)}" if written else ""))
+    print(f"{result.filter}: {summary['frames']} ticks at {result.fps:g} fps in {summary['seconds']:.1f} s; "
+          f"median reprojection {errors}; mismatch {100 * summary['mismatch_fraction']:.0f}% of ticks; "
+          f"{body_text(summary)}" + ("" if output is None else f"; wrote {', '.join(written)} ({len(output.frames)} "
+                                                            f"frames at {output.fps:g} fps)"))
+
+
+def body_text(summary: dict) -> str:
+    """The tracked body of a person's JSON summary in words: height, each limb's left / right, metres."""
+    if summary.get("height_m") is None:
+        return "the body given (--skeleton)"
+    limbs = ", ".join(f"{name.replace('_', ' ')} {left:.2f} / {right:.2f}"
+                      for name, (left, right) in summary["limbs_left_right_m"].items())
+    return f"body {summary['height_m']:.2f} m tall, left / right m: {limbs}"
 
 
 #: ``--rate``: the outputs' frames, the detections' own (the default) or the filter's ticks.
@@ -238,7 +248,8 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     skipped = "".join(f"; person {k} not tracked: {v}" for k, v in summary["skipped"].items())
     print(f"{args.filter}: {len(result.person_ids)} {'person' if len(result.person_ids) == 1 else 'people'}, "
           f"{summary['frames']} ticks at {result.fps:g} fps in "
-          f"{summary['seconds']:.1f} s: {people_text}{skipped}" + (f"; wrote {', '.join(written)}" if written else ""))
+          f"{summary['seconds']:.1f} s: {people_text}{skipped}"
+          + ("" if output is None else f"; wrote {', '.join(written)} ({len(output.frames)} frames at {output.fps:g} fps)"))
 
 
 def add_parsers(verbs) -> None:
