@@ -140,15 +140,12 @@ class Track:
         """(14,) the median of each bone over the frames that measured it (NaN: none did); None where no bone was."""
         if not self.bones:
             return None
-        bones = np.stack(self.bones)
+        bones = np.stack(self.bones).T                                                 # (14, frames)
         measured = np.isfinite(bones)
         if not measured.any():
             return None
-        ordered = np.sort(np.where(measured, bones, np.inf), axis=0)
-        k = measured.sum(axis=0)
-        low = np.take_along_axis(ordered, np.maximum(k - 1, 0)[None] // 2, axis=0)[0]
-        high = np.take_along_axis(ordered, np.minimum(k // 2, len(bones) - 1)[None], axis=0)[0]
-        return np.where(k > 0, (low + high) / 2, np.nan)
+        median = median_of_seen(bones, measured)
+        return np.where(np.isfinite(median), median, np.nan)
 
 
 def _mirrored() -> np.ndarray:
