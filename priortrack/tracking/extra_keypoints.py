@@ -26,6 +26,7 @@ import numpy as np
 from priortrack.data.eval15 import EVAL15_MARKER_NAMES, EVAL15_NAMES
 from priortrack.data.keypoints import EVAL15_PARTS, LAYOUTS
 from priortrack.geometry.triangulation import robust_triangulate
+from priortrack.tracking.resample import nearest_tick
 
 #: The smoother's cut-off, Hz (Pose2Sim's default Butterworth cut-off for markers).
 CUTOFF_HZ = 6.0
@@ -132,8 +133,7 @@ def carried(keypoints: np.ndarray, layout: str, cameras, joints: np.ndarray, fps
         if not len(hits):
             smoothed[:, e] = np.nan
             continue
-        after = np.clip(np.searchsorted(hits, frames), 0, len(hits) - 1)
-        gap = np.minimum(np.abs(frames - hits[after]), np.abs(frames - hits[np.maximum(after - 1, 0)]))
+        gap = np.abs(frames - hits[nearest_tick(hits, frames)])                        # to the nearest measured
         smoothed[gap > MAX_GAP_S * fps, e] = np.nan
     out[:] = parents + smoothed
     return out, names

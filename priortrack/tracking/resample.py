@@ -31,7 +31,7 @@ def frame_times(frames: np.ndarray, fps: float) -> np.ndarray:
 
 
 def finite_runs(finite: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) of each run of True in ``finite`` (T,)."""
+    """[start, stop) of each run of True in ``finite`` (T,) bool (finite values, flagged ticks)."""
     edges = np.diff(np.concatenate([[0], finite.astype(np.int8), [0]]))
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 

@@ -19,6 +19,7 @@ from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.npz import read_npz
 from priortrack.errors import PriortrackError
 from priortrack.output import output_path
+from priortrack.tracking.resample import finite_runs
 
 #: The most a result file may hold, bytes.
 MAX_RESULT_BYTES = 8 << 30
@@ -62,8 +63,7 @@ def read_result(path: str | Path) -> dict:
 def _shade(ax, time: np.ndarray, flagged: np.ndarray) -> None:
     """Shade the runs of flagged ticks in red."""
     step = np.median(np.diff(time)) if len(time) > 1 else 1.0
-    edges = np.diff(np.concatenate([[0], flagged.astype(np.int8), [0]]))
-    for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+    for start, stop in finite_runs(flagged):
         ax.axvspan(time[start] - step / 2, time[stop - 1] + step / 2, color="red", alpha=0.2, lw=0)
 
 
