@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from priortrack.data.eval15 import EVAL15_MARKER_NAMES
 from priortrack.data.trc import read_trc
 from priortrack.errors import PriortrackError
 
@@ -35,9 +34,9 @@ def acceleration_rms(points: np.ndarray, fps: float) -> float:
 
 
 def _markers(result) -> tuple[np.ndarray, list[str]]:
-    """One person's written markers (F, M, 3) and their names, lower case: the 15 joints and the further keypoints."""
-    names = list(EVAL15_MARKER_NAMES) + list(result.keypoint_names)
-    points = result.joints if result.keypoints is None else np.concatenate([result.joints, result.keypoints], axis=1)
+    """One person's written markers (F, M, 3) (:meth:`~priortrack.tracking.person.DetectionTrack.markers`) and their
+    names, lower case."""
+    points, names = result.markers()
     return points, [n.lower() for n in names]
 
 

@@ -341,20 +341,24 @@ class DetectionTrack:
         header = ["frame", "time_s"] + [f"{n}_{a}" for n in EVAL15_NAMES for a in "xyz"] + \
                  [f"{n}_spread" for n in EVAL15_NAMES] + ["ess", "loglik", "mismatch"] + \
                  [f"{n}_{a}" for n in self.keypoint_names for a in "xyz"]
-        times = np.arange(len(self.frames)) / self.fps if self.tick_times is None else self.tick_times
         extra = np.zeros((len(self.joints), 0)) if self.keypoints is None else self.keypoints.reshape(len(self.joints), -1)
-        rows = np.column_stack([self.frames, times, self.joints.reshape(len(self.joints), -1),
+        rows = np.column_stack([self.frames, self.tick_times, self.joints.reshape(len(self.joints), -1),
                                 self.spread, self.ess, self.loglik, self.mismatch.astype(int), extra])
         np.savetxt(path, rows, delimiter=",", header=",".join(header), comments="", fmt="%.9g")
         return path
+
+    def markers(self) -> tuple[np.ndarray, tuple[str, ...]]:
+        """Every written marker (T, 15 + E, 3), the calibration's world, and its name: the 15 joints under
+        :data:`~priortrack.data.eval15.EVAL15_MARKER_NAMES`, then the detector's further keypoints where carried."""
+        points = self.joints if self.keypoints is None else np.concatenate([self.joints, self.keypoints], axis=1)
+        return points, EVAL15_MARKER_NAMES + self.keypoint_names
 
     def save_trc(self, path: str | Path) -> Path:
         """The joints as a TRC file (:mod:`priortrack.data.trc`: Y-up, Pose2Sim's axes for a Z-up world;
         a world with another up axis is written in the Y-up working frame), under Pose2Sim's and its OpenSim
         marker sets' names (:data:`~priortrack.data.eval15.EVAL15_MARKER_NAMES`), the detector's further keypoints
         after them where carried (``keypoints``: LBigToe, LHeel, Nose…)."""
-        names = EVAL15_MARKER_NAMES + self.keypoint_names
-        points = self.joints if self.keypoints is None else np.concatenate([self.joints, self.keypoints], axis=1)
+        points, names = self.markers()
         if isinstance(self.up, str) and self.up in ("y", "z"):
             return write_trc(path, points, names, self.fps, self.up, int(max(self.frames[0], 0)))
         return write_trc(path, points @ self.working_to_world.T, names, self.fps, "y", int(max(self.frames[0], 0)))
@@ -370,8 +374,7 @@ class DetectionTrack:
                             ("toe", ("LFootIndex", "RFootIndex"))):
             if self.keypoints is not None and all(n in self.keypoint_names for n in names):
                 feet[part] = self.keypoints[:, [self.keypoint_names.index(n) for n in names]]
-        times = np.arange(len(self.frames)) / self.fps if self.tick_times is None else self.tick_times
-        return write_mot(path, times, joint_angles(self.joints, feet.get("heel"), feet.get("toe")))
+        return write_mot(path, self.tick_times, joint_angles(self.joints, feet.get("heel"), feet.get("toe")))
 
     def save_bvh(self, path: str | Path) -> Path:
         """The tracked body's motion as a BVH file: the body's channels fitted by inverse kinematics to
