@@ -22,7 +22,7 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.viz.replay import replay
 
     for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory",
-                 "workers", "association", "no_fit_check", "rate", "lowpass"):                                   # (--height has a default)
+                 "workers", "association", "no_fit_check", "rate", "lowpass"):     # (--height has a default)
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
     if args.rrd:
@@ -131,8 +131,9 @@ def _track_detections(args: argparse.Namespace) -> None:
         if scene is not None and int(scene.people.max(initial=0)) > 1:      # a scene of one: the person seen most
             from priortrack.tracking.people import track_scene
 
-            log.warning("%s holds up to %d people in a frame: tracking the one seen most (the most keypoints detected; --people all tracks "
-                        "each, --people at:CAMERA:X,Y the one there)", args.detections, scene.people.max())
+            log.warning("%s holds up to %d people in a frame: tracking the one seen most (the most keypoints detected; "
+                        "--people all tracks each, --people at:CAMERA:X,Y the one there)", args.detections,
+                        scene.people.max())
             result = track_scene(scene, calibration, args.filter, config, people=1, skeleton=skeleton,
                                  progress=progress).people[0]
         else:
@@ -161,8 +162,12 @@ def _track_detections(args: argparse.Namespace) -> None:
     errors = ", ".join(f"{n} {e:.1f} px" for n, e in summary["reprojection_px"].items())
     print(f"{result.filter}: {summary['frames']} ticks at {result.fps:g} fps in {summary['seconds']:.1f} s; "
           f"median reprojection {errors}; mismatch {100 * summary['mismatch_fraction']:.0f}% of ticks; "
-          f"{body_text(summary)}" + ("" if output is None else f"; wrote {', '.join(written)} ({len(output.frames)} "
-                                                            f"frames at {output.fps:g} fps)"))
+          f"{body_text(summary)}{written_text(written, output)}")
+
+
+def written_text(written: list[str], output) -> str:
+    """"; wrote FILES (N frames at F fps)" for the files written from ``output`` (:func:`for_output`), or ""."""
+    return "" if output is None else f"; wrote {', '.join(written)} ({len(output.frames)} frames at {output.fps:g} fps)"
 
 
 def body_text(summary: dict) -> str:
@@ -249,7 +254,7 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     print(f"{args.filter}: {len(result.person_ids)} {'person' if len(result.person_ids) == 1 else 'people'}, "
           f"{summary['frames']} ticks at {result.fps:g} fps in "
           f"{summary['seconds']:.1f} s: {people_text}{skipped}"
-          + ("" if output is None else f"; wrote {', '.join(written)} ({len(output.frames)} frames at {output.fps:g} fps)"))
+          + written_text(written, output))
 
 
 def add_parsers(verbs) -> None:
@@ -276,8 +281,8 @@ def add_parsers(verbs) -> None:
                        help="files whose people keep their order: follow this index of each frame's people list "
                             "(one person, no scene tracker); to choose among people by who they are, --people")
     track.add_argument("--people", nargs="+", metavar="WHO",
-                       help="track every person of the scene, each with an identity: all; N (the N seen most: keypoints detected); "
-                            "id:A,B; at:CAMERA:X,Y or box:CAMERA:X0,Y0,X1,Y1 (the person there in that camera's "
+                       help="track every person of the scene, each with an identity: all; N (the N seen most: "
+                            "keypoints detected); id:A,B; at:CAMERA:X,Y or box:CAMERA:X0,Y0,X1,Y1 (the person there in that camera's "
                             "first frame). Outputs hold every person: .npz joints (T, P, 15, 3), .csv with a person "
                             "column, a .trc/.bvh per person; the recording colours and labels each")
     track.add_argument("--workers", type=int, metavar="N",

@@ -226,8 +226,8 @@ class SceneTrack:
                 "height_m": own["height_m"], "reprojection_px": own["reprojection_px"],
                 "mismatch_fraction": result.mismatch_fraction, "bones_m": own["bones_m"]}
         return {"people": [int(i) for i in self.person_ids], "frames": int(len(self.frames)), "fps": self.fps,
-                "seconds": self.seconds, "interrupted": self.interrupted, "unclaimed_frames": self.unclaimed, "skipped": {str(k): v for k, v in self.skipped.items()},
-                "per_person": per_person}
+                "seconds": self.seconds, "interrupted": self.interrupted, "unclaimed_frames": self.unclaimed,
+                "skipped": {str(k): v for k, v in self.skipped.items()}, "per_person": per_person}
 
     def low_passed(self, cutoff_hz: float) -> "SceneTrack":
         """The scene with every person's joints through a zero-lag Butterworth low-pass at ``cutoff_hz``, each over
@@ -284,52 +284,56 @@ class SceneTrack:
         ``camera_names`` (C,), ``reprojection_px`` (T, P, C), ``gated`` (T, P, C, 15), ``filtered_joints``
         (T, P, 15, 3) where smoothed, and the association's ``slots`` (T_frames, C, P) with ``detection_frames``
         (T_frames,), ``lowpass_hz`` where the joints were low-passed, ``keypoints`` (T, P, E, 3) and ``keypoint_names``
-        (E,) the detector's further keypoints where carried (at the detections' frames), each person's body (``height_m``
-        (P,), ``body_measures_m`` (P, 8), ``limbs_left_right_m`` (P, 4, 2) and their names): one person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
+        (E,) the detector's further keypoints where carried (at the detections' frames), each person's body
+        (``height_m`` (P,), ``body_measures_m`` (P, 8), ``limbs_left_right_m`` (P, 4, 2) and their names): one
+        person's fields (:meth:`~priortrack.tracking.person.DetectionTrack.save_npz`) per person."""
         path = output_path(path, "result file")
-        smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints}
+        extra = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints}
         if self.lowpass_hz is not None:
-            smoothed["lowpass_hz"] = np.array(float(self.lowpass_hz))
-        if self.people and all(r.keypoints is not None for r in self.people):
-            smoothed.update(keypoints=self._keypoints(), keypoint_names=np.array(self.people[0].keypoint_names, dtype=str))
+            extra["lowpass_hz"] = np.array(float(self.lowpass_hz))
+        keypoints, names = self._keypoints()
+        if keypoints is not None:
+            extra.update(keypoints=keypoints, keypoint_names=np.array(names, dtype=str))
         bodies = [r.body_arrays() for r in self.people]
         if bodies and all(bodies):                                   # each person's body: (P, …), names once
-            smoothed.update({k: (v if k.endswith("names") else np.stack([b[k] for b in bodies]))
-                             for k, v in bodies[0].items()})
+            extra.update({k: (v if k.endswith("names") else np.stack([b[k] for b in bodies]))
+                          for k, v in bodies[0].items()})
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints, person_ids=self.person_ids, frames=self.frames, fps=np.array(self.fps),
                      joint_names=np.array(EVAL15_NAMES), spread=self.spread, loglik=self.loglik,
                      mismatch=self.mismatch, held_out_ratio=self.held_out_ratio, ess=self.ess,
                      camera_names=np.array(self.camera_names), reprojection_px=self.reprojection_px,
                      gated=self.gated, slots=self.association.slots, detection_frames=self.association.frames,
-                     **smoothed)
+                     **extra)
         return path
 
-    def _keypoints(self) -> np.ndarray:
-        """(T, P, E, 3) every person's further keypoints on this result's frames, NaN where they have none."""
+    def _keypoints(self) -> tuple[np.ndarray | None, tuple[str, ...]]:
+        """Every person's further keypoints (T, P, E, 3) on this result's frames, NaN where they have none, and their
+        names (E,); (None, ()) where not every person's were carried."""
+        if not self.people or any(r.keypoints is None for r in self.people):
+            return None, ()
         row = {int(f): t for t, f in enumerate(self.frames) if f >= 0}
         out = np.full((len(self.frames), len(self.people)) + self.people[0].keypoints.shape[1:], np.nan)
         for p, result in enumerate(self.people):
             out[[row[int(f)] for f in result.frames], p] = result.keypoints
-        return out
+        return out, self.people[0].keypoint_names
 
     def save_csv(self, path: str | Path) -> Path:
         """One row per tick (or frame) and present person: frame, time (s), person, each joint's x, y, z, spread,
         loglik, mismatch, then each of the detector's further keypoints' x, y, z where carried."""
         path = output_path(path, "result file")
-        carried = bool(self.people) and all(r.keypoints is not None for r in self.people)
-        names = self.people[0].keypoint_names if carried else ()
-        extra = self._keypoints() if carried else np.zeros(self.joints.shape[:2] + (0, 3))
+        extra, names = self._keypoints()
+        if extra is None:
+            extra = np.zeros(self.joints.shape[:2] + (0, 3))
         with open(path, "w", newline="") as f:
             writer = csv.writer(f)
             writer.writerow(["frame", "time_s", "person"] + [f"{n}_{a}" for n in EVAL15_NAMES for a in "xyz"] +
                             [f"{n}_spread" for n in EVAL15_NAMES] + ["loglik", "mismatch"] +
                             [f"{n}_{a}" for n in names for a in "xyz"])
-            times = np.arange(len(self.frames)) / self.fps                    # from the first tick or frame
             for t, frame in enumerate(self.frames):
                 for p, pid in enumerate(self.person_ids):
                     if np.isfinite(self.joints[t, p]).any():
-                        writer.writerow([int(frame), f"{times[t]:.9g}", int(pid)] +
+                        writer.writerow([int(frame), f"{t / self.fps:.9g}", int(pid)] +
                                         [f"{v:.9g}" for v in self.joints[t, p].ravel()] +
                                         [f"{v:.9g}" for v in self.spread[t, p]] +
                                         [f"{self.loglik[t, p]:.9g}", int(self.mismatch[t, p])] +
@@ -347,8 +351,8 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     this process may use; 1: every person in this process; the filters' association is tracked here). An
     ``interruptible`` run (``config.interruptible``) that Ctrl-C stops keeps what was tracked: the filters in lockstep
     end at the tick reached; tracked one by one, the person being tracked ends there and those not yet tracked are
-    skipped (in workers, those not finished are); ``interrupted`` is set; a person's run in a worker is the one here, up to rounding where the worker's
-    torch has fewer threads. ``progress(done, total)``: a scene of one's ticks as its filter goes, or the ticks of
+    skipped (in workers, those not finished are); ``interrupted`` is set. A person's run in a worker is the one here,
+    up to rounding where the worker's torch has fewer threads. ``progress(done, total)``: a scene of one's ticks as its filter goes, or the ticks of
     the filters stepped together, else the people tracked so far. A scene of one (``people=1``, or one id) may
     take their own body (``skeleton``)."""
     start = time.perf_counter()

@@ -308,19 +308,19 @@ class DetectionTrack:
         ``filtered_joints`` (T, 15, 3) and ``filtered_spread`` (T, 15), the filter's own (``joints`` and
         ``spread`` are the smoother's)."""
         path = output_path(path, "result file")
-        smoothed = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints.astype(np.float64),
-                                                            "filtered_spread": self.filtered_spread}
+        extra = {} if self.filtered_joints is None else {"filtered_joints": self.filtered_joints.astype(np.float64),
+                                                         "filtered_spread": self.filtered_spread}
         if self.lowpass_hz is not None:
-            smoothed["lowpass_hz"] = np.array(float(self.lowpass_hz))
+            extra["lowpass_hz"] = np.array(float(self.lowpass_hz))
         if self.keypoints is not None:
-            smoothed.update(keypoints=self.keypoints, keypoint_names=np.array(self.keypoint_names, dtype=str))
-        smoothed.update(self.body_arrays())
+            extra.update(keypoints=self.keypoints, keypoint_names=np.array(self.keypoint_names, dtype=str))
+        extra.update(self.body_arrays())
         with open(path, "wb") as f:
             np.savez(f, joints=self.joints.astype(np.float64), joint_names=np.array(EVAL15_NAMES),
                      fps=np.array(float(self.fps)), frames=self.frames.astype(np.int64), spread=self.spread,
                      ess=self.ess, loglik=self.loglik, mismatch=self.mismatch.astype(bool),
                      camera_names=np.array(self.camera_names), reprojection_px=self.reprojection_by_tick,
-                     gated=self.gated.astype(bool), held_out_ratio=self.held_out_ratio, **smoothed)
+                     gated=self.gated.astype(bool), held_out_ratio=self.held_out_ratio, **extra)
         return path
 
     def body_arrays(self) -> dict[str, np.ndarray]:
