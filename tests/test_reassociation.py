@@ -217,3 +217,23 @@ def test_a_second_filter_on_one_person_is_found_after_half_a_second():
     for _ in range(2):
         assert _duplicates([0, 1, 2], runs, first, together, 3, ids) == set()
     assert _duplicates([0, 1, 2], runs, first, together, 3, ids) == {1}
+
+
+def test_a_filter_that_starts_on_someone_elses_person_is_a_second_track_at_once():
+    """Person 1's filter starts (its first running tick, ``KNOWN_FRAMES`` after its first) 5 cm from person 0's latest
+    estimate: a second track of person 0 before the two compete for one person's detections; person 2, started a
+    metre off, and person 0 (older) are not; a person already running longer is not judged again (that is
+    :func:`_duplicates`' half second)."""
+    from types import SimpleNamespace
+
+    from priortrack.tracking.reassociation import _born_on_someone
+
+    body = np.random.default_rng(1).normal(0, 0.3, (15, 3))
+    runs = {p: SimpleNamespace(estimates=np.tile(body + [d, 0, 0], (6, 1, 1)), done=done)
+            for p, d, done in ((0, 0.0, 6), (1, 0.05, KNOWN_FRAMES), (2, 1.0, KNOWN_FRAMES))}
+    first, ids = {0: 0, 1: 20, 2: 20}, np.array([7, 8, 9])
+    k = 20 + KNOWN_FRAMES
+    assert _born_on_someone([0, 1, 2], k, runs, first, ids) == {1}
+    assert _born_on_someone([0, 1, 2], k + 1, runs, first, ids) == set()
+    runs[1].estimates[KNOWN_FRAMES - 1] += [0.3, 0, 0]                     # its start 35 cm off: someone else
+    assert _born_on_someone([0, 1, 2], k, runs, first, ids) == set()

@@ -20,11 +20,12 @@ person's filter runs together, tick by tick (the prior's ticks, :func:`~priortra
    never come back: Shelf, cameras 1 and 2, ukf-real, an entering person at 735 mm, with it 69);
 4. **update**: each filter corrects with the detections it was given (``correct``; as detected: a swap is
    the filter's own to undo);
-5. **a second track of one person**: two filters whose estimates stay within the association's ``DUPLICATE_M``
-   (median over the joints) for :data:`DUPLICATE_S` follow one person (the joint model's track of someone followed a
-   person entering beside them, and a new track was born on the first: both filters then share the first one's
-   detections, and their identity flips from frame to frame); the later started is given no more detections and
-   ends as the scene tracker ends an unseen person.
+5. **a second track of one person**: a filter that starts within the association's ``DUPLICATE_M`` (median over
+   the joints) of an older person's filter, or two filters whose estimates stay that near for :data:`DUPLICATE_S`,
+   follow one person (the joint model's track of someone followed a person entering beside them, and a new track was
+   born on the first: both filters then share the first one's detections, their identity flips from frame to frame,
+   or the older one is pushed onto the newcomer); the later started is given no more detections and ends as the
+   scene tracker ends an unseen person.
 
 The detections of a person whose filter has not started yet (their start ticks), or who is not among the
 people tracked, stay theirs and are offered to nobody else. Frames the prior's ticks skip (60 fps data, a
@@ -142,6 +143,7 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
         for k in range(K):
             running = [p for p in people if k >= first[p] + KNOWN_FRAMES]
             f = int(index[k])
+            ended |= _born_on_someone([p for p in running if p not in ended], k, runs, first, association.person_ids)
             for p in ended:                                     # a second track of someone: nobody's detections
                 slots[max(f, 0):, :, p] = -1
             if f < 0:                                                       # a tick without a frame
@@ -171,6 +173,24 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
     for p, run in people.items():
         run.observe(out.detections_of(scene, p))
     return out, {p: run.result() for p, run in runs.items()}
+
+
+def _born_on_someone(running: list[int], k: int, runs: dict, first: dict[int, int], ids: np.ndarray) -> set[int]:
+    """The people whose filter starts at tick ``k`` where an older person's filter already is: their start within
+    :data:`~priortrack.tracking.association.DUPLICATE_M` (median over the joints) of that filter's latest estimate
+    (module docstring, 5: a second track of one person, found before the two compete for one person's detections)."""
+    out = set()
+    for p in running:
+        if k != first[p] + KNOWN_FRAMES:
+            continue
+        start = runs[p].estimates[KNOWN_FRAMES - 1]
+        for q in running:
+            if first[q] < first[p] and median_distance(start, runs[q].estimates[runs[q].done - 1]) < DUPLICATE_M:
+                out.add(p)
+                log.info("person %d starts where person %d's filter is: a second track of one person, given no "
+                         "detections", ids[p], ids[q])
+                break
+    return out
 
 
 def _duplicates(running: list[int], runs: dict, first: dict[int, int], together: dict, needed: int,
