@@ -17,8 +17,8 @@ Per frame, as Stone Soup's ``MultiTargetTracker`` steps (associate; update or pr
    (:func:`~priortrack.tracking.association.associate`) into 3D proposals; a proposal seen by
    ``birth_views`` cameras starts a tentative person, confirmed once proposals follow it for
    ``birth_s`` seconds (each within :data:`FOLLOW_M` of the last); a confirmed person whose bone lengths
-   (:func:`bone_lengths`, a signature) and position fit a person who ended takes that person's id back,
-   else a new one.
+   (:func:`bone_lengths`, a signature; :func:`signature_gap`) and position fit a person who ended takes that
+   person's id back, else a new one.
 
 Two views alone triangulate anything that one epipolar geometry allows (a static false positive seen by
 two cameras is a consistent "person"); a third view checks it, hence ``birth_views`` = 3 where the rig
@@ -59,11 +59,21 @@ ASSOCIATIONS = ("auto", "joints", "filter")
 FEW_VIEWS = 3
 #: A tentative person's next proposal lies within this median joint distance (metres) of the last.
 FOLLOW_M = 0.3
-#: A returning person's bone lengths within this relative RMS difference of an ended person's are theirs.
+#: A returning person's bone lengths within this median relative difference of an ended person's are theirs.
 REID_BONES = 0.1
 #: … and their pelvis within this distance (metres) plus 1.5 m/s times the time away; the two signatures compared
 #: over the bones both measured, at least this many of the 14.
 REID_M, REID_MIN_BONES = 1.0, 7
+
+
+def signature_gap(new: np.ndarray, old: np.ndarray) -> float:
+    """The median over the bones both signatures (14,) measure of |new − old| / old; inf where fewer than
+    :data:`REID_MIN_BONES` are. A median, not a mean: a limb that two views mismatched (an arm's keypoints of one camera
+    given to the other arm: a forearm of a metre) must not hide the other dozen bones."""
+    both = np.isfinite(new) & np.isfinite(old)
+    if both.sum() < REID_MIN_BONES:
+        return np.inf
+    return float(np.median(np.abs(new[both] - old[both]) / old[both]))
 
 
 def bone_lengths(joints: np.ndarray) -> np.ndarray:
@@ -324,13 +334,10 @@ class ProposalInitiator:
         for old in scene.ended:
             if old.signature is None or signature is None:
                 continue
-            both = np.isfinite(signature) & np.isfinite(old.signature)
-            if both.sum() < REID_MIN_BONES:
-                continue
             away = (scene.frame - old.last_seen) / self.fps
             if np.linalg.norm(old.motion.joints[0] - track.motion.joints[0]) > REID_M + 1.5 * away:
                 continue
-            gap = float(np.sqrt(np.mean(((signature[both] - old.signature[both]) / old.signature[both]) ** 2)))
+            gap = signature_gap(signature, old.signature)
             if gap < best_gap:
                 best, best_gap = old, gap
         if best is None:
