@@ -512,3 +512,42 @@ def test_a_returning_person_with_one_limb_mismatched_is_still_re_identified():
         scene = SimpleNamespace(frame=60, ended=[Track(3, JointKalman(body), 0, 40, bones=[bones])], next_id=5)
         assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, Track(-1, JointKalman(body), 60, 60,
                                                                           bones=[new])) == expected
+
+
+def test_a_track_whose_bones_are_no_ones_is_dropped_from_every_frame():
+    """Two cameras pair one person's detections in one camera with another person's in the other: the "person" they
+    triangulate has bones metres long. ``no_body`` tells it by the median of its bones (one crossed limb does not),
+    and the scene tracker leaves such a track out of every frame of its association."""
+    from priortrack.tracking.scene import MAX_MEDIAN_BONE_M, REID_MIN_BONES, bone_lengths, no_body
+
+    body = np.random.default_rng(3).normal(0, 0.3, (15, 3))
+    bones = bone_lengths(body) / np.median(bone_lengths(body)) * 0.28              # an adult's median bone
+    assert not no_body(bones) and not no_body(None)
+    crossed = bones.copy()
+    crossed[[3, 4]] = [3.0, 9.0]                                                   # an arm paired across people
+    assert not no_body(crossed)
+    assert no_body(bones * 2.5) and 2.5 * 0.28 > MAX_MEDIAN_BONE_M
+    few = np.full(14, np.nan)
+    few[:REID_MIN_BONES - 1] = 5.0                                                 # too few bones to judge
+    assert not no_body(few)
+
+
+def test_the_scene_tracker_leaves_a_track_of_no_one_out_of_every_frame(demo, monkeypatch):
+    """Pose2Sim's demo with its synthetic person (id 0) judged no one at frame 30: id 0 is in no frame of the
+    association (its first 30 frames too), the participant's detections are as before, and the synthetic person's
+    detections, left over, may start someone new later (judged again as anyone is)."""
+    import priortrack.tracking.scene as scene_module
+
+    scene, calibration = demo
+    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    uv, confidence = scene.eval15(0.3)
+    before = SceneTracker(cameras, 60.0).run(uv, confidence, scene.frames)
+    tracker = SceneTracker(cameras, 60.0)
+    synthetic = lambda signature: tracker.frame >= 30 and signature is not None and any(     # noqa: E731
+        t.id == 0 and np.array_equal(t.signature, signature, equal_nan=True) for t in tracker.live)
+    monkeypatch.setattr(scene_module, "no_body", synthetic)
+    after = tracker.run(uv, confidence, scene.frames)
+    assert before.person_ids.tolist() == [0, 1] and tracker.dropped == {0}
+    assert after.person_ids.tolist() == [1, 2]          # 0 in no frame; its detections, left over, start person 2
+    np.testing.assert_array_equal(after.slots[:, :, 0], before.slots[:, :, 1])
+    assert not (after.slots[:30, :, 1] >= 0).any() and (after.slots[30:, :, 1] >= 0).any()

@@ -64,6 +64,9 @@ REID_BONES = 0.1
 #: … and their pelvis within this distance (metres) plus 1.5 m/s times the time away; the two signatures compared
 #: over the bones both measured, at least this many of the 14.
 REID_M, REID_MIN_BONES = 1.0, 7
+#: A track whose bones' median is over this (twice an adult's, 0.25–0.3 m in the eval15 layout) is no one
+#: (:func:`no_body`).
+MAX_MEDIAN_BONE_M = 0.6
 
 
 def signature_gap(new: np.ndarray, old: np.ndarray) -> float:
@@ -74,6 +77,15 @@ def signature_gap(new: np.ndarray, old: np.ndarray) -> float:
     if both.sum() < REID_MIN_BONES:
         return np.inf
     return float(np.median(np.abs(new[both] - old[both]) / old[both]))
+
+
+def no_body(signature: np.ndarray | None) -> bool:
+    """Whether a track's signature (14,) (:attr:`Track.signature`) is no one's: the median of its bones, measured over
+    at least :data:`REID_MIN_BONES` of them, over :data:`MAX_MEDIAN_BONE_M` (two cameras' detections of different
+    people paired into one "person" place its joints metres apart; one mismatched limb does not move the median)."""
+    if signature is None or np.isfinite(signature).sum() < REID_MIN_BONES:
+        return False
+    return bool(np.nanmedian(signature) > MAX_MEDIAN_BONE_M)
 
 
 def bone_lengths(joints: np.ndarray) -> np.ndarray:
@@ -455,6 +467,8 @@ class SceneTracker:
         self.ended: list[Track] = []
         self.born: list[Track] = []
         self.frame, self.next_id = 0, 0
+        #: The ids of tracks found to be no one (:func:`no_body`), left out of :meth:`run`'s association.
+        self.dropped: set[int] = set()
 
     def step(self, xy: list[np.ndarray], confidence: list[np.ndarray]) -> dict[int, dict[int, int]]:
         """One frame (module docstring): per camera, its N_c detections' undistorted normalised points xy
@@ -486,6 +500,12 @@ class SceneTracker:
             self.ended.append(track)
             log.info("frame %d: person %d unseen for %d frames: ended", self.frame, track.id,
                      self.frame - track.last_seen)
+        for track in [t for t in self.live if no_body(t.signature)]:
+            self.live.remove(track)
+            self.dropped.add(track.id)
+            log.warning("frame %d: 'person' %d is no one: their bones measure %.1f m (median), detections of different "
+                        "people paired across cameras; dropped from every frame", self.frame, track.id,
+                        np.nanmedian(track.signature))
         self.born = self.initiator(self, xy, confidence, used)
         for track in self.born:
             self.live.append(track)
@@ -510,7 +530,7 @@ class SceneTracker:
                 for f, (views, at) in track.birth.items():
                     per_frame[f].setdefault(track.id, {c: int(slots[f][c][n]) for c, n in views.items()})
                     joints[f].setdefault(track.id, at)
-        ids = sorted({pid for frame in per_frame for pid in frame})
+        ids = sorted({pid for frame in per_frame for pid in frame} - self.dropped)
         out_slots = np.full((T, C, len(ids)), -1, dtype=int)
         out_joints = np.full((T, len(ids), 15, 3), np.nan)
         for t, (frame, at) in enumerate(zip(per_frame, joints)):
