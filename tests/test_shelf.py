@@ -191,9 +191,42 @@ def test_eval_shelf_scores_every_subset_beside_the_oracle(benchmark, capsys):
     assert main(["eval", "shelf", str(folder), "--diagnose", "--subsets", "2"]) == 2
 
 
+def test_eval_shelf_with_one_camera_scores_the_root_relative_error_and_no_dlt(benchmark, capsys):
+    """Each camera alone: both actors followed, one track each, no switch; no DLT (None, "—"); each actor's
+    root-relative error (what one view measures) within 10 % (+ 5 mm) of the same actor tracked alone from the
+    detections the permutation says are theirs (the one-camera person pipeline: the scene loses nothing); printed."""
+    from priortrack.data.calibration import read_calibration
+    from priortrack.data.detections import Detections
+    from priortrack.data.scene_detections import read_scene_detections
+    from priortrack.tracking.person import TrackConfig, track_detections
+
+    folder, truth, order, _ = benchmark
+    result = shelf.eval_shelf(folder, ["ukf-real"], sizes=[1], actors=(0, 1), workers=1)
+    assert [r["cameras"] for r in result["rows"]] == [["0"], ["1"], ["2"]]
+    scene, calibration = read_scene_detections(folder / "scene.npz"), read_calibration(folder / "calibration.json")
+    T = truth.shape[1]
+    for c, row in enumerate(result["rows"]):
+        assert row["switches"] == 0 and row["false_tracks"] == [] and row["tracks"] == 2, row
+        for p, actor in enumerate(row["actors"]):
+            assert actor["dlt"]["pcp"] is None and actor["dlt"]["mpjpe_root_mm"] is None
+            own = scene.keypoints[c, np.arange(T), order[c, :, p]][None]                      # (1, T, 25, 3)
+            alone = track_detections(Detections(scene.layout, (str(c),), scene.frames, scene.fps, "alone",
+                                                keypoints=own), calibration, "ukf-real",
+                                     TrackConfig(fps=FPS, up=shelf.truth_up(truth.transpose(1, 0, 2, 3)),
+                                                 camera_map={str(c): str(c)}, fit_check=False))
+            estimate = np.full(truth.transpose(1, 0, 2, 3).shape, np.nan)                   # (T, P, 15, 3)
+            ticked = alone.frames >= 0                                                   # (a 30 fps tick per frame)
+            estimate[alone.frames[ticked], p] = alone.joints[ticked]
+            mine = shelf.score(estimate, truth.transpose(1, 0, 2, 3), np.ones(T, dtype=bool))[p]["mpjpe_root_mm"]
+            assert actor["mpjpe_root_mm"] <= 1.1 * mine + 5.0, (row["cameras"], p, actor["mpjpe_root_mm"], mine)
+    assert main(["eval", "shelf", str(folder), "--cameras", "1", "--actors", "0", "1", "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "| 1 | ukf-real |" in out and "(—)" in out and "camera 1 alone, ukf-real: root-relative MPJPE" in out
+
+
 @pytest.mark.parametrize("args, message", [
-    (["--cameras", "0,7"], "--cameras 0,7: give two or more"),
-    (["--cameras", "1"], "--cameras 1"),
+    (["--cameras", "0,7"], "--cameras 0,7: give one or more"),
+    (["--cameras", "1,1"], "--cameras 1,1"),
     (["--subsets", "4"], "--subsets 4"),
     (["--cameras", "0,1", "--subsets", "2"], "not both"),
     (["--actors", "5"], "no actor 5"),

@@ -189,12 +189,18 @@ def _unmeasured(distances: np.ndarray) -> list[str]:
     return [name for name, j in BODY_MEASURES.items() if not np.isfinite(distances[j - 1])]
 
 
+def rest_distances(skeleton: Skeleton, joint_map: np.ndarray | None = None, own_side: bool = False) -> np.ndarray:
+    """(14,) :func:`measured_distances` of the skeleton's rest pose, in the targets' definitions (``joint_map`` M
+    applied)."""
+    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
+    return measured_distances((M @ _rest(skeleton)[1])[None], own_side)
+
+
 def body_measures(skeleton: Skeleton, joint_map: np.ndarray | None = None) -> dict[str, float]:
     """{measure: metres} of :data:`BODY_MEASURES` on the skeleton's rest pose, in the targets'
     definitions (``joint_map`` M applied): the body a tracker fitted, as a person would measure it (a limb's
     left and right averaged; :func:`limb_sides` gives each)."""
-    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-    distances = measured_distances((M @ _rest(skeleton)[1])[None])
+    distances = rest_distances(skeleton, joint_map)
     return {name: float(distances[j - 1]) for name, j in BODY_MEASURES.items()}
 
 
@@ -204,8 +210,7 @@ LIMB_SIDES = {"upper_arm": (4, 7), "forearm": (5, 8), "thigh": (10, 13), "shin":
 
 def limb_sides(skeleton: Skeleton, joint_map: np.ndarray | None = None) -> dict[str, list[float]]:
     """{limb: [left, right] metres} of the skeleton's rest pose (:data:`LIMB_SIDES`), in the targets' definitions."""
-    M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-    distances = measured_distances((M @ _rest(skeleton)[1])[None], own_side=True)
+    distances = rest_distances(skeleton, joint_map, own_side=True)
     return {name: [float(distances[a - 1]), float(distances[b - 1])] for name, (a, b) in LIMB_SIDES.items()}
 
 

@@ -1,4 +1,4 @@
-"""What the ``priortrack`` verbs share: a progress line, JSON output, motions from names."""
+"""What the ``priortrack`` verbs share: a progress line, JSON output, motions from names, a camera map."""
 
 from __future__ import annotations
 
@@ -60,3 +60,15 @@ def load_motions(sources: list[str]):
 
     return [load_motion(source) for source in expand_sources(sources)]
 
+
+
+def camera_map(text: str | None) -> dict[str, str] | None:
+    """``--camera-map FOLDER=CAMERA,…`` as {detection camera: calibration camera}; None where not given."""
+    from priortrack.errors import PriortrackError
+
+    if not text:
+        return None
+    pairs = [item.split("=", 1) for item in text.split(",")]
+    if any(len(p) != 2 or not p[0] or not p[1] for p in pairs):
+        raise PriortrackError(f"--camera-map must be FOLDER=CAMERA,…, got {text!r}")
+    return dict(pairs)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from priortrack.cli.common import print_json
+from priortrack.cli.common import camera_map, print_json
 from priortrack.errors import PriortrackError
 
 
@@ -161,7 +161,8 @@ def _eval_scenes(args: argparse.Namespace) -> None:
 def _eval_against_trc(args: argparse.Namespace) -> None:
     from priortrack.experiments.against_trc import against_trc
 
-    result = against_trc(args.detections, args.cameras, args.reference, args.fps, args.filter, args.keypoints)
+    result = against_trc(args.detections, args.cameras, args.reference, args.fps, args.filter, args.keypoints,
+                         camera_map(args.camera_map), args.height)
     if args.json:
         print_json(result)
         return
@@ -227,12 +228,18 @@ def _eval_shelf(args: argparse.Namespace) -> None:
 
     for row in result["rows"]:
         people = row["actors"]
-        mean = sum(p["pcp"] for p in people) / len(people), sum(p["dlt"]["pcp"] for p in people) / len(people)
+        mean = [None if any(v is None for v in values) else sum(values) / len(values)
+                for values in ([p["pcp"] for p in people], [p["dlt"]["pcp"] for p in people])]
         print(f"| {','.join(row['cameras'])} | {row['preset']} | " + " | ".join(cell(p["pcp"], p["dlt"]["pcp"]) for p in people) +
               f" | {cell(*mean)} | " + " | ".join(f"{cell(p['mpjpe_beside_mm'], p['dlt']['mpjpe_mm'], 0)} / "
                                                    f"{'—' if p['mpjpe_mm'] is None else round(p['mpjpe_mm'])}"
                                                    for p in people) +
               f" | {row['switches']} | {len(row['false_tracks'])} | {row['seconds']:.1f} |")
+    for row in result["rows"]:
+        if len(row["cameras"]) == 1:
+            print(f"camera {row['cameras'][0]} alone, {row['preset']}: root-relative MPJPE (mid-hips aligned) per actor, "
+                  "mm: " + ", ".join(f"actor {p['actor']} " + ("—" if p["mpjpe_root_mm"] is None else
+                                                              f"{p['mpjpe_root_mm']:.0f}") for p in row["actors"]))
     if args.per_joint:
         for row in result["rows"]:
             print(f"\ncameras {','.join(row['cameras'])}, {row['preset']}: MPJPE per limb joint, mm (oracle DLT)")
@@ -369,6 +376,9 @@ def add_parsers(verbs) -> None:
                                                             "detections' frames from the first, as Pose2Sim writes)")
     against.add_argument("--fps", type=float, help="the detections' frame rate (if their files do not say it)")
     against.add_argument("--keypoints", help="the detections' layout, where it cannot be told")
+    against.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
+    against.add_argument("--height", type=float, default=1.7,
+                         help="the person's standing height, metres (one camera: the body's size and depth; 1.7)")
     against.add_argument("--filter", default="ukf-real", help="the preset (default %(default)s)")
     against.add_argument("--json", action="store_true", help="print the table as JSON")
     against.set_defaults(run=_eval_against_trc)

@@ -7,7 +7,7 @@ import logging
 import sys
 from dataclasses import replace
 
-from priortrack.cli.common import Progress, print_json
+from priortrack.cli.common import Progress, camera_map, print_json
 from priortrack.errors import PriortrackError
 from priortrack.output import output_path
 
@@ -105,13 +105,8 @@ def _track_detections(args: argparse.Namespace) -> None:
         raise PriortrackError(f"--rrd-every must be a whole number of ticks ≥ 1, got {args.rrd_every}")
     if args.lowpass is not None and not args.lowpass > 0:
         raise PriortrackError(f"--lowpass is a cut-off frequency in Hz above 0, got {args.lowpass:g}")
-    camera_map = None
-    if args.camera_map:
-        pairs = [item.split("=", 1) for item in args.camera_map.split(",")]
-        if any(len(p) != 2 or not p[0] or not p[1] for p in pairs):
-            raise PriortrackError(f"--camera-map must be FOLDER=CAMERA,…, got {args.camera_map!r}")
-        camera_map = dict(pairs)
-    config = TrackConfig(fps=args.fps, up=args.up, camera_map=camera_map, min_confidence=args.min_confidence,
+    config = TrackConfig(fps=args.fps, up=args.up, camera_map=camera_map(args.camera_map),
+                         min_confidence=args.min_confidence,
                          seed=args.seed, height=args.height, device=args.device,
                          memory=DEFAULT_MEMORY if args.memory is None else parse_memory(args.memory),
                          fit_check=not args.no_fit_check, **_smoothing(args))

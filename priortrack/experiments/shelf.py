@@ -17,6 +17,9 @@ the scene tracker follows every person with a preset from the detections alone
   on their distance to the truth's projection (the median over the limb joints, within :data:`ORACLE_GATE` of the
   actor's size in the image): the true association, which no tracker has; each actor's joints are then the
   confidence-weighted DLT of their detections (:func:`~priortrack.geometry.triangulation.triangulate`).
+- with **one camera** (``--cameras 2``, ``--subsets 1``) there is no DLT (its scores are None), the world's up comes
+  from the truth's people (:func:`truth_up`; one camera cannot find it), and what one view measures best is the
+  root-relative MPJPE (``mpjpe_root_mm``: the mid-hips aligned), its depth resting on the body's assumed size;
 - **identity switches**: per annotated actor (scored or not), the track an optimal assignment of actors to tracks
   gives them at a frame (median limb-joint distance within :data:`MATCH_M`) changes between two such frames;
 - **false tracks**: tracks never so given to an annotated actor though most of their detections are annotated
@@ -41,6 +44,7 @@ from priortrack.data.shelf_truth import read_shelf_truth
 from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import PCP_LIMB_PARTS, pcp
 from priortrack.geometry.camera import PinholeCamera
+from priortrack.geometry.frames import up_from_person
 from priortrack.geometry.triangulation import triangulate
 from priortrack.tracking.scene import SceneConfig, median_of_seen
 
@@ -48,6 +52,8 @@ log = logging.getLogger(__name__)
 
 #: The twelve limb joints scored (eval15: shoulders, elbows, wrists, hips, knees, ankles).
 LIMB_JOINTS = list(range(3, 15))
+#: The hips (eval15), whose midpoint is the root of the root-relative MPJPE.
+HIP_JOINTS = [9, 12]
 #: The oracle gives an actor a detection whose limb joints lie within this fraction of the actor's size in the image
 #: (the diagonal of the box around their projected limb joints; a standing person's height, about) of the truth's
 #: projection (median over the joints): a detection of the actor, not of someone beside them.
@@ -70,14 +76,14 @@ def camera_subsets(count: int, cameras: str | None = None, sizes: list[int] | No
             chosen = tuple(int(c) for c in str(cameras).split(","))
         except ValueError:
             chosen = ()
-        if len(chosen) < 2 or len(set(chosen)) != len(chosen) or not all(0 <= c < count for c in chosen):
-            raise PriortrackError(f"--cameras {cameras}: give two or more different camera indices from 0 to "
+        if not chosen or len(set(chosen)) != len(chosen) or not all(0 <= c < count for c in chosen):
+            raise PriortrackError(f"--cameras {cameras}: give one or more different camera indices from 0 to "
                                   f"{count - 1}, comma-separated")
         return [tuple(sorted(chosen))]
     if sizes:
-        bad = [k for k in sizes if not 2 <= k <= count]
+        bad = [k for k in sizes if not 1 <= k <= count]
         if bad:
-            raise PriortrackError(f"--subsets {bad[0]}: subsets of 2 to {count} cameras")
+            raise PriortrackError(f"--subsets {bad[0]}: subsets of 1 to {count} cameras")
         return [c for k in sorted(set(sizes)) for c in itertools.combinations(range(count), k)]
     return [tuple(range(count))]
 
@@ -117,6 +123,15 @@ def read_benchmark(directory: str | Path, detections: str | Path | None = None, 
                               f"0 … {len(truth.joints) - 1}")
     return (calibration, truth.eval15(), [int(np.flatnonzero(truth.ids == a)[0]) for a in actors],
             [int(a) for a in actors], scene)
+
+
+def truth_up(truth: np.ndarray) -> np.ndarray:
+    """(3,) the world's up from the truth's people (T, A, 15, 3) (:func:`~priortrack.geometry.frames.up_from_person`,
+    the neck the mid-shoulders where the truth has none): a property of the benchmark's world that several cameras find
+    from the detections and one camera cannot."""
+    people = truth.reshape(-1, *truth.shape[2:]).copy()
+    people[:, 1] = np.where(np.isfinite(people[:, 1]), people[:, 1], 0.5 * (people[:, 3] + people[:, 6]))
+    return up_from_person(people)[0]
 
 
 def oracle_slots(cameras: list[PinholeCamera], uv: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -202,7 +217,8 @@ def score(estimate: np.ndarray, truth: np.ndarray, frames: np.ndarray, beside: n
     """Per actor, at ``frames`` (T,) bool, the scores of the module docstring of their estimate (T, A, 15, 3)
     (the nearest track's, :func:`nearest_tracks`, or the oracle DLT's; NaN where none) against truth
     (T, A, 15, 3): PCP % of the limb parts, MPJPE mm of the limb joints and per limb joint (where both are known),
-    and the frames scored; given ``beside`` (T, A, 15, 3), another estimate (the oracle DLT's), also
+    the root-relative MPJPE (``mpjpe_root_mm``: each pose moved to put its mid-hips on the origin; the other ten limb
+    joints: one camera's measure, whose depth is the body's size), and the frames scored; given ``beside`` (T, A, 15, 3), another estimate (the oracle DLT's), also
     ``mpjpe_beside_mm``: the MPJPE over the joints and frames that one has (where DLT triangulates: two cameras show
     the joint)."""
     rows = []
@@ -211,7 +227,12 @@ def score(estimate: np.ndarray, truth: np.ndarray, frames: np.ndarray, beside: n
         X, Y = estimate[annotated, a], truth[annotated, a]
         error = 1000 * np.linalg.norm(X[:, LIMB_JOINTS] - Y[:, LIMB_JOINTS], axis=-1)              # (F, 12)
         known = np.isfinite(error)
+        hips = [LIMB_JOINTS.index(j) for j in HIP_JOINTS]
+        aligned = 1000 * np.linalg.norm((X[:, LIMB_JOINTS] - X[:, HIP_JOINTS].mean(1, keepdims=True)) -
+                                        (Y[:, LIMB_JOINTS] - Y[:, HIP_JOINTS].mean(1, keepdims=True)), axis=-1)
+        aligned[:, hips] = np.nan                                    # the hips' own alignment is no error
         row = {"pcp": pcp(X, Y, PCP_LIMB_PARTS), "mpjpe_mm": _mean(error[known]),
+               "mpjpe_root_mm": _mean(aligned[np.isfinite(aligned)]),
                "per_joint_mm": {EVAL15_NAMES[j]: _mean(error[known[:, k], k]) for k, j in enumerate(LIMB_JOINTS)},
                "frames": int(annotated.sum())}
         if beside is not None:
@@ -259,6 +280,7 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
     frames = np.zeros(len(truth), dtype=bool)
     frames[scene.frames[(scene.frames >= 0) & (scene.frames < len(truth))]] = True
     uv, confidence = scene.eval15(min_confidence)
+    up = calibration.up if calibration.up is not None else truth_up(everyone)
     at = np.flatnonzero((scene.frames >= 0) & (scene.frames < len(truth)))            # detection frames with truth
     rows = []
     for subset in subsets:
@@ -271,11 +293,15 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
         seen, weight = uv[own][:, at], confidence[own][:, at]
         slots = oracle_slots(world, seen, everyone[scene.frames[at]])                  # (C, F, every actor)
         dlt = np.full(truth.shape, np.nan)
-        dlt[scene.frames[at]] = oracle_dlt(world, seen, weight, slots[..., scored])
-        oracle = score(dlt, truth, frames)
+        if len(subset) > 1:
+            dlt[scene.frames[at]] = oracle_dlt(world, seen, weight, slots[..., scored])
+            oracle = score(dlt, truth, frames)
+        else:                                                           # one camera: no DLT
+            oracle = [{"pcp": None, "mpjpe_mm": None, "mpjpe_root_mm": None, "frames": row["frames"],
+                       "per_joint_mm": dict.fromkeys(row["per_joint_mm"])} for row in score(dlt, truth, frames)]
         part = replace(scene, camera_names=tuple(scene.camera_names[c] for c in own), keypoints=scene.keypoints[own])
         config = TrackConfig(fps=fps, seed=seed, min_confidence=min_confidence, cache=cache,
-                             camera_map={scene.camera_names[o]: calibration.cameras[c].name for o, c in zip(own, subset)})
+                             up=up if len(subset) == 1 else None, camera_map={scene.camera_names[o]: calibration.cameras[c].name for o, c in zip(own, subset)})
         for preset in presets:
             fitted_once(preset, cache)                                     # the prior's fit is not the run's time
             result = track_scene(part, calibration, preset, config, scene_config, workers=workers)
@@ -294,7 +320,7 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
                          "tracks": int(len(result.person_ids)), "seconds": float(result.seconds)})
             log.info("cameras %s, %s: PCP %s (DLT %s), %d switches, %d false tracks, %.1f s",
                      ",".join(rows[-1]["cameras"]), preset.name,
-                     " / ".join(f"{r['pcp']:.1f}" for r in tracker), " / ".join(f"{r['pcp']:.1f}" for r in oracle),
+                     " / ".join(f"{r['pcp']:.1f}" for r in tracker), " / ".join("—" if r["pcp"] is None else f"{r['pcp']:.1f}" for r in oracle),
                      rows[-1]["switches"], len(false), result.seconds)
     return {"rows": rows, "actors": actors, "frames": int(frames.sum()), "fps": fps, "detections": scene.source}
 

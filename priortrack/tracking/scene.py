@@ -22,7 +22,10 @@ Per frame, as Stone Soup's ``MultiTargetTracker`` steps (associate; update or pr
 
 Two views alone triangulate anything that one epipolar geometry allows (a static false positive seen by
 two cameras is a consistent "person"); a third view checks it, hence ``birth_views`` = 3 where the rig
-has three cameras or more. A track, once born, continues on any number of views.
+has three cameras or more. A track, once born, continues on any number of views. A rig of one camera has
+no triangulation: each leftover detection is placed at the depth its size says
+(:mod:`~priortrack.tracking.single_view`) and confirmed as above; its people have no bone signature (the
+placement has a nominal body's size), so one who leaves and comes back is a new id.
 
 :meth:`SceneTracker.run` tracks a whole :class:`~priortrack.data.scene_detections.SceneDetections` and
 gives a :class:`SceneAssociation`: which detection slot is whose, per frame and camera, and each person's
@@ -46,6 +49,7 @@ from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS, EVAL15_PARENTS
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
+from priortrack.tracking import single_view
 from priortrack.tracking.association import PAIR_GATE_M, associate, median_distance, normalised, pair_distances
 from priortrack.tracking.motion import JointKalman, View
 
@@ -305,21 +309,27 @@ class ProposalInitiator:
     def __call__(self, scene: "SceneTracker", xy: list[np.ndarray], confidence: list[np.ndarray],
                  used: list[set[int]]) -> list[Track]:
         cameras = scene.cameras
+        single = len(cameras) == 1
         left = [np.array([n for n in range(len(xy[c])) if n not in used[c]], dtype=int) for c in range(len(cameras))]
-        if sum(len(a) for a in left) < 2:
+        if sum(len(a) for a in left) < (1 if single else 2):
             self.tentative = []
             return []
         points = [xy[c][a] for c, a in enumerate(left)]
-        association = associate(cameras, points, [confidence[c][a] for c, a in enumerate(left)], self.pair_gate,
-                                xy=points)
-        proposals = [p for p in association.proposals if len(p.views) >= self.views]
+        weights = [confidence[c][a] for c, a in enumerate(left)]
+        if single:                      # one camera: each person placed at the depth their size says
+            proposals = [p for n in range(len(points[0]))
+                         if (p := single_view.proposal(scene.views[0], points[0][n], weights[0][n], n)) is not None]
+        else:
+            association = associate(cameras, points, weights, self.pair_gate, xy=points)
+            proposals = [p for p in association.proposals if len(p.views) >= self.views]
+        gap = self._gap(scene)
         followed, born = [], []
         for p in proposals:
             views = {c: int(left[c][n]) for c, n in p.views.items()}
-            if any(median_distance(p.joints, t.motion.joints) < FOLLOW_M for t in scene.live):
+            if any(gap(p.joints, t.motion.joints) < FOLLOW_M for t in scene.live):
                 continue                                  # a live person's detections the gate let go
-            previous = min(self.tentative, key=lambda s: median_distance(p.joints, s["joints"]), default=None)
-            if previous is not None and median_distance(p.joints, previous["joints"]) < FOLLOW_M:
+            previous = min(self.tentative, key=lambda s: gap(p.joints, s["joints"]), default=None)
+            if previous is not None and gap(p.joints, previous["joints"]) < FOLLOW_M:
                 self.tentative = [s for s in self.tentative if s is not previous]
                 history, seen = previous["history"] + [p.joints], {**previous["views"], scene.frame: (views, p.joints)}
             else:
@@ -331,11 +341,24 @@ class ProposalInitiator:
         self.tentative = followed
         return born
 
+    @staticmethod
+    def _gap(scene: "SceneTracker"):
+        """The distance (a, b) → metres between a proposal's joints a (15, 3) and a person's b: the median joint
+        distance; with one camera, a's placement moved along its rays to b's depth first (its lateral gap:
+        :func:`~priortrack.tracking.single_view.at_depth`)."""
+        if len(scene.cameras) > 1:
+            return median_distance
+        return lambda a, b: median_distance(single_view.at_depth(scene.views[0], a, b), b)
+
     def _born(self, scene: "SceneTracker", history: list[np.ndarray], views: dict[int, tuple]) -> Track:
         joints = history[-1]
-        velocity = (history[-1] - history[-2]) * self.fps if len(history) > 1 else None
+        single = len(scene.cameras) == 1
+        before = single_view.at_depth(scene.views[0], history[-2], joints) if single and len(history) > 1 else \
+            history[-2] if len(history) > 1 else None
+        velocity = None if before is None else (joints - before) * self.fps
         track = Track(-1, self.motion(joints, velocity), min(views), scene.frame, birth=views)
-        track.bones = [b for b in bone_lengths(np.stack(history)) if np.isfinite(b).any()]
+        # one view's placement has the nominal body's size: no signature
+        track.bones = [] if single else [b for b in bone_lengths(np.stack(history)) if np.isfinite(b).any()]
         track.id = self._identity(scene, track)
         return track
 
@@ -452,9 +475,8 @@ class SceneTracker:
                  associator=None, deleter=None, initiator=None, motion=JointKalman):
         if not 0 < fps < 1e4:
             raise PriortrackError(f"fps must be a positive frame rate, got {fps}")
-        if len(cameras) < 2:
-            raise PriortrackError(f"a scene's people are told apart by triangulation: {len(cameras)} calibrated camera, "
-                                  f"two or more are needed (one camera follows one person: track without --people)")
+        if not cameras:
+            raise PriortrackError("a scene tracker needs a calibrated camera")
         self.cameras, self.fps, self.config = list(cameras), float(fps), config or SceneConfig()
         self.views = [View.of(c) for c in self.cameras]
         frames = lambda seconds: max(1, int(round(seconds * self.fps)))          # noqa: E731
