@@ -105,6 +105,40 @@ def test_the_summary_pools_the_cameras_and_names_the_dlt_row(grid):
         assert matplotlib.image.imread(out / "plots" / name).shape[2] in (3, 4)
 
 
+def test_a_low_passed_grid_scores_beside_the_low_passed_dlt(trial, tmp_path, capsys):
+    """``--lowpass 6``: each estimate through the Butterworth at the ticks' rate (its runs' keys differ from the plain
+    grid's), and the row "DLT + low-pass": every frame's DLT of the other cameras through the filter at the data's
+    60 fps, scored on the run's frames (recomputed here); a cut-off at or above 15 Hz (the 30 fps ticks' Nyquist) is
+    refused before any work."""
+    from priortrack.tracking.lowpass import lowpassed
+
+    folder, X, cameras = trial
+    configs = plan_detections(["ukf-real"], str(folder / "pose"), str(DEFAULT_CALIBRATION), 1, keypoints="body25b",
+                              fps=60.0, lowpass=6.0)
+    rows = compare(configs, tmp_path)
+    detections = read_detections(folder / "pose", keypoints="body25b")
+    uv, confidence = detections.eval15(0.3)
+    for r in rows:
+        c = ["cam01", "cam02", "cam03", "cam04"].index(r["held_out"])
+        others = [k for k in range(4) if k != c]
+        frames = np.load(tmp_path / "runs" / f"{r['config_hash']}.npz")["frames"].astype(int)
+        dlt = lowpassed(triangulate([cameras[k] for k in others], uv[others], confidence[others])[:, 3:], 60.0, 6.0)
+        projected, _ = cameras[c].project(np.nan_to_num(dlt[frames]))
+        e = np.linalg.norm(projected - uv[c, frames, 3:], axis=-1)
+        e = e[(confidence[c, frames, 3:] > 0) & np.isfinite(dlt[frames]).all(-1) & np.isfinite(e)]
+        assert r["dlt_lowpass_median_px"] == pytest.approx(np.median(e), rel=1e-9)
+        assert r["dlt_lowpass_median_px"] != pytest.approx(r["dlt_median_px"], rel=1e-6)
+    table = module.summary(rows, {c.key: dict(np.load(tmp_path / "runs" / f"{c.key}.npz")) for c in configs})
+    assert list(table["held_out"]) == ["ukf-real", "DLT", "DLT + low-pass"]
+    assert "| DLT + low-pass |" in (tmp_path / "summary.md").read_text()
+    plain = plan_detections(["ukf-real"], str(folder / "pose"), str(DEFAULT_CALIBRATION), 1, keypoints="body25b",
+                            fps=60.0)
+    assert {c.key for c in plain}.isdisjoint(c.key for c in configs)
+    with pytest.raises(PriortrackError, match="--lowpass 15 Hz: the cut-off must lie between 0 and half"):
+        plan_detections(["ukf-real"], str(folder / "pose"), str(DEFAULT_CALIBRATION), 1, keypoints="body25b",
+                        fps=60.0, lowpass=15.0)
+
+
 def test_a_rerun_does_no_work(grid, monkeypatch):
     out, configs, rows = grid
     monkeypatch.setattr(module, "run_detections", lambda *a, **k: pytest.fail("a cached run was run again"))

@@ -28,9 +28,9 @@ def _compare(args: argparse.Namespace) -> None:
             raise PriortrackError("compare --detections needs the cameras' calibration (--cameras)")
         configs = plan_detections(args.filters, args.detections, args.cameras, args.seeds, args.truth,
                                   args.keypoints, args.fps, args.frames, args.smooth,
-                                  args.joints or LIMBS, person=_seen_most(args))
+                                  args.joints or LIMBS, person=_seen_most(args), lowpass=args.lowpass)
     else:
-        for name in ("cameras", "truth", "keypoints", "fps", "joints"):
+        for name in ("cameras", "truth", "keypoints", "fps", "joints", "lowpass"):
             if getattr(args, name) is not None:
                 raise PriortrackError(f"--{name} is for compare --detections")
         if not args.motions:
@@ -121,7 +121,8 @@ def _compare_people(args: argparse.Namespace) -> None:
         raise PriortrackError(f"--truth holds one person's joints: compare that person alone (--people id:N; the "
                               f"scene's people: {', '.join(map(str, ids))})")
     grids = {pid: plan_detections(args.filters, args.detections, args.cameras, args.seeds, args.truth, args.keypoints,
-                                  args.fps, args.frames, args.smooth, args.joints or LIMBS, person=pid) for pid in ids}
+                                  args.fps, args.frames, args.smooth, args.joints or LIMBS, person=pid,
+                                  lowpass=args.lowpass) for pid in ids}
     progress = Progress("compare", "{0}")
 
     def show(p) -> None:
@@ -170,5 +171,8 @@ def add_parsers(verbs) -> None:
     grid.add_argument("--scheduler", help="run on the Dask scheduler at tcp://host:port")
     grid.add_argument("--rrd", action="store_true", help="one rerun recording per run, under OUT/recordings/")
     grid.add_argument("--smooth", action="store_true", help="smooth each run (MPJPE smoothed, filtered beside it)")
+    grid.add_argument("--lowpass", type=float, metavar="HZ",
+                      help="--detections: each estimate through Pose2Sim's zero-lag Butterworth at HZ (as track "
+                           "--lowpass), and a row 'DLT + low-pass': the other cameras' DLT through the same filter")
     grid.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
     grid.set_defaults(run=_compare)

@@ -9,7 +9,10 @@ joints (shoulders to ankles, where c's confidence exceeds ``min_confidence``): e
 independent view: how well a 3D estimate explains it is its cross-validation where no truth exists.
 The baseline is per-frame confidence-weighted DLT of the same other cameras on the same frames,
 projected the same way (a row of the table beside the presets). With ``smooth`` the smoothed joints
-are scored, the filter's own beside them.
+are scored, the filter's own beside them. With ``lowpass`` (Hz) the estimate scored is passed through Pose2Sim's
+zero-lag Butterworth (:mod:`~priortrack.tracking.lowpass`, at the ticks' rate), and a second baseline row, "DLT +
+low-pass", is the DLT of every frame of the other cameras through the same filter at the detections' rate (what
+Pose2Sim gives from those cameras), scored on the same frames.
 
 With a truth file (3D joints of the same frames: a TRC or an NPZ, :func:`read_truth`) each preset
 also tracks from every camera (held-out camera "", the "all cameras" run), scored by world MPJPE
@@ -45,6 +48,9 @@ LIMBS = EVAL15_NAMES[3:]
 COLUMNS = ("filter", "held_out", "seed", "median_px", "p90_px", "dlt_median_px", "dlt_p90_px", "ticks",
            "s_per_frame", "mismatch_fraction", "error", "config_hash")
 TRUTH_COLUMNS = ("mpjpe_mm", "dlt_mpjpe_mm")
+LOWPASS_COLUMNS = ("dlt_lowpass_median_px", "dlt_lowpass_p90_px")
+#: The baselines of the table: {row: the series of each run that holds its held-out errors}.
+BASELINES = {"DLT": "dlt_px", "DLT + low-pass": "dlt_lowpass_px"}
 SMOOTHED_COLUMNS = ("filtered_median_px", "filtered_p90_px", "filtered_mpjpe_mm")
 #: Every held-out camera's name for the run that tracks from all cameras (scored by the truth only).
 ALL_CAMERAS = ""
@@ -79,6 +85,7 @@ class DetectionRunConfig:
     smooth: bool = False
     joints: tuple[str, ...] = LIMBS
     person: int | None = None
+    lowpass: float | None = None
 
     @cached_property
     def key(self) -> str:
@@ -109,7 +116,7 @@ class DetectionRunConfig:
         from priortrack.experiments.compare import write_csv
         from priortrack.viz.compare_plots import write_detection_plots
 
-        extra = [c for c in TRUTH_COLUMNS + SMOOTHED_COLUMNS if any(r.get(c) is not None for r in rows)]
+        extra = [c for c in TRUTH_COLUMNS + SMOOTHED_COLUMNS + LOWPASS_COLUMNS if any(r.get(c) is not None for r in rows)]
         write_csv(rows, out / "results.csv", list(COLUMNS) + extra)
         (out / "summary.md").write_text(summary_markdown(summary(rows, series)))
         write_detection_plots(rows, series, out / "plots")
@@ -188,7 +195,7 @@ def _scene(detections: str, keypoints: str | None, fps: float | None, frames: in
 def plan_detections(filters: Sequence[str], detections: str, cameras: str, seeds: int, truth: str | None = None,
                     keypoints: str | None = None, fps: float | None = None, frames: int | None = None,
                     smooth: bool = False, joints: Sequence[str] = LIMBS,
-                    person: int | None = None) -> list[DetectionRunConfig]:
+                    person: int | None = None, lowpass: float | None = None) -> list[DetectionRunConfig]:
     """Every run of the grid (each preset × each held-out camera × each seed, and with a ``truth`` the
     all-camera runs), after checking every argument (one PriortrackError naming the first bad one,
     before any work): the presets, the files, at least two cameras, the joints scored (eval15 names from
@@ -206,11 +213,16 @@ def plan_detections(filters: Sequence[str], detections: str, cameras: str, seeds
     found, calibration, _ = _inputs(probe)
     if fps is None and found.fps is None:
         raise PriortrackError(f"{detections}: the detections do not say their frame rate; give it (--fps)")
+    if lowpass is not None:                     # the estimate is low-passed at the priors' ticks, the DLT at the data's
+        from priortrack.priors.base import DEFAULT_FPS
+        from priortrack.tracking.lowpass import check_cutoff
+
+        check_cutoff(lowpass, min(fps or found.fps, DEFAULT_FPS))
     if truth is not None:
         read_truth(truth, found, calibration, joints, fps)
     held = list(found.camera_names) + ([ALL_CAMERAS] if truth is not None else [])
     return [DetectionRunConfig(f, str(detections), str(cameras), c, seed, truth, keypoints, fps, frames, smooth, joints,
-                               person) for f in filters for c in held for seed in range(seeds)]
+                               person, lowpass) for f in filters for c in held for seed in range(seeds)]
 
 
 # ---- truth --------------------------------------------------------------------------------------
@@ -331,6 +343,7 @@ def run_detections(config: DetectionRunConfig, cache: str | None = None,
     from priortrack.geometry.camera import PinholeCamera
     from priortrack.geometry.triangulation import triangulate
     from priortrack.threads import torch_threads
+    from priortrack.tracking.lowpass import lowpassed
 
     detections, calibration, matched = _inputs(config)
     names = detections.camera_names
@@ -356,6 +369,8 @@ def run_detections(config: DetectionRunConfig, cache: str | None = None,
     except PriortrackError as exc:                 # e.g. too few joints seen by two of the other cameras to start
         log.warning("compare: %s could not track: %s", config.label, exc)
         return {**row, "error": str(exc)}, {}, None
+    if config.lowpass is not None:
+        result = result.low_passed(config.lowpass)
     ticks = result.frames >= 0
     at = np.searchsorted(detections.frames, result.frames[ticks])              # detection index of each tick
     J = [EVAL15_NAMES.index(j) for j in config.joints]
@@ -370,6 +385,9 @@ def run_detections(config: DetectionRunConfig, cache: str | None = None,
             return pixel_errors(cameras[c], X, uv[c, at][:, J], confidence[c, at][:, J])
 
         series["error_px"], series["dlt_px"] = held_out_px(result.joints[ticks][:, J]), held_out_px(dlt)
+        if config.lowpass is not None:                # every frame's DLT through the filter, at the data's rate
+            every = triangulate([cameras[c] for c in kept], uv[kept], confidence[kept])[:, J]
+            series["dlt_lowpass_px"] = held_out_px(lowpassed(every, result.data_fps, config.lowpass)[at])
         if config.smooth:
             series["filtered_px"] = held_out_px(result.filtered_joints[ticks][:, J])
     if config.truth is not None:
@@ -378,7 +396,8 @@ def run_detections(config: DetectionRunConfig, cache: str | None = None,
         row["mpjpe_mm"], row["dlt_mpjpe_mm"] = _mean(series["error_mm"]), _mean(series["dlt_mm"])
         if config.smooth:
             row["filtered_mpjpe_mm"] = _mean(_mm(result.filtered_joints[ticks][:, J], truth))
-    for prefix, key in (("", "error_px"), ("dlt_", "dlt_px"), ("filtered_", "filtered_px")):
+    for prefix, key in (("", "error_px"), ("dlt_", "dlt_px"), ("filtered_", "filtered_px"),
+                        ("dlt_lowpass_", "dlt_lowpass_px")):
         if key in series:
             row[prefix + "median_px"], row[prefix + "p90_px"] = (_quantile(series[key], q) for q in (0.5, 0.9))
     recording = None
@@ -401,18 +420,25 @@ def _pooled(runs: Sequence[dict], series: dict[str, dict[str, np.ndarray]], key:
 
 def _tracked_by_name(rows: Sequence[dict]) -> dict[str, list[dict]]:
     """The runs that tracked, by preset, and as "DLT" each held-out camera's (and the all-camera run's)
-    first run that tracked: the DLT of the other cameras on its frames, the same for every preset."""
+    first run that tracked: the DLT of the other cameras on its frames, the same for every preset; as "DLT +
+    low-pass" the same runs where they were low-passed (:data:`BASELINES`)."""
     tracked = [r for r in rows if "error" not in r]
     cameras = dict.fromkeys(r["held_out"] for r in tracked)
+    first = [next(r for r in tracked if r["held_out"] == c) for c in cameras]
     return {**{f: [r for r in tracked if r["filter"] == f] for f in dict.fromkeys(r["filter"] for r in rows)},
-            "DLT": [next(r for r in tracked if r["held_out"] == c) for c in cameras]}
+            "DLT": first, **({"DLT + low-pass": first} if any("dlt_lowpass_median_px" in r for r in first) else {})}
+
+
+def _series_key(name: str) -> str:
+    """The series a table row's held-out errors are in: a baseline's own (:data:`BASELINES`), else the preset's."""
+    return BASELINES.get(name, "error_px")
 
 
 def held_out_errors(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """{preset, and "DLT": (N, J) the pixel errors in the cameras left out, every run's ticks stacked}."""
+    """{preset, and each baseline ("DLT", "DLT + low-pass"): (N, J) the pixel errors in the cameras left out, every
+    run's ticks stacked}."""
     J = len(rows[0]["joints"])
-    return {name: _pooled([r for r in runs if r["held_out"] != ALL_CAMERAS], series,
-                          "dlt_px" if name == "DLT" else "error_px", J)
+    return {name: _pooled([r for r in runs if r["held_out"] != ALL_CAMERAS], series, _series_key(name), J)
             for name, runs in _tracked_by_name(rows).items()}
 
 
@@ -428,21 +454,21 @@ def summary(rows: Sequence[dict], series: dict[str, dict[str, np.ndarray]]) -> d
     pooled = held_out_errors(rows, series)
     table: dict[str, dict] = {}
     for name, runs in _tracked_by_name(rows).items():
-        key = "dlt_px" if name == "DLT" else "error_px"
+        key = _series_key(name)
         loco = [r for r in runs if r["held_out"] != ALL_CAMERAS]
         errors = pooled[name]
         entry = {"median_px": _quantile(errors, 0.5), "p90_px": _quantile(errors, 0.9),
                  "by_camera": {c: _quantile(_pooled([r for r in loco if r["held_out"] == c], series, key,
                                                     len(joints)), 0.5) for c in cameras},
                  "by_joint": {j: _quantile(errors[:, i], 0.5) for i, j in enumerate(joints)}}
-        if name != "DLT" and any("filtered_px" in series[r["config_hash"]] for r in loco):
+        if name not in BASELINES and any("filtered_px" in series[r["config_hash"]] for r in loco):
             filtered = _pooled(loco, series, "filtered_px", len(joints))
             entry.update(filtered_median_px=_quantile(filtered, 0.5), filtered_p90_px=_quantile(filtered, 0.9))
         everything = [r for r in runs if r["held_out"] == ALL_CAMERAS]
-        if everything:
+        if everything and name != "DLT + low-pass":
             entry["mpjpe_mm"] = _mean(np.array([r["dlt_mpjpe_mm" if name == "DLT" else "mpjpe_mm"] for r in everything],
                                                dtype=float))
-            if name != "DLT" and everything[0].get("filtered_mpjpe_mm") is not None:
+            if name not in BASELINES and everything[0].get("filtered_mpjpe_mm") is not None:
                 entry["filtered_mpjpe_mm"] = _mean(np.array([r["filtered_mpjpe_mm"] for r in everything], dtype=float))
         table[name] = entry
     dlt = table["DLT"]

@@ -113,7 +113,7 @@ def write_detection_plots(rows: Sequence[dict], series: dict[str, dict[str, np.n
     filters = list(dict.fromkeys(r["filter"] for r in rows))
     joints = list(rows[0]["joints"])
     pooled = held_out_errors(rows, series)
-    colours = {f: colormaps["tab10"](i % 10) for i, f in enumerate(filters)} | {"DLT": "black"}
+    colours = {f: colormaps["tab10"](i % 10) for i, f in enumerate(filters)} | {"DLT": "black", "DLT + low-pass": "grey"}
     written = []
     figure = _figure(figsize=(6, 4))
     ax = figure.subplots()
@@ -121,7 +121,7 @@ def write_detection_plots(rows: Sequence[dict], series: dict[str, dict[str, np.n
         values = np.sort(e[np.isfinite(e)])
         if len(values):
             ax.plot(values, np.arange(1, len(values) + 1) / len(values), color=colours[name], label=name,
-                    lw=1.2, ls="--" if name == "DLT" else "-")
+                    lw=1.2, ls="--" if name.startswith("DLT") else "-")
     ax.set_xscale("log")
     ax.set_xlabel("pixel error in the camera left out")
     ax.set_ylabel("fraction of joints")
