@@ -611,7 +611,8 @@ def test_a_detection_alone_is_placed_at_the_depth_its_size_says():
 
 def test_track_people_from_one_camera_writes_each_person(tmp_path):
     """``track --people all`` on one camera's folder (the demo's cam03, matched by --camera-map) writes the two
-    people, each with the body the assumed height gives (--height 1.7: one view measures no size)."""
+    people, each with the body the assumed height gives (--height 1.7: one view measures no size); without --people,
+    one of those two as that scene has them (the lockstep association of two filters against one: within 1 cm)."""
     folder = tmp_path / "pose"
     shutil.copytree(POSE / "cam03_json", folder / "cam03_json")
     out = tmp_path / "one.npz"
@@ -622,3 +623,12 @@ def test_track_people_from_one_camera_writes_each_person(tmp_path):
         assert f["person_ids"].tolist() == [0, 1] and f["camera_names"].tolist() == ["cam03_json"]
         np.testing.assert_allclose(f["height_m"], 1.7, atol=0.02)
         assert np.isfinite(f["joints"]).all(axis=(-1, -2)).mean() > 0.9
+        both = f["joints"]
+    # without --people the one camera's scene is a scene of one, as with several cameras: the person seen most
+    alone = tmp_path / "alone.npz"
+    assert main(["track", "--detections", str(folder), "--cameras", str(QCA), "--camera-map", "cam03_json=cam_03",
+                 "--keypoints", "body25b", "--fps", "60", "--filter", "ukf-real", "--no-fit-check",
+                 "--out", str(alone)]) == 0
+    with np.load(alone) as f:
+        gaps = [np.nanmedian(np.linalg.norm(f["joints"] - both[:, p], axis=-1)) for p in range(2)]
+        assert min(gaps) < 0.01 and max(gaps) > 0.3, gaps

@@ -120,7 +120,7 @@ def _track_detections(args: argparse.Namespace) -> None:
         raise PriortrackError("--association decides who is who among several people: give --people")
     calibration = read_calibration(args.cameras, units=args.units)
     config = replace(config, keep_snapshots=bool(args.rrd), snapshot_every=args.rrd_every, interruptible=True)
-    scene = _every_person(args, calibration)
+    scene = _every_person(args)
     progress = Progress(f"track {args.filter}", "tick {0} of {1}", rate=True)
     try:
         if scene is not None and int(scene.people.max(initial=0)) > 1:      # a scene of one: the person seen most
@@ -187,16 +187,16 @@ def for_output(result, args: argparse.Namespace):
     return result if args.lowpass is None else result.low_passed(args.lowpass)
 
 
-def _every_person(args: argparse.Namespace, calibration):
-    """Every person of an OpenPose folder given to ``track --detections`` without ``--people`` or ``--person`` with
-    two calibrated cameras or more (its files parsed once: several people in a frame make it a scene of one, one
-    person is followed as :func:`~priortrack.data.detections.read_detections` would); else None."""
+def _every_person(args: argparse.Namespace):
+    """Every person of an OpenPose folder given to ``track --detections`` without ``--people`` or ``--person`` (its
+    files parsed once: several people in a frame make it a scene of one, from one camera too; one person is followed as
+    :func:`~priortrack.data.detections.read_detections` would); else None."""
     from pathlib import Path
 
     from priortrack.data.scene_detections import read_scene_detections
 
     path = Path(args.detections)
-    if args.person is not None or len(calibration.cameras) < 2 or not path.is_dir():
+    if args.person is not None or not path.is_dir():
         return None
     scene = read_scene_detections(path, keypoints=args.keypoints)
     return scene.head(args.frames) if args.frames is not None else scene
