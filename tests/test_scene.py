@@ -5,6 +5,7 @@ reads, and the errors they get."""
 import json
 import logging
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -339,6 +340,9 @@ def test_bad_choices_and_settings_are_named(demo, capsys):
         SceneTracker(cameras[:3], 60.0).run(*scene.eval15(0.3), scene.frames)
     with pytest.raises(PriortrackError, match="nobody was seen by 3 cameras"):
         track_scene(scene.head(2), calibration, "ukf-real", TrackConfig(fps=60))
+    one = replace(scene.head(2), camera_names=("cam03_json",), keypoints=scene.head(2).keypoints[2:3])
+    with pytest.raises(PriortrackError, match=r"nobody was seen whole enough \(3 bones\) by its one camera for 0.1 s"):
+        track_scene(one, calibration, "ukf-real", TrackConfig(fps=60, camera_map={"cam03_json": "cam_03"}))
     with pytest.raises(PriortrackError, match="workers must be a number of processes ≥ 1, got 0"):
         track_scene(scene, calibration, "ukf-real", TrackConfig(fps=60), workers=0)
     assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps", "60",
@@ -443,7 +447,6 @@ def test_someone_only_one_camera_sees_is_named_not_dropped_silently(demo, caplog
     """Issue 60, item 2: a person seen by one camera only vanished without a word. The demo's static false positive
     (cam01 and cam02, SOURCE.md) is reported as someone nobody tracked; with the participant taken out of every camera
     but cam01, cam01's detections of them are reported too, in every frame, where the participant stands."""
-    from dataclasses import replace
 
     from priortrack.tracking.people import associated
 

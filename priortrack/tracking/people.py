@@ -39,6 +39,7 @@ from priortrack.tracking.person import (DetectionTrack, TrackConfig, data_rate, 
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking.presets import Preset, load_preset
 from priortrack.tracking.reassociation import predicts, reassociated
+from priortrack.tracking.single_view import MIN_BONES
 from priortrack.tracking.lowpass import lowpassed
 from priortrack.tracking.resample import frame_times, interpolated, nearest_tick
 from priortrack.tracking.scene import SceneAssociation, SceneConfig, SceneTracker
@@ -377,8 +378,10 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     if skeleton is not None and len(chosen) > 1:
         raise PriortrackError(f"a skeleton is one person's body: choose one of the scene's {len(chosen)} people")
     if not chosen:
-        raise PriortrackError(f"{scene.source}: nobody was seen by {min(scene_config.birth_views, len(cameras))} "
-                              f"cameras for {scene_config.birth_s} s: no person to track")
+        views = min(scene_config.birth_views, len(cameras))
+        raise PriortrackError(f"{scene.source}: nobody was seen " +
+                              (f"by {views} cameras" if views > 1 else f"whole enough ({MIN_BONES} bones) by its one camera") +
+                              f" for {scene_config.birth_s} s: no person to track")
     log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
              ", ".join(map(str, association.person_ids.tolist())),
              ", ".join(str(association.person_ids[p]) for p in chosen))
