@@ -501,6 +501,7 @@ class SceneTracker:
         decided = self.associator(self.live, self.views, xy, confidence)
         assigned = {pid: {c: n for c, (n, _) in views.items()} for pid, views in decided.items()}
         used: list[set[int]] = [set() for _ in self.cameras]
+        judged = []                                  # tracks whose bone measurements reached a power of two
         for track in self.live:
             views = decided[track.id]
             order = {c: MIRRORED if mirrored else slice(None) for c, (_, mirrored) in views.items()}
@@ -517,12 +518,15 @@ class SceneTracker:
                     measured = (shown[child] >= 2) & (shown[EVAL15_PARENTS[child]] >= 2)
                     if measured.any():
                         track.bones.append(np.where(measured, bone_lengths(track.motion.joints), np.nan))
+                        if len(track.bones) & (len(track.bones) - 1) == 0:
+                            judged.append(track)
         for track in self.deleter(self.live, self.frame):
             self.live.remove(track)
             self.ended.append(track)
             log.info("frame %d: person %d unseen for %d frames: ended", self.frame, track.id,
                      self.frame - track.last_seen)
-        for track in [t for t in self.live if no_body(t.signature)]:
+        # judged as their measurements double (a median over all of them every frame would cost a long run T²)
+        for track in [t for t in judged if t in self.live and no_body(t.signature)]:
             self.live.remove(track)
             self.dropped.add(track.id)
             log.warning("frame %d: 'person' %d is no one: their bones measure %.1f m (median), detections of different "
