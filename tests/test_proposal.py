@@ -222,3 +222,28 @@ def test_one_camera_takes_the_priors_draw():
     guided = run_real_format("pf-diffusion-local", "walkjog:35_29", seed=0, cameras=[3])
     bootstrap = run_real_format(_with("pf-diffusion-local", proposal="prior", auxiliary=False), "walkjog:35_29", seed=0, cameras=[3])
     assert guided["mpjpe_mm"] == bootstrap["mpjpe_mm"] and guided["relative_mm"] == bootstrap["relative_mm"]
+
+
+@pytest.mark.parametrize("broken", ["nan", "indefinite"])
+def test_a_linearisation_that_is_no_covariance_draws_the_frame_from_the_prior(sharp, monkeypatch, broken):
+    """Where the linearisation gives no covariance (a cloud whose mean puts a joint at a camera's plane: Jacobians
+    of 10¹¹ and an innovation covariance with a diagonal of −2e17, Shelf, cameras 0, 1, 2, pf-lie-real; here the
+    components' Q made NaN or negative definite) the frame is the prior's draw, ratio 0, no covariance: never a
+    Cholesky error out of a run."""
+    import priortrack.filters.proposal as module
+
+    proposal = GuidedProposal(sharp, defensive=0.0, inflation=1.0)
+    components = proposal._components
+
+    def spoiled(*args):
+        log_pi, offsets, index, Q, moment = components(*args)
+        return log_pi, offsets, index, (Q * np.nan if broken == "nan" else -1e6 * Q), moment
+
+    monkeypatch.setattr(proposal, "_components", spoiled)
+    parents = torch.randn(200, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    s, log_ratio = proposal.draw(parents, torch.ones(200, dtype=torch.float64), torch.tensor([0.3, -0.4]),
+                                 torch.Generator().manual_seed(2))
+    prior = proposal._prior_draw(parents, torch.Generator().manual_seed(2))
+    torch.testing.assert_close(s, prior)
+    assert (log_ratio == 0).all() and proposal.covariance is None
+    assert module._factor(torch.eye(2)) is not None and module._factor(-torch.eye(2)) is None

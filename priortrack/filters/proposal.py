@@ -61,6 +61,7 @@ perturbations η, the global motion's density over heading and tilt: their volum
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -68,8 +69,10 @@ from dataclasses import dataclass
 import torch
 
 from priortrack.errors import PriortrackError
-from priortrack.geometry.linalg import whitening
+from priortrack.geometry.linalg import jittered_cholesky, whitening
 from priortrack.models.tracking import GLOBAL_DIM, TrackingModel
+
+log = logging.getLogger(__name__)
 
 #: The central difference's step (tangent units: radians, metres) of the pixels' Jacobian.
 JACOBIAN_STEP = 1e-5
@@ -77,6 +80,18 @@ JACOBIAN_STEP = 1e-5
 MIN_VIEWS = 2
 #: The components of a mixture transition kept per particle (its likeliest under π(x_{t−1})).
 TOP_COMPONENTS = 4
+
+
+def _factor(K: torch.Tensor) -> torch.Tensor | None:
+    """Lower Cholesky factors (..., n, n) of symmetric matrices K (:func:`~priortrack.geometry.linalg.jittered_cholesky`,
+    a jitter of 1e-12 to 1e-6 of the mean diagonal where needed); None where K is not finite or not positive definite
+    even so."""
+    if not bool(torch.isfinite(K).all()):
+        return None
+    try:
+        return jittered_cholesky(K, "a guided proposal's matrix", 1e-12, 1e-6)
+    except PriortrackError:
+        return None
 
 
 def _log_normal(factors: torch.Tensor, component: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
@@ -181,7 +196,9 @@ class GuidedProposal:
         """Draw s_t^i ~ q_i for every parent (P, A) (weights (P,) their normalised weights, z the frame's gated
         observation; ``translation_covariance`` (P, 6, 6) the predicted covariances of (t_t, t_{t−1}) where the
         translation is integrated out). Returns the states (P, A) and log p(s_t | s_{t−1}) − log q(s_t | s_{t−1}, y)
-        (P,) in float64. A frame that fewer than :data:`MIN_VIEWS` cameras see is the prior's own draw (ratio 0).
+        (P,) in float64. A frame that fewer than :data:`MIN_VIEWS` cameras see is the prior's own draw (ratio 0); a
+        point that the cloud's mean puts behind a camera is left out of the linearisation (its Jacobian is none), and
+        a frame with no point left is the prior's draw too.
 
         With ``first_stage`` (a resampler: normalised weights (P,), generator → ancestors (P,)) the draw is the
         fully adapted auxiliary one (Pitt & Shephard, JASA 94, 1999): the parents are first resampled by
@@ -193,21 +210,27 @@ class GuidedProposal:
         P = len(parents)
         self.ancestors = None
         if self.views(z) < MIN_VIEWS:
-            self.covariance, self._last = None, _Draw(parents)
-            return self._prior_draw(parents, generator), torch.zeros(P, dtype=f64, device=device)
+            return self._the_priors(parents, generator)
         y, variances = form.measurement(z)
         y, variances = y.to(device), variances.to(device)
         variances = torch.diagonal(variances) if variances.dim() == 2 else variances
         m = form.mean_step(parents)
         seen = torch.isfinite(y)
-        y, variances = y[seen], variances[seen].to(f64)
         w = (weights / weights.sum()).to(f64)
         m_bar = self.model.mean(m.to(f64), w)
         drawn = self.drawn.to(device)
         f = len(drawn)
+        H = self._jacobian(m_bar, drawn, seen)
+        front = torch.isfinite(H).all(dim=1)        # a point the cloud's mean puts behind a camera: not linearised
+        if not bool(front.all()):
+            seen = seen.clone()
+            seen[seen.nonzero()[:, 0][~front]] = False
+            H = H[front]
+        if not bool(seen.any()):
+            return self._the_priors(parents, generator)
+        y, variances = y[seen], variances[seen].to(f64)
         log_pi, offsets, index, Q, moment = self._components(parents, m, m_bar)
         keep = log_pi.shape[1]
-        H = self._jacobian(m_bar, drawn, seen)
         nuisance = torch.zeros((len(y), len(y)), dtype=f64, device=device)
         if self.nuisance:
             C = (w[:, None, None] * translation_covariance[:, :3, :3].to(f64)).sum(0)
@@ -217,11 +240,15 @@ class GuidedProposal:
                                    variances)
         # every component's Kalman update, once: S_k, its Cholesky factor, the gain and the proposal's factor
         S = H @ Q @ H.T + nuisance + torch.diag(R)                                  # (K, m, m)
-        L_S = torch.linalg.cholesky(S)
+        L_S = _factor(S)
+        if L_S is None:
+            return self._the_priors(parents, generator, "its innovation covariance")
         gain = torch.linalg.solve(S, H @ Q).transpose(-1, -2)                        # Q_k Hᵀ S_k⁻¹ (K, f, m)
         Sigma = Q - gain @ S @ gain.transpose(-1, -2)
         Sigma = 0.5 * (Sigma + Sigma.transpose(-1, -2))
-        L_q = torch.linalg.cholesky(self.inflation * Sigma)
+        L_q = _factor(self.inflation * Sigma)
+        if L_q is None:
+            return self._the_priors(parents, generator, "its covariance")
         # each particle's kept components: innovation, predictive density, updated mean (in the chart at m_i)
         innovation = torch.nan_to_num(y - form.measure(m)[:, seen].to(f64), nan=0.0)  # behind a camera: no pull
         component = index.reshape(-1)
@@ -336,9 +363,19 @@ class GuidedProposal:
         blocks = (S.reshape(-1, b, len(S) // b, b).diagonal(dim1=0, dim2=2).permute(2, 0, 1)
                   + torch.diag_embed(variances.reshape(-1, b)))
         r = r.reshape(-1, b)
-        d2 = torch.nan_to_num((r[:, None, :] @ torch.linalg.solve(blocks, r[..., None]))[:, 0, 0], nan=0.0)
+        d2 = torch.nan_to_num((r[:, None, :] @ torch.linalg.solve(blocks, r[..., None]))[:, 0, 0], nan=0.0).clamp(min=0)
         rho = (self.robust_nu + b) / (self.robust_nu + d2)
         return (variances.reshape(-1, b) / rho[:, None]).reshape(-1)
+
+    def _the_priors(self, parents: torch.Tensor, generator: torch.Generator,
+                    failed: str | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The frame drawn from the prior (the bootstrap filter's draw: states (P, A), log ratio 0 (P,)): too few
+        views, no point to linearise, or (``failed``) a linearisation whose matrix is not positive definite (a cloud
+        whose mean puts a joint at a camera's plane: a Jacobian of 10¹¹, logged)."""
+        if failed is not None:
+            log.debug("the guided proposal's %s is not positive definite: the frame is drawn from the prior", failed)
+        self.covariance, self._last = None, _Draw(parents)
+        return self._prior_draw(parents, generator), torch.zeros(len(parents), dtype=torch.float64, device=parents.device)
 
     def _prior_draw(self, parents: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         if isinstance(self.model, TrackingModel):
