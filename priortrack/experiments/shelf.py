@@ -218,7 +218,8 @@ def score(estimate: np.ndarray, truth: np.ndarray, frames: np.ndarray, beside: n
     (the nearest track's, :func:`nearest_tracks`, or the oracle DLT's; NaN where none) against truth
     (T, A, 15, 3): PCP % of the limb parts, MPJPE mm of the limb joints and per limb joint (where both are known),
     the root-relative MPJPE (``mpjpe_root_mm``: each pose moved to put its mid-hips on the origin; the other ten limb
-    joints: one camera's measure, whose depth is the body's size), and the frames scored; given ``beside`` (T, A, 15, 3), another estimate (the oracle DLT's), also
+    joints: one camera's measure, whose depth is the body's size), and the frames scored; given ``beside``
+    (T, A, 15, 3), another estimate (the oracle DLT's), also
     ``mpjpe_beside_mm``: the MPJPE over the joints and frames that one has (where DLT triangulates: two cameras show
     the joint)."""
     rows = []
@@ -301,7 +302,8 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
                        "per_joint_mm": dict.fromkeys(row["per_joint_mm"])} for row in score(dlt, truth, frames)]
         part = replace(scene, camera_names=tuple(scene.camera_names[c] for c in own), keypoints=scene.keypoints[own])
         config = TrackConfig(fps=fps, seed=seed, min_confidence=min_confidence, cache=cache,
-                             up=up if len(subset) == 1 else None, camera_map={scene.camera_names[o]: calibration.cameras[c].name for o, c in zip(own, subset)})
+                             up=up if len(subset) == 1 else None,
+                             camera_map={scene.camera_names[o]: calibration.cameras[c].name for o, c in zip(own, subset)})
         for preset in presets:
             fitted_once(preset, cache)                                     # the prior's fit is not the run's time
             result = track_scene(part, calibration, preset, config, scene_config, workers=workers)
@@ -320,7 +322,8 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
                          "tracks": int(len(result.person_ids)), "seconds": float(result.seconds)})
             log.info("cameras %s, %s: PCP %s (DLT %s), %d switches, %d false tracks, %.1f s",
                      ",".join(rows[-1]["cameras"]), preset.name,
-                     " / ".join(f"{r['pcp']:.1f}" for r in tracker), " / ".join("—" if r["pcp"] is None else f"{r['pcp']:.1f}" for r in oracle),
+                     " / ".join(f"{r['pcp']:.1f}" for r in tracker),
+                     " / ".join("—" if r["pcp"] is None else f"{r['pcp']:.1f}" for r in oracle),
                      rows[-1]["switches"], len(false), result.seconds)
     return {"rows": rows, "actors": actors, "frames": int(frames.sum()), "fps": fps, "detections": scene.source}
 

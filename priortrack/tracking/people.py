@@ -379,9 +379,8 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
         raise PriortrackError(f"a skeleton is one person's body: choose one of the scene's {len(chosen)} people")
     if not chosen:
         views = min(scene_config.birth_views, len(cameras))
-        raise PriortrackError(f"{scene.source}: nobody was seen " +
-                              (f"by {views} cameras" if views > 1 else f"whole enough ({MIN_BONES} bones) by its one camera") +
-                              f" for {scene_config.birth_s} s: no person to track")
+        seen = f"by {views} cameras" if views > 1 else f"whole enough ({MIN_BONES} bones) by its one camera"
+        raise PriortrackError(f"{scene.source}: nobody was seen {seen} for {scene_config.birth_s} s: no person to track")
     log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
              ", ".join(map(str, association.person_ids.tolist())),
              ", ".join(str(association.person_ids[p]) for p in chosen))

@@ -353,8 +353,9 @@ class ProposalInitiator:
     def _born(self, scene: "SceneTracker", history: list[np.ndarray], views: dict[int, tuple]) -> Track:
         joints = history[-1]
         single = len(scene.cameras) == 1
-        before = single_view.at_depth(scene.views[0], history[-2], joints) if single and len(history) > 1 else \
-            history[-2] if len(history) > 1 else None
+        before = history[-2] if len(history) > 1 else None
+        if single and before is not None:                   # one view: the last placement at this one's depth
+            before = single_view.at_depth(scene.views[0], before, joints)
         velocity = None if before is None else (joints - before) * self.fps
         track = Track(-1, self.motion(joints, velocity), min(views), scene.frame, birth=views)
         # one view's placement has the nominal body's size: no signature
