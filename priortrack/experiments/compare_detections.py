@@ -10,7 +10,8 @@ independent view: how well a 3D estimate explains it is its cross-validation whe
 The baseline is per-frame confidence-weighted DLT of the same other cameras on the same frames,
 projected the same way (a row of the table beside the presets). With ``smooth`` the smoothed joints
 are scored, the filter's own beside them. With ``lowpass`` (Hz) the estimate scored is passed through Pose2Sim's
-zero-lag Butterworth (:mod:`~priortrack.tracking.lowpass`, at the ticks' rate), and a second baseline row, "DLT +
+zero-lag Butterworth (:mod:`~priortrack.tracking.lowpass`, at the ticks' rate; the filter's own estimate beside a
+smoothed one is not), and a second baseline row, "DLT +
 low-pass", is the DLT of every frame of the other cameras through the same filter at the detections' rate (what
 Pose2Sim gives from those cameras), scored on the same frames.
 
