@@ -173,6 +173,24 @@ def test_eval_against_trc_gives_issue_60s_figures(tmp_path, capsys):
     assert "nolimbs.trc: none of its markers is a limb joint's" in capsys.readouterr().err
 
 
+def test_eval_against_trc_from_one_camera(tmp_path, capsys):
+    """One camera's folder of the demo (cam03, matched by --camera-map; --height the participant's 1.72 m as four
+    cameras measure them): the person picked is the participant (id 0 of that camera's scene), within 0.3 m median of
+    Pose2Sim's four-camera triangulation over the limbs in every run (measured 132–226 mm with 1.7 m: one view's
+    depth), where the synthetic person stands a metre off; no feet (one camera triangulates no further keypoint)."""
+    import json
+    import shutil
+
+    folder = tmp_path / "pose"
+    shutil.copytree(MULTIPERSON / "pose" / "cam03_json", folder / "cam03_json")
+    assert main(["eval", "against-trc", "--detections", str(folder), "--cameras",
+                 str(MULTIPERSON / "calibration" / "Calib.qca.txt"), "--camera-map", "cam03_json=cam_03", "--fps", "60",
+                 "--height", "1.72", "--reference", str(POSE2SIM_P2).format(""), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["person"] == 0 and result["frames"] == 100
+    assert all(r["limbs_mm"] < 300 and r["feet_mm"] is None for r in result["rows"]), result["rows"]
+
+
 def test_one_camera_writes_no_further_keypoints(tmp_path):
     """One camera triangulates nothing: its TRC and npz carry the 15 joints only (no empty marker columns)."""
     from priortrack.data.bundled import POSE2SIM_DIR
