@@ -384,13 +384,14 @@ def test_a_person_whose_detector_never_gives_the_head_is_re_identified_by_the_ot
     rows = [headless * (1 + d) for d in (-0.02, 0.0, 0.03)]
     old = Track(3, JointKalman(body), 0, 40, bones=rows)
     assert np.isnan(old.signature[1]) and np.allclose(old.signature[[0, 2]], bones[[0, 2]])
-    back = Track(-1, JointKalman(body + [0.3, 0, 0]), 60, 60, bones=[headless])
+    back = Track(-1, JointKalman(body + [0.3, 0, 0]), 60, 60, bones=[headless], born=(58, body[0] + [0.3, 0, 0]))
     scene = SimpleNamespace(frame=60, ended=[old], next_id=5)
     assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, back) == 3 and not scene.ended
     few = np.full(14, np.nan)
     few[:REID_MIN_BONES - 1] = bones[:REID_MIN_BONES - 1]
     scene = SimpleNamespace(frame=60, ended=[Track(3, JointKalman(body), 0, 40, bones=rows)], next_id=5)
-    assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, Track(-1, JointKalman(body), 60, 60, bones=[few])) == 5
+    assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, Track(-1, JointKalman(body), 60, 60, bones=[few],
+                                                                      born=(58, body[0]))) == 5
 
 
 def test_a_scenes_npz_holds_what_one_persons_does(demo, tmp_path):
@@ -514,8 +515,74 @@ def test_a_returning_person_with_one_limb_mismatched_is_still_re_identified():
     assert np.sqrt(np.mean(((crossed - bones) / bones) ** 2)) > 0.5
     for new, expected in ((crossed, 3), (bones * 1.2, 5)):
         scene = SimpleNamespace(frame=60, ended=[Track(3, JointKalman(body), 0, 40, bones=[bones])], next_id=5)
-        assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, Track(-1, JointKalman(body), 60, 60,
-                                                                          bones=[new])) == expected
+        assert ProposalInitiator(2, 2, 0.15, 25.0)._identity(scene, Track(-1, JointKalman(body), 60, 60, bones=[new],
+                                                                          born=(58, body[0]))) == expected
+
+
+def test_a_person_back_whose_first_frames_are_mismatched_is_recognised_as_their_bones_are_measured():
+    """Issue 58 (Shelf, cameras 1 and 4: a person unseen by both cameras for 0.8 s came back under a new id, their first
+    frames' bones wrong in five of eleven: median gap 2.2 at birth, 0.13 after 1 s, 0.08 after 2 s). Born under a new
+    id, they are someone who had ended once the median of their bones, measured since, fits (``recognised``); not where
+    the ended person was last seen after the new one started, nor too far to have walked there, nor 20 % larger."""
+    from types import SimpleNamespace
+
+    from priortrack.tracking.motion import JointKalman
+    from priortrack.tracking.scene import ProposalInitiator, Track, bone_lengths
+
+    body = np.random.default_rng(4).normal(0, 0.3, (15, 3)) + [0, 0, 1]
+    bones = bone_lengths(body)
+    wrong = bones * np.where(np.arange(14) < 8, 3.0, 1.0)                             # 8 of 14 bones mismatched
+    initiator = ProposalInitiator(2, 2, 0.15, 25.0)
+
+    def scene_with(last_seen=40, where=0.0, size=1.0, measured=(wrong, wrong)):
+        old = Track(3, JointKalman(body), 0, last_seen, bones=[bones] * 5)
+        new = Track(-1, JointKalman(body + [where, 0, 0]), 60, 60, bones=[b * size for b in measured],
+                    born=(60, body[0] + [where, 0, 0]))
+        return SimpleNamespace(frame=60, ended=[old], next_id=5, fps=25.0), new
+
+    scene, new = scene_with()
+    assert initiator._identity(scene, new) == 5 and scene.ended                      # at birth: someone new
+    scene, new = scene_with(measured=(wrong, wrong, bones, bones, bones))
+    assert initiator.recognised(scene, new) == 3 and not scene.ended and new.born is None and new.first == 0
+    assert len(new.bones) == 10                                                        # theirs, then the new ones
+    for changed in ({"last_seen": 60}, {"where": 4.0}, {"size": 1.2}):
+        scene, new = scene_with(**{"measured": (wrong, bones, bones, bones), **changed})
+        assert initiator.recognised(scene, new) is None and scene.ended and new.born is not None
+
+
+def test_a_person_recognised_after_birth_has_their_id_in_every_frame_since_their_return(demo, monkeypatch):
+    """The scene tracker with a returning person's first frames refused (as mismatched ones are): the demo's
+    participant hidden from every camera for 36 frames (their track ends after 30) comes back under a new id; judged
+    again as their bone measurements double, they are recognised, and every frame since their return is theirs (the
+    association as if they had been taken back at birth); the other person's frames are untouched."""
+    import priortrack.tracking.scene as scene_module
+
+    scene, calibration = demo
+    cameras = [PinholeCamera.from_calibration(c) for c in calibration.cameras]
+    uv, confidence = scene.eval15(0.3)
+    before = SceneTracker(cameras, 60.0).run(uv, confidence, scene.frames)
+    uv = uv.copy()
+    claimed = np.zeros(uv.shape[:3], dtype=bool)                       # the two people's, not the false positive
+    t, c, p = np.nonzero(before.slots >= 0)
+    claimed[c, t, before.slots[t, c, p]] = True
+    uv[~claimed] = np.nan
+    t, c = np.nonzero(before.slots[40:76, :, 1] >= 0)
+    uv[c, t + 40, before.slots[t + 40, c, 1]] = np.nan                              # the participant hidden
+    taken_back = SceneTracker(cameras, 60.0).run(uv, confidence, scene.frames)
+    assert taken_back.person_ids.tolist() == [0, 1]
+
+    def refused(self, scene, track):                                 # at birth: someone new, whoever they are
+        scene.next_id += 1
+        return scene.next_id - 1
+
+    monkeypatch.setattr(scene_module.ProposalInitiator, "_identity", refused)
+    tracker = SceneTracker(cameras, 60.0)
+    after = tracker.run(uv, confidence, scene.frames)
+    assert [r[:2] for r in tracker.recognised] == [(2, 1)] and tracker.recognised[0][2] > 75
+    assert after.person_ids.tolist() == [0, 1]
+    np.testing.assert_array_equal(after.slots, taken_back.slots)
+    monkeypatch.setattr(scene_module.ProposalInitiator, "recognised", lambda self, scene, track: None)
+    assert SceneTracker(cameras, 60.0).run(uv, confidence, scene.frames).person_ids.tolist() == [0, 1, 2]
 
 
 def test_a_track_whose_bones_are_no_ones_is_dropped_from_every_frame():

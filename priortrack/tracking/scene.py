@@ -151,8 +151,7 @@ class Track:
     """One person: ``id``, the motion model, the frame first and last seen, the bone lengths (14,) of the
     frames where two cameras or more saw them, NaN for a bone whose ends two cameras did not both show (their median
     per bone is the person's signature: a detector that never gives the head still signs with the other 13), and,
-    for a person
-    just born, the proposals that confirmed them ({frame: ({camera: detection index}, joints (15, 3))})."""
+    for a person just born, the proposals that confirmed them ({frame: ({camera: detection index}, joints (15, 3))})."""
 
     id: int
     motion: JointKalman
@@ -160,6 +159,9 @@ class Track:
     last_seen: int
     bones: list[np.ndarray] = field(default_factory=list, repr=False)
     birth: dict[int, tuple[dict[int, int], np.ndarray]] = field(default_factory=dict, repr=False)
+    #: (frame, pelvis (3,)) where a person given a new id at birth started: they may yet prove to be someone who had
+    #: ended (:meth:`ProposalInitiator.recognised`); None for a person who is who they were.
+    born: tuple[int, np.ndarray] | None = field(default=None, repr=False)
 
     @property
     def signature(self) -> np.ndarray | None:
@@ -360,29 +362,55 @@ class ProposalInitiator:
         track = Track(-1, self.motion(joints, velocity), min(views), scene.frame, birth=views)
         # one view's placement has the nominal body's size: no signature
         track.bones = [] if single else [b for b in bone_lengths(np.stack(history)) if np.isfinite(b).any()]
+        track.born = (min(views), track.motion.joints[0].copy())
         track.id = self._identity(scene, track)
         return track
 
     def _identity(self, scene: "SceneTracker", track: Track) -> int:
-        """An ended person whose signature and position fit the new one (the nearest signature), else a new id."""
+        """An ended person whose signature and position fit the new one (:meth:`_returning`), else a new id."""
+        best = self._returning(scene, track)
+        if best is None:
+            scene.next_id += 1
+            return scene.next_id - 1
+        track.born = None
+        return best.id
+
+    def recognised(self, scene: "SceneTracker", track: Track) -> int | None:
+        """The id of a person who had ended before ``track`` (given a new id at birth) started, and whose signature
+        its bones, measured since, now fit (:meth:`_returning`); None where none does. A returning person's first
+        frames may be two views' partial, mismatched detections (Shelf, cameras 1 and 4: five of eleven bones
+        wrong, the median gap 2.2 at birth, 0.13 after 1 s, 0.08 after 2 s)."""
+        best = self._returning(scene, track)
+        if best is None:
+            return None
+        log.info("frame %d: person %d is person %d, back since frame %d", scene.frame, track.id, best.id,
+                 track.born[0])
+        track.born = None
+        return best.id
+
+    def _returning(self, scene: "SceneTracker", track: Track) -> Track | None:
+        """Among the ended people last seen before ``track`` started (``track.born``), the one whose signature is
+        nearest its own (:func:`signature_gap` under :data:`REID_BONES`) and whose pelvis, where last seen, lies
+        within :data:`REID_M` plus 1.5 m/s times the time away of where the track started: taken out of the ended
+        (their first frame and bones now the track's); None where none fits."""
         signature = track.signature
+        start, pelvis = track.born
         best, best_gap = None, REID_BONES
         for old in scene.ended:
-            if old.signature is None or signature is None:
+            if old.signature is None or signature is None or old.last_seen >= start:
                 continue
-            away = (scene.frame - old.last_seen) / self.fps
-            if np.linalg.norm(old.motion.joints[0] - track.motion.joints[0]) > REID_M + 1.5 * away:
+            away = (start - old.last_seen) / self.fps
+            if np.linalg.norm(old.motion.joints[0] - pelvis) > REID_M + 1.5 * away:
                 continue
             gap = signature_gap(signature, old.signature)
             if gap < best_gap:
                 best, best_gap = old, gap
-        if best is None:
-            scene.next_id += 1
-            return scene.next_id - 1
-        scene.ended.remove(best)
-        track.first, track.bones = best.first, best.bones + track.bones
-        log.info("frame %d: person %d is back (bone lengths %.0f%% from theirs)", scene.frame, best.id, 100 * best_gap)
-        return best.id
+        if best is not None:
+            scene.ended.remove(best)
+            track.first, track.bones = best.first, best.bones + track.bones
+            log.info("frame %d: person %d is back (bone lengths %.0f%% from theirs)", scene.frame, best.id,
+                     100 * best_gap)
+        return best
 
 
 def median_of_seen(values: np.ndarray, seen: np.ndarray) -> np.ndarray:
@@ -492,6 +520,9 @@ class SceneTracker:
         self.frame, self.next_id = 0, 0
         #: The ids of tracks found to be no one (:func:`no_body`), left out of :meth:`run`'s association.
         self.dropped: set[int] = set()
+        #: (new id, the id it proved to be, the frame it started): people recognised after their birth
+        #: (:meth:`ProposalInitiator.recognised`), their frames since that start given the old id in :meth:`run`.
+        self.recognised: list[tuple[int, int, int]] = []
 
     def step(self, xy: list[np.ndarray], confidence: list[np.ndarray]) -> dict[int, dict[int, int]]:
         """One frame (module docstring): per camera, its N_c detections' undistorted normalised points xy
@@ -533,6 +564,15 @@ class SceneTracker:
             log.warning("frame %d: 'person' %d is no one: their bones measure %.1f m (median), detections of different "
                         "people paired across cameras; dropped from every frame", self.frame, track.id,
                         np.nanmedian(track.signature))
+        recognise = getattr(self.initiator, "recognised", None)         # as their measurements double, too
+        for track in [t for t in judged if t in self.live and t.born is not None and recognise is not None]:
+            new, start = track.id, track.born[0]
+            track.id = recognise(self, track)
+            if track.id is None:
+                track.id = new
+            else:
+                self.recognised.append((new, track.id, start))
+                assigned[track.id] = assigned.pop(new)
         self.born = self.initiator(self, xy, confidence, used)
         for track in self.born:
             self.live.append(track)
@@ -557,6 +597,10 @@ class SceneTracker:
                 for f, (views, at) in track.birth.items():
                     per_frame[f].setdefault(track.id, {c: int(slots[f][c][n]) for c, n in views.items()})
                     joints[f].setdefault(track.id, at)
+        for new, old, start in self.recognised:       # since their start, a recognised person's frames are theirs
+            for table in [*per_frame[start:], *joints[start:]]:
+                if new in table:
+                    table[old] = table.pop(new)
         ids = sorted({pid for frame in per_frame for pid in frame} - self.dropped)
         out_slots = np.full((T, C, len(ids)), -1, dtype=int)
         out_joints = np.full((T, len(ids), 15, 3), np.nan)
