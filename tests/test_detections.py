@@ -106,12 +106,26 @@ def test_several_people_the_same_one_is_followed_and_a_jump_is_not_taken(tmp_pat
     # every person read once, then followed (track --detections of an OpenPose folder): the same person
     from priortrack.data.scene_detections import read_scene_detections
 
-    for path, layout in ((folder, None), (POSE2SIM_DIR / "pose", "body25b"),
-                         (Path(__file__).parent / "data" / "pose2sim_multiperson" / "pose", "body25b")):
+    coco = tmp_path / "results.json"
+    coco.write_text(json.dumps([{"image_id": n, "category_id": 1, "keypoints": person, "score": 0.9}
+                                for n, people in enumerate([[_person(500, conf=0.5), _person(100)], [_person(101)],
+                                                            [_person(499)], [_person(500), _person(102)]])
+                                for person in people]))
+    multiperson = Path(__file__).parent / "data" / "pose2sim_multiperson" / "pose"
+    for path, layout in ((folder, None), (POSE2SIM_DIR / "pose", "body25b"), (multiperson, "body25b"), (coco, None)):
         once, twice = read_scene_detections(path, layout).followed(), read_detections(path, layout)
         np.testing.assert_array_equal(once.keypoints, twice.keypoints)
         assert (once.switches, once.camera_names, once.layout) == (twice.switches, twice.camera_names, twice.layout)
         np.testing.assert_array_equal(once.frames, twice.frames)
+    # the person at an index of each frame's list (track --people index:N): what person=N reads
+    from priortrack.tracking.scene import SceneAssociation
+
+    for path, layout, index in ((folder, None, 1), (multiperson, "body25b", 0), (multiperson, "body25b", 2)):
+        scene = read_scene_detections(path, layout)
+        np.testing.assert_array_equal(SceneAssociation.indexed(scene, index).detections_of(scene, 0).keypoints,
+                                      read_detections(path, layout, person=index).keypoints)
+    with pytest.raises(PriortrackError, match=r"no frame lists 7 people \(at most 2; indices from 0\)"):
+        SceneAssociation.indexed(read_scene_detections(folder), 6)
 
 
 def test_coco_results_mediapipe_and_npz(tmp_path):

@@ -316,6 +316,8 @@ def test_people_are_chosen_by_count_id_point_and_box(demo):
     (["id:x"], "--people id:x: give all, a number N"),
     (["at:cam01_json:5"], "--people at:cam01_json:5: give all"),
     (["two"], "--people two: give all"),
+    (["index:1", "id:0"], "--people index:1 id:0: index:N alone"),
+    (["index:-1"], "--people index:-1: index:N alone, N a whole number ≥ 0"),
 ])
 def test_bad_people_are_named(words, message):
     with pytest.raises(PriortrackError, match=message):
@@ -356,6 +358,64 @@ def test_bad_choices_and_settings_are_named(demo, capsys):
         assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps",
                      "60", "--filter", "ukf-real", *extra]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_the_person_at_an_index_of_each_frames_list_is_tracked_through_the_scene_path(demo, tmp_path, capsys):
+    """Issue 60, item 7 and "one path": ``--person N`` (the index of each frame's people list, one person, no scene
+    tracker: its own reader and pipeline) is folded into ``--people index:N``: the scene path, with that person's
+    detections (the files' own order) and everything a scene's person has; ``--person`` now says so; ``compare``,
+    whose people are the scene tracker's, refuses the index; a body (``--skeleton``) is one person's."""
+    scene, calibration = demo
+    out = tmp_path / "i.npz"
+    assert main(["track", "--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps", "60",
+                 "--filter", "ukf-real", "--frames", "30", "--people", "index:0", "--no-fit-check", "--out", str(out),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert list(summary["per_person"]) == ["0"]
+    result = track_scene(scene.head(30), calibration, "ukf-real", TrackConfig(fps=60, fit_check=False),
+                         people=parse_people(["index:0"]))
+    from priortrack.tracking.scene import SceneAssociation
+
+    np.testing.assert_array_equal(result.association.slots, SceneAssociation.indexed(scene.head(30), 0).slots)
+    with np.load(out) as f:
+        np.testing.assert_allclose(f["joints"][:, 0], result.at_detection_frames().joints[:, 0], atol=1e-9)
+        assert f["person_ids"].tolist() == [0] and "ess" in f.files and "reprojection_px" in f.files
+    common = ["--detections", str(POSE), "--cameras", str(QCA), "--keypoints", "body25b", "--fps", "60"]
+    for words, message in ((["track", *common, "--filter", "ukf-real", "--person", "1"],
+                            "--person is now --people index:1"),
+                           (["compare", *common, "--filters", "ukf-real", "--people", "index:0", "--out", str(tmp_path)],
+                            "compare --people: index:N is track's"),
+                           (["track", *common, "--filter", "ukf-real", "--people", "all", "--skeleton",
+                             str(Path(__file__).parent.parent / "priortrack" / "data" / "cmu" / "asf_amc" / "39.asf")],
+                            "a skeleton is one person's body: choose one of the scene's 2 people")):
+        assert main(words) == 2
+        assert message in capsys.readouterr().err
+
+
+def test_one_person_asked_of_any_file_of_people_takes_the_scene_path(demo, tmp_path, capsys):
+    """"One path" (issue 60): ``track`` without ``--people`` on an .npz of every person (cameras, frames, people,
+    keypoints, 3), which the one-person reader refused, is a scene of one as the same detections' OpenPose folder
+    is: the same person, the same joints; a one-person .npz stays one person's (read a block at a time)."""
+    from priortrack.data.keypoints import LAYOUTS
+    from priortrack.data.scene_detections import holds_people
+
+    scene, _ = demo
+    people = tmp_path / "people.npz"
+    np.savez_compressed(people, keypoints=scene.keypoints[:, :20], keypoint_names=np.array(LAYOUTS["body25b"]),
+                        camera_names=np.array(scene.camera_names), frames=scene.frames[:20])
+    one = tmp_path / "one.npz"
+    np.savez(one, keypoints=scene.keypoints[:, :20, 0], keypoint_names=np.array(LAYOUTS["body25b"]))
+    assert holds_people(people) and holds_people(POSE) and not holds_people(one)
+    runs = []
+    for detections in (POSE, people):
+        out = tmp_path / f"{detections.stem}.out.npz"
+        assert main(["track", "--detections", str(detections), "--cameras", str(QCA), "--keypoints", "body25b",
+                     "--fps", "60", "--frames", "20", "--filter", "ukf-real", "--no-fit-check", "--out", str(out)]) == 0
+        with np.load(out) as f:
+            runs.append(f["joints"])
+    capsys.readouterr()
+    assert runs[0].shape == (20, 15, 3)
+    np.testing.assert_allclose(runs[1], runs[0], atol=1e-9)
 
 
 def test_the_filters_decide_who_is_who_by_default_on_two_or_three_cameras():

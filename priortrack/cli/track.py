@@ -95,6 +95,9 @@ def _track_detections(args: argparse.Namespace) -> None:
         raise PriortrackError("give a motion or --detections, not both")
     if args.detections is None or args.cameras is None:
         raise PriortrackError("track needs a MOTION (synthetic observations) or --detections with --cameras")
+    if args.person is not None:
+        raise PriortrackError(f"--person is now --people index:{args.person} (the person at that index of each "
+                              f"frame's list)")
     for path in args.out or []:
         if Path(path).suffix.lower() not in RESULT_SUFFIXES:
             raise PriortrackError(f"--out {path}: results are written as {', '.join(RESULT_SUFFIXES)}")
@@ -112,7 +115,7 @@ def _track_detections(args: argparse.Namespace) -> None:
                          fit_check=not args.no_fit_check, **_smoothing(args))
     skeleton = _skeleton(args.skeleton) if args.skeleton else None
     if args.people is not None:
-        _track_scene(args, config)
+        _track_scene(args, config, skeleton)
         return
     if args.workers is not None:
         raise PriortrackError("--workers tracks several people side by side: give --people")
@@ -135,7 +138,7 @@ def _track_detections(args: argparse.Namespace) -> None:
             if scene is not None:                     # one person per frame: followed in what was read
                 detections = scene.followed()
             else:                                     # an npz or npy is read a block of frames at a time
-                detections = open_detections(args.detections, keypoints=args.keypoints, person=args.person)
+                detections = open_detections(args.detections, keypoints=args.keypoints)
                 if args.frames is not None:
                     detections = detections.head(args.frames)
             result = track_detections(detections, calibration, args.filter, config, skeleton=skeleton,
@@ -188,21 +191,19 @@ def for_output(result, args: argparse.Namespace):
 
 
 def _every_person(args: argparse.Namespace):
-    """Every person of an OpenPose folder given to ``track --detections`` without ``--people`` or ``--person`` (its
-    files parsed once: several people in a frame make it a scene of one, from one camera too; one person is followed as
-    :func:`~priortrack.data.detections.read_detections` would); else None."""
-    from pathlib import Path
+    """Every person of detections given to ``track --detections`` without ``--people`` where their format may hold
+    several (:func:`~priortrack.data.scene_detections.holds_people`: an OpenPose folder, COCO results, an .npz of
+    people; its files parsed once: several people in a frame make it a scene of one, from one camera too; one person
+    is followed as :func:`~priortrack.data.detections.read_detections` would); else None (one person's file)."""
+    from priortrack.data.scene_detections import holds_people, read_scene_detections
 
-    from priortrack.data.scene_detections import read_scene_detections
-
-    path = Path(args.detections)
-    if args.person is not None or not path.is_dir():
+    if not holds_people(args.detections):
         return None
-    scene = read_scene_detections(path, keypoints=args.keypoints)
+    scene = read_scene_detections(args.detections, keypoints=args.keypoints)
     return scene.head(args.frames) if args.frames is not None else scene
 
 
-def _track_scene(args: argparse.Namespace, config) -> None:
+def _track_scene(args: argparse.Namespace, config, skeleton) -> None:
     """``track --detections … --people …``: every person of the scene (:mod:`priortrack.tracking.people`),
     each tracked as ``config`` (:class:`~priortrack.tracking.person.TrackConfig`) says."""
     from priortrack.data.calibration import read_calibration
@@ -210,9 +211,6 @@ def _track_scene(args: argparse.Namespace, config) -> None:
     from priortrack.tracking.people import parse_people, track_scene, worker_count
     from priortrack.tracking.scene import SceneConfig
 
-    for name in ("person", "skeleton"):
-        if getattr(args, name) is not None:
-            raise PriortrackError(f"--{name} follows one person; --people tracks the scene's (give one of them)")
     workers = worker_count(args.workers)                  # checked before the files are read
     people = parse_people(args.people)
     scene_config = SceneConfig(association=args.association or SceneConfig.association)
@@ -225,7 +223,7 @@ def _track_scene(args: argparse.Namespace, config) -> None:
         result = track_scene(scene, calibration, args.filter,
                              replace(config, interruptible=True, keep_snapshots=bool(args.rrd),
                                      snapshot_every=args.rrd_every), scene_config,
-                             people=people, workers=workers, progress=progress)
+                             people=people, workers=workers, skeleton=skeleton, progress=progress)
     finally:
         progress.close()
     if result.interrupted:
@@ -272,13 +270,12 @@ def add_parsers(verbs) -> None:
                                     "X,Y,Z; else the file's, else found from the person (ankles to neck)")
     track.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
     track.add_argument("--min-confidence", type=float, default=0.3, help="keypoints below it are missing (0.3)")
-    track.add_argument("--person", type=int, metavar="INDEX",
-                       help="files whose people keep their order: follow this index of each frame's people list "
-                            "(one person, no scene tracker); to choose among people by who they are, --people")
+    track.add_argument("--person", help=argparse.SUPPRESS)                   # now --people index:N
     track.add_argument("--people", nargs="+", metavar="WHO",
                        help="track every person of the scene, each with an identity: all; N (the N seen most: "
                             "keypoints detected); id:A,B; at:CAMERA:X,Y or box:CAMERA:X0,Y0,X1,Y1 (the person there in that camera's "
-                            "first frame). Outputs hold every person: .npz joints (T, P, 15, 3), .csv with a person "
+                            "first frame); index:N (files whose people keep their order: the person at index N of "
+                            "each frame's list, no scene tracker). Outputs hold every person: .npz joints (T, P, 15, 3), .csv with a person "
                             "column, a .trc/.bvh per person; the recording colours and labels each")
     track.add_argument("--workers", type=int, metavar="N",
                        help="--people: processes tracking people side by side (default: one per core)")

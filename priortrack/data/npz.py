@@ -110,6 +110,20 @@ def npz_member_on_disk(path: str | Path, name: str) -> ArrayOnDisk | None:
     return None if fortran or len(shape) < 2 else ArrayOnDisk(path, offset, tuple(shape), dtype)
 
 
+def npz_member_shape(path: str | Path, name: str) -> tuple[int, ...] | None:
+    """The shape an npz file's array ``name`` declares, from its header alone (compressed or not; checked as
+    :func:`read_npz` checks it); None where the file has no such array."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if f"{name}.npy" not in archive.namelist():
+                return None
+            info = archive.getinfo(f"{name}.npy")
+            with archive.open(info) as stream:
+                return tuple(_checked_header(stream, f"{path}: array {name}", info.file_size)[0])
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, zlib.error) as exc:
+        raise PriortrackError(f"{path} is not a readable npz file ({exc})") from None
+
+
 def read_npy(path: str | Path, max_bytes: int, what: str = "npy file") -> np.ndarray:
     """The array of an npy file, its header checked first (:func:`read_npz`'s rules)."""
     path = Path(path)

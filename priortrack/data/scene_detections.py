@@ -24,7 +24,7 @@ import numpy as np
 from priortrack.data.detections import (MAX_CAMERAS, MAX_NPZ_BYTES, Detections, DetectionsHeader, check_frames,
                                         cleaned_keypoints, coco_people, follow, npz_header, openpose_cameras)
 from priortrack.data.keypoints import layout_candidates, settled_layout, to_eval15
-from priortrack.data.npz import read_npz
+from priortrack.data.npz import npz_member_shape, read_npz
 from priortrack.errors import PriortrackError
 
 #: Most people one camera may hold in one frame (a guard against absurd inputs).
@@ -67,6 +67,19 @@ class SceneDetections(DetectionsHeader):
         """The first ``n`` frames."""
         return SceneDetections(self.layout, self.camera_names, self.frames[:n], self.fps, self.source,
                                keypoints=self.keypoints[:, :n])
+
+
+def holds_people(path: str | Path) -> bool:
+    """Whether detections at ``path`` are read as every person's (:func:`read_scene_detections`): an OpenPose folder,
+    COCO results (.json), an .npz of (cameras, frames, people, keypoints, 3); not one person's .npz or .npy (read a
+    block of frames at a time) or a caliscope CSV."""
+    path = Path(path)
+    if path.is_dir() or path.suffix.lower() == ".json":
+        return True
+    if path.suffix.lower() == ".npz" and path.is_file():
+        shape = npz_member_shape(path, "keypoints")
+        return shape is not None and len(shape) == 5
+    return False
 
 
 def read_scene_detections(path: str | Path, keypoints: str | None = None) -> SceneDetections:

@@ -147,8 +147,11 @@ def scene_people(detections: str, cameras: str, people, keypoints: str | None = 
                  frames: int | None = None) -> list[int]:
     """The scene tracker's ids of the ``people`` asked for (:func:`~priortrack.tracking.people.parse_people`'s
     forms) in files of several people."""
-    from priortrack.tracking.people import chosen_people
+    from priortrack.tracking.people import chosen_people, indexed
 
+    if indexed(people) is not None:
+        raise PriortrackError("compare --people: index:N is track's (the files' own order); compare takes the scene "
+                              "tracker's people: all, N, id:A,B, at:… or box:…")
     scene, association = _associated(detections, cameras, keypoints, fps, frames, _inputs_digest(detections, cameras))
     return [int(association.person_ids[p]) for p in chosen_people(association, people, scene)]
 

@@ -14,7 +14,8 @@ BVH and TRC.
 
 Which people: ``people="all"``; an int N (the N seen most: :func:`seen_most`); a list of ids, or of
 ``("at", camera, (x, y))`` / ``("box", camera, (x0, y0, x1, y1))``: the person there in that camera's
-first frame with people (:func:`parse_people` reads the command line's forms).
+first frame with people; ``("index", N)``: the person at index N of each frame's list, no scene tracker (files whose
+people keep their order); :func:`parse_people` reads the command line's forms.
 """
 
 from __future__ import annotations
@@ -51,12 +52,19 @@ log = logging.getLogger(__name__)
 def parse_people(words: list[str] | str | None):
     """The people asked for on the command line: ``all``; N (the N seen most, :func:`seen_most`); ``id:A,B``;
     ``at:CAMERA:X,Y`` (the person at that pixel of the camera's first frame with people); ``box:CAMERA:X0,Y0,X1,Y1``
-    (the person whose keypoints' box overlaps it most there). Returns what :func:`chosen_people` takes."""
+    (the person whose keypoints' box overlaps it most there); ``index:N`` (the person at index N of each frame's list,
+    for files whose people keep their order: :func:`indexed`). Returns what :func:`chosen_people` takes."""
     words = [words] if isinstance(words, str) else list(words or ["all"])
     if words == ["all"]:
         return "all"
     if len(words) == 1 and words[0].isdigit():
         return int(words[0])
+    if any(word.startswith("index:") for word in words):
+        number = words[0].partition(":")[2]
+        if len(words) > 1 or not number.isdigit():
+            raise PriortrackError(f"--people {' '.join(words)}: index:N alone, N a whole number ≥ 0 (the person at "
+                                  f"that index of each frame's list of people)")
+        return ("index", int(number))
     chosen = []
     for word in words:
         kind, _, rest = word.partition(":")
@@ -91,10 +99,16 @@ def seen_most(association: SceneAssociation, scene: SceneDetections | None, min_
     return counts
 
 
+def indexed(people) -> int | None:
+    """N where ``people`` (:func:`parse_people`'s forms) asks for the person at index N of each frame's list (their
+    association the files' own: :meth:`~priortrack.tracking.scene.SceneAssociation.indexed`), else None."""
+    return people[1] if isinstance(people, tuple) and people[:1] == ("index",) else None
+
+
 def chosen_people(association: SceneAssociation, people, scene: SceneDetections | None = None) -> list[int]:
     """Indices into ``association.person_ids`` of the people asked for (:func:`parse_people`'s forms, or
-    a list of ids; N: the N :func:`seen_most`)."""
-    if people is None or people == "all":
+    a list of ids; N: the N :func:`seen_most`; ``index:N``'s association holds that one person)."""
+    if people is None or people == "all" or indexed(people) is not None:
         return list(range(len(association.person_ids)))
     if isinstance(people, int) and not isinstance(people, bool):
         if people < 1:
@@ -360,7 +374,7 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     config, scene_config = config or TrackConfig(), scene_config or SceneConfig()
     data_fps = data_rate(config.fps, scene.fps, scene.source)
     preset = load_preset(preset) if not isinstance(preset, Preset) else preset
-    how = scene_config.decided_by(len(scene.camera_names))
+    how = "joints" if indexed(people) is not None else scene_config.decided_by(len(scene.camera_names))
     if scene_config.association == "auto" and how == "filter" and config.smooth and config.lag is not None:
         how = "joints"                                # a fixed lag releases ticks the filters' association decides
     in_lockstep = how == "filter" and predicts(preset)                               # in this process
@@ -368,12 +382,12 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
         log.info("the %s filter does not predict its detections: each person is tracked on the scene tracker's "
                  "decisions", preset.filter_kind)
     log.info("who is who: decided by %s", "every person's filter, stepped together" if in_lockstep else
-             "the scene tracker's joint model")
+             "the files' order" if indexed(people) is not None else "the scene tracker's joint model")
     if in_lockstep and config.smooth and config.lag is not None:
         raise PriortrackError("the filters' association decides each tick as the filters go: smooth the whole run "
                               "(--smooth without --lag), or decide by the joint model (--association joints)")
     pool = _Pool(1 if skeleton is not None or in_lockstep else worker_count(workers))      # its workers start now
-    association, cameras = associated(scene, calibration, data_fps, config, scene_config)
+    association, cameras = associated(scene, calibration, data_fps, config, scene_config, people)
     chosen = chosen_people(association, people, scene)
     if skeleton is not None and len(chosen) > 1:
         raise PriortrackError(f"a skeleton is one person's body: choose one of the scene's {len(chosen)} people")
@@ -422,11 +436,14 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
 
 
 def associated(scene: SceneDetections, calibration: Calibration, fps: float, config: TrackConfig | None = None,
-               scene_config: SceneConfig | None = None) -> tuple[SceneAssociation, list[PinholeCamera]]:
-    """Who is who in ``scene`` (the scene tracker's decisions, at the detections' ``fps``) and the detection
-    cameras, matched to the calibration as ``config`` says."""
+               scene_config: SceneConfig | None = None, people=None) -> tuple[SceneAssociation, list[PinholeCamera]]:
+    """Who is who in ``scene`` (the scene tracker's decisions, at the detections' ``fps``; where ``people`` asks for
+    an index of each frame's list, :func:`indexed`, the files' order) and the detection cameras, matched to the
+    calibration as ``config`` says."""
     config = config or TrackConfig()
     cameras = [PinholeCamera.from_calibration(c) for c in match_cameras(scene, calibration, config.camera_map)]
+    if indexed(people) is not None:
+        return SceneAssociation.indexed(scene, indexed(people)), cameras
     uv, confidence = scene.eval15(config.min_confidence)
     return SceneTracker(cameras, fps, scene_config).run(uv, confidence, scene.frames), cameras
 

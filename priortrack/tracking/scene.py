@@ -447,6 +447,21 @@ class SceneAssociation:
     frames: np.ndarray
     gap: int = 0
 
+    @classmethod
+    def indexed(cls, scene: SceneDetections, index: int) -> "SceneAssociation":
+        """One person, id ``index``: the detection at that index of each camera's list of people at each frame (the
+        people a detector found, in the files' order; a detector that keeps each person at one index keeps them
+        there), no scene tracker; −1 where a camera's frame has fewer people."""
+        if isinstance(index, bool) or not isinstance(index, int) or index < 0:
+            raise PriortrackError(f"a person's index in each frame's list is a whole number ≥ 0, got {index!r}")
+        if index >= scene.keypoints.shape[2]:
+            raise PriortrackError(f"{scene.source}: no frame lists {index + 1} people (at most "
+                                  f"{scene.keypoints.shape[2]}; indices from 0)")
+        there = np.isfinite(scene.keypoints[:, :, index, :, 0]).any(axis=-1).T        # (T, C)
+        slots = np.where(there, index, -1)[..., None]
+        joints = np.full((len(scene.frames), 1, 15, 3), np.nan)
+        return cls(np.array([index]), slots, joints, np.asarray(scene.frames))
+
     def detections_of(self, scene: SceneDetections, p: int) -> Detections:
         """Person p's (index into ``person_ids``) detections in ``scene``: (C, T, K, 3) keypoints, NaN where no
         detection was theirs."""
