@@ -175,3 +175,38 @@ def test_a_track_gives_back_a_detection_its_other_cameras_rays_do_not_meet():
     assert kept == {0: (0, False)}
     both = {0: (0, False), 1: (0, False)}
     assert associator.consistent(both, views, xy, confidence, {0: 2.0, 1: 5.0}) == both
+
+
+def test_a_body_no_adult_has_is_two_peoples_detections_paired():
+    """Two cameras a quarter turn apart see one "person" twice an adult's size: their rays meet exactly (it is a 3D
+    configuration), yet in each camera it is the image of an adult at half the distance, so in two views of several
+    people it is what pairing one person's detection in A with another's in B makes (Shelf, cameras 0 and 3: the
+    rays of such a pair 0.03–0.09 m apart, a true pair's 0.01–0.05). ``body_scale`` measures it (the nominal adult
+    1, this one 2); ``associate`` leaves the two detections apart, and a track given both gives back the costlier;
+    an adult 1.2× the nominal is paired and kept. Too few measures: no judgement."""
+    from priortrack.tracking.association import MAX_BODY_SCALE, body_scale, nominal_measures, normalised
+    from priortrack.tracking.motion import View
+    from priortrack.tracking.scene import PredictionAssociator
+    from priortrack.body.ik import measured_distances
+
+    body = placed_walk("cmu:07_10", "z")[0]
+    body = body - [*body[0, :2], 0.0]
+    a = PinholeCamera.look_at((-4.0, 0.0, 1.5), (0.0, 0.0, 1.0), up=(0, 0, 1), focal_px=1000, width=1000, height=1000)
+    b = PinholeCamera.look_at((0.0, -4.0, 1.5), (0.0, 0.0, 1.0), up=(0, 0, 1), focal_px=1000, width=1000, height=1000)
+    adult = np.median(measured_distances(body[None]) / nominal_measures()[1:])
+    assert 0.8 < adult < 1.2
+    for size, paired in ((2.0 / adult, False), (1.2 / adult, True)):
+        person = body[0] + size * (body - body[0])
+        assert body_scale(person) == pytest.approx(size * adult) and (body_scale(person) > MAX_BODY_SCALE) != paired
+        uv = [a.project(person)[0][None], b.project(person)[0][None]]
+        views, xy = [View.of(a), View.of(b)], normalised([a, b], uv)
+        assert pair_distances(views[0].centre, views[0].rays(xy[0]), np.ones((1, 15)),
+                              views[1].centre, views[1].rays(xy[1]), np.ones((1, 15)))[0, 0] < 1e-9
+        grouped = associate([a, b], uv, [np.ones((1, 15))] * 2)
+        assert len(grouped.proposals) == int(paired) and len(grouped.candidates) == 2 * (1 - int(paired))
+        kept = PredictionAssociator().consistent({0: (0, False), 1: (0, False)}, views, xy, [np.ones((1, 15))] * 2,
+                                                 {0: 2.0, 1: 5.0})
+        assert kept == ({0: (0, False), 1: (0, False)} if paired else {0: (0, False)})
+    few = np.full((15, 3), np.nan)
+    few[[9, 10, 11]] = body[[9, 10, 11]] * 3                      # a thigh and a shin: two of the eight measures
+    assert np.isnan(body_scale(few))

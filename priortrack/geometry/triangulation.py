@@ -58,13 +58,15 @@ def _dlt(cameras: Sequence[PinholeCamera], uv: np.ndarray, w: np.ndarray) -> np.
 
 def dlt_normalised(cameras: Sequence[PinholeCamera], xy: np.ndarray, w: np.ndarray) -> np.ndarray:
     """(N, 3) points from undistorted normalised coordinates xy (C, N, 2) (:func:`undistort_normalised`)
-    and weights w (C, N): the DLT of the module docstring, NaN where fewer than two cameras see a point."""
+    and weights w (C, N): the DLT of the module docstring, NaN where fewer than two cameras see a point. A camera is
+    anything with its world → camera R (3, 3) and t (3,), torch or numpy."""
     seen = np.isfinite(xy).all(axis=-1) & (w > 0)                                   # (C, N)
     w = np.where(seen, w, 0.0)
     xy = np.where(seen[..., None], xy, 0.0)
     rows = []
     for i, c in enumerate(cameras):
-        P = np.concatenate([c.R.double().numpy(), c.t.double().numpy()[:, None]], axis=1)       # (3, 4)
+        R, t = (np.asarray(v.double().numpy() if hasattr(v, "double") else v, dtype=np.float64) for v in (c.R, c.t))
+        P = np.concatenate([R, t[:, None]], axis=1)                                  # (3, 4)
         rows.append(w[i, :, None] * (xy[i, :, 0:1] * P[2] - P[0]))
         rows.append(w[i, :, None] * (xy[i, :, 1:2] * P[2] - P[1]))
     A = np.stack(rows, axis=1)                                                      # (N, 2C, 4)

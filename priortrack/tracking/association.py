@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -44,6 +45,13 @@ MIN_SHARED = 4
 PAIR_GATE_M = 0.15
 #: Two proposals whose triangulated joints lie within this median distance (metres) are one person.
 DUPLICATE_M = 0.2
+#: A group of detections whose triangulated body measures, in median, more than this multiple of a nominal adult's
+#: (:func:`body_scale`) is no one: a person 2.5 m tall is two people's detections paired.
+MAX_BODY_SCALE = 1.5
+#: … judged on at least this many of the body's eight measures.
+MIN_BODY_MEASURES = 3
+#: The standing height of the nominal adult, metres.
+NOMINAL_HEIGHT_M = 1.7
 
 
 @dataclass(frozen=True)
@@ -171,7 +179,8 @@ def associate(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray], confid
         A, B = groups.members[ra], groups.members[rb]
         if {c for c, _ in A} & {c for c, _ in B}:
             continue                                        # one person per camera
-        if all(distance.get((x, y), 0.0) < pair_gate for x in A for y in B):
+        if (all(distance.get((x, y), 0.0) < pair_gate for x in A for y in B)
+                and not body_scale(_proposal(cameras, xy, conf, dict(sorted(A + B))).joints) > MAX_BODY_SCALE):
             groups.join(ra, rb)
     proposals, candidates = [], []
     for members in groups.members.values():
@@ -181,6 +190,32 @@ def associate(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray], confid
             proposals.append(_proposal(cameras, xy, conf, dict(sorted(members))))
     proposals, extra = _merged_duplicates(cameras, xy, conf, proposals)
     return Association(sorted(proposals, key=lambda p: -len(p.views)), sorted(candidates + extra))
+
+
+@lru_cache(maxsize=1)
+def nominal_measures() -> np.ndarray:
+    """(15,) the nominal adult's (the template scaled to :data:`NOMINAL_HEIGHT_M`) distance measuring each eval15
+    joint's bone (:func:`~priortrack.body.ik.measured_distances`: the trunk, the shoulders' and hips' widths, each
+    limb's left and right averaged; 0 for the pelvis), metres, in the detector's definitions."""
+    from priortrack.body.ik import rest_distances, scaled_to_height
+    from priortrack.data.bundled import cmu_skeleton
+    from priortrack.data.keypoints import detector_map
+
+    return np.concatenate([[0.0], rest_distances(scaled_to_height(cmu_skeleton("35"), NOMINAL_HEIGHT_M),
+                                                 detector_map())])
+
+
+def body_scale(joints: np.ndarray) -> float:
+    """The median over the body's distinct measures (:data:`~priortrack.body.ik.BODY_MEASURES`: the trunk, head,
+    shoulder and hip widths, upper arm, forearm, thigh, shin, a limb's sides averaged) that triangulated joints
+    (15, 3) show of their ratio to the nominal adult's (:func:`nominal_measures`; an adult's 0.8–1.15), NaN where fewer
+    than :data:`MIN_BODY_MEASURES` are shown."""
+    from priortrack.body.ik import BODY_MEASURES, measured_distances
+
+    index = np.array(list(BODY_MEASURES.values()))
+    ratio = measured_distances(joints[None])[index - 1] / nominal_measures()[index]
+    ratio = ratio[np.isfinite(ratio)]
+    return float(np.median(ratio)) if len(ratio) >= MIN_BODY_MEASURES else float("nan")
 
 
 def _proposal(cameras: Sequence[PinholeCamera], xy, conf, views: dict[int, int]) -> Proposal:

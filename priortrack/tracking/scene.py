@@ -50,7 +50,9 @@ from priortrack.data.scene_detections import SceneDetections
 from priortrack.errors import PriortrackError
 from priortrack.geometry.camera import PinholeCamera
 from priortrack.tracking import single_view
-from priortrack.tracking.association import PAIR_GATE_M, associate, median_distance, normalised, pair_distances
+from priortrack.geometry.triangulation import dlt_normalised
+from priortrack.tracking.association import (MAX_BODY_SCALE, PAIR_GATE_M, associate, body_scale, median_distance,
+                                             normalised, pair_distances)
 from priortrack.tracking.motion import JointKalman, View
 
 log = logging.getLogger(__name__)
@@ -248,7 +250,11 @@ class PredictionAssociator:
                                                          views[b].centre, views[b].rays(points[b])[None],
                                                          weight[b][None])[0, 0] < np.inf]
             if not apart:
-                break
+                joints = dlt_normalised([views[c] for c in chosen], np.stack(list(points.values())),
+                                        np.stack(list(weight.values())))
+                if not body_scale(joints) > MAX_BODY_SCALE:
+                    break
+                apart = list(itertools.combinations(chosen, 2))         # one body of no one: the costliest goes
             del chosen[max({c for pair in apart for c in pair}, key=cost.get)]
         return chosen
 

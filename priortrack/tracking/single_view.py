@@ -3,7 +3,7 @@ tracker can start and follow several people where the rig is a single camera.
 
 With one view a person has no triangulation, but a body has a size. A detection's bones b (each eval15 joint to its
 parent, in the detector's definitions) that it shows have lengths ℓ_b in undistorted normalised image points (units of
-the focal length); a nominal adult's (the template scaled to :data:`NOMINAL_HEIGHT_M`) are L_b metres. Over the bones
+the focal length); a nominal adult's (:func:`~priortrack.tracking.association.nominal_measures`) are L_b metres. Over the bones
 of :data:`UPRIGHT_BONES` it shows (mid-hips to mid-shoulders, thighs, shins: a standing or walking person's, nearly
 parallel to the image plane of a camera that is not looking straight down), or every bone it shows where fewer than
 two of those are, the depth is
@@ -19,32 +19,16 @@ rays to the other's depth (:func:`at_depth`): two placements of one person diffe
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 
 from priortrack.data.eval15 import EVAL15_PARENTS
-from priortrack.tracking.association import Proposal
+from priortrack.tracking.association import NOMINAL_HEIGHT_M, Proposal, nominal_measures
 from priortrack.tracking.motion import View
 
-#: The standing height of the body whose size places a one-view detection, metres.
-NOMINAL_HEIGHT_M = 1.7
 #: The eval15 joints whose bone (to their parent) is upright in a standing person: the trunk, thighs and shins.
 UPRIGHT_BONES = (1, 10, 11, 13, 14)
 #: Bones a detection must show to be placed.
 MIN_BONES = 3
-
-
-@lru_cache(maxsize=1)
-def nominal_bones() -> np.ndarray:
-    """(15,) the nominal adult's bone length of each eval15 joint (to its parent; 0 for the pelvis), metres, in the
-    detector's definitions (left and right averaged)."""
-    from priortrack.body.ik import rest_distances, scaled_to_height
-    from priortrack.data.bundled import cmu_skeleton
-    from priortrack.data.keypoints import detector_map
-
-    return np.concatenate([[0.0], rest_distances(scaled_to_height(cmu_skeleton("35"), NOMINAL_HEIGHT_M),
-                                                 detector_map())])
 
 
 def placed_depth(xy: np.ndarray, confidence: np.ndarray) -> float | None:
@@ -58,7 +42,7 @@ def placed_depth(xy: np.ndarray, confidence: np.ndarray) -> float | None:
     upright = [j for j in shown if j in UPRIGHT_BONES]
     bones = upright if len(upright) >= 2 else list(shown)
     length = np.linalg.norm(xy[bones] - xy[EVAL15_PARENTS[bones]], axis=-1).sum()
-    return float(nominal_bones()[bones].sum() / length) if length > 0 else None
+    return float(nominal_measures()[bones].sum() / length) if length > 0 else None
 
 
 def on_rays(view: View, xy: np.ndarray, depth: float) -> np.ndarray:
