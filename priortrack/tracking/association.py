@@ -15,7 +15,9 @@ holds for any camera's resolution and distance (a pixel gate would not).
 **Cycle-consistent grouping** (as 4D Association's Kruskal-style associater): the pairs under
 :data:`PAIR_GATE_M`, nearest first, join groups (union–find) when the union holds at most one person
 per camera and every pair of its members that shares enough joints is itself under the gate (complete
-linkage). Each group is an equivalence class, so the matching is cycle-consistent by construction
+linkage) and the union's triangulated body is one an adult could have (:func:`body_scale` at most
+:data:`MAX_BODY_SCALE`: two rays through two people's images can meet, far behind one of them, in a giant). Each
+group is an equivalence class, so the matching is cycle-consistent by construction
 (a ~ b and b ~ c in a group means a ~ c was checked too), without the spectral relaxation mvpose and
 EasyMocap solve (their matchSVT) and its rounding.
 
