@@ -711,8 +711,9 @@ def test_one_camera_follows_each_person_of_the_demo_as_pose2sim_associated_them(
 
 def test_a_detection_alone_is_placed_at_the_depth_its_size_says():
     """The nominal body, upright and facing a camera 4 m away, seen exactly: placed at 4 m to within a few per cent
-    (its hips are foreshortened, its trunk and legs are not); moved along its rays to another depth it keeps its
-    pixels; two bones are too few to place."""
+    (its hips are foreshortened, its trunk and legs are not); its upper body alone too (the shoulders compared as
+    bones, not as the shoulders' width); moved along its rays to another depth it keeps its pixels; two bones are too
+    few to place."""
     from priortrack.body.ik import scaled_to_height
     from priortrack.body.fk import joint_positions
     from priortrack.data.bundled import cmu_skeleton
@@ -737,6 +738,8 @@ def test_a_detection_alone_is_placed_at_the_depth_its_size_says():
     np.testing.assert_allclose(np.median(Xm[:, 2]), np.median(Xc[:, 2]) + 2.0, atol=1e-9)
     few = np.where(np.isin(np.arange(15), [0, 9, 10])[:, None], xy, np.nan)
     assert placed_depth(few, confidence) is None and proposal(view, few, confidence, 0) is None
+    upper = np.where(np.isin(np.arange(15), [1, 2, 3, 4, 5, 6, 7, 8])[:, None], xy, np.nan)   # behind a desk
+    assert abs(placed_depth(upper, confidence) - np.median(Xc[:, 2])) < 0.04 * 4.0          # was 5.0 m: widths
 
 
 def test_track_people_from_one_camera_writes_each_person(tmp_path):

@@ -3,7 +3,7 @@ tracker can start and follow several people where the rig is a single camera.
 
 With one view a person has no triangulation, but a body has a size. A detection's bones b (each eval15 joint to its
 parent, in the detector's definitions) that it shows have lengths ℓ_b in undistorted normalised image points (units of
-the focal length); a nominal adult's (:func:`~priortrack.tracking.association.nominal_measures`) are L_b metres. Over the bones
+the focal length); a nominal adult's (:func:`nominal_bones`) are L_b metres. Over the bones
 of :data:`UPRIGHT_BONES` it shows (mid-hips to mid-shoulders, thighs, shins: a standing or walking person's, nearly
 parallel to the image plane of a camera that is not looking straight down), or every bone it shows where fewer than
 two of those are, the depth is
@@ -19,11 +19,33 @@ rays to the other's depth (:func:`at_depth`): two placements of one person diffe
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
-from priortrack.data.eval15 import EVAL15_PARENTS
-from priortrack.tracking.association import NOMINAL_HEIGHT_M, Proposal, nominal_measures
+from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS, EVAL15_PARENTS
+from priortrack.tracking.association import NOMINAL_HEIGHT_M, Proposal
 from priortrack.tracking.motion import View
+
+@lru_cache(maxsize=1)
+def nominal_bones() -> np.ndarray:
+    """(15,) the nominal adult's bone of each eval15 joint (its distance to its parent; 0 for the pelvis), metres, in
+    the detector's definitions, left and right averaged: what a detection's bones ℓ_b are compared with (not
+    :func:`~priortrack.tracking.association.nominal_measures`, whose shoulders and hips are the widths)."""
+    from priortrack.body.fk import joint_positions
+    from priortrack.body.ik import scaled_to_height
+    from priortrack.data.bundled import cmu_skeleton
+    from priortrack.data.keypoints import detector_map
+    from priortrack.data.motion import Motion
+
+    skeleton = scaled_to_height(cmu_skeleton("35"), NOMINAL_HEIGHT_M)
+    rest = detector_map() @ joint_positions(Motion(skeleton, np.zeros((1, skeleton.num_channels)), 30.0, "rest"),
+                                            "eval15")[0]
+    bones = np.r_[0.0, np.linalg.norm(rest[1:] - rest[EVAL15_PARENTS[1:]], axis=-1)]
+    for a, b in EVAL15_MIRROR_PAIRS:
+        bones[[a, b]] = bones[[a, b]].mean()
+    return bones
+
 
 #: The eval15 joints whose bone (to their parent) is upright in a standing person: the trunk, thighs and shins.
 UPRIGHT_BONES = (1, 10, 11, 13, 14)
@@ -42,7 +64,7 @@ def placed_depth(xy: np.ndarray, confidence: np.ndarray) -> float | None:
     upright = [j for j in shown if j in UPRIGHT_BONES]
     bones = upright if len(upright) >= 2 else list(shown)
     length = np.linalg.norm(xy[bones] - xy[EVAL15_PARENTS[bones]], axis=-1).sum()
-    return float(nominal_measures()[bones].sum() / length) if length > 0 else None
+    return float(nominal_bones()[bones].sum() / length) if length > 0 else None
 
 
 def on_rays(view: View, xy: np.ndarray, depth: float) -> np.ndarray:
