@@ -340,7 +340,8 @@ def test_bad_choices_and_settings_are_named(demo, capsys):
         SceneTracker([], 60.0)
     with pytest.raises(PriortrackError, match="detections of 4 cameras for 3 calibrated cameras"):
         SceneTracker(cameras[:3], 60.0).run(*scene.eval15(0.3), scene.frames)
-    with pytest.raises(PriortrackError, match="nobody was seen by 3 cameras"):
+    with pytest.raises(PriortrackError, match=r"nobody was seen by 3 cameras for 0.1 s: no person to track \(the "
+                                              r"detections hold 2 frames, 0.033 s at 60 fps: give more frames\)"):
         track_scene(scene.head(2), calibration, "ukf-real", TrackConfig(fps=60))
     one = replace(scene.head(2), camera_names=("cam03_json",), keypoints=scene.head(2).keypoints[2:3])
     with pytest.raises(PriortrackError, match=r"nobody was seen whole enough \(3 bones\) by its one camera for 0.1 s"):

@@ -394,7 +394,10 @@ def track_scene(scene: SceneDetections, calibration: Calibration, preset, config
     if not chosen:
         views = min(scene_config.birth_views, len(cameras))
         seen = f"by {views} cameras" if views > 1 else f"whole enough ({MIN_BONES} bones) by its one camera"
-        raise PriortrackError(f"{scene.source}: nobody was seen {seen} for {scene_config.birth_s} s: no person to track")
+        short = (f" (the detections hold {len(scene.frames)} frames, {len(scene.frames) / data_fps:.2g} s at "
+                 f"{data_fps:g} fps: give more frames)" if len(scene.frames) / data_fps < scene_config.birth_s else "")
+        raise PriortrackError(f"{scene.source}: nobody was seen {seen} for {scene_config.birth_s} s: no person to "
+                              f"track{short}")
     log.info("%s: %d people in the scene (%s); tracking %s", scene.source, len(association.person_ids),
              ", ".join(map(str, association.person_ids.tolist())),
              ", ".join(str(association.person_ids[p]) for p in chosen))
