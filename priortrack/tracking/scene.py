@@ -202,10 +202,10 @@ class PredictionAssociator:
     person's, their joints' rays meeting within the pair gate (:func:`~priortrack.tracking.association.pair_distances`,
     as a birth's) and their triangulation a body an adult could have
     (:func:`~priortrack.tracking.association.body_scale`); where two do not, the costlier (the farther from the
-    track's prediction) is given back, until the rest agree. Two people in line with one camera overlap in its image, and a track of the farther one took the
-    nearer one's detection there: its other camera's rays do not meet it (the nearer person's knee ray passes the
-    farther one's ankle), and the nearer one's detections are left to make them a track (Shelf, cameras 1 and 3: a
-    person entering behind another was absorbed, and the other's track lost)."""
+    track's prediction) is given back, until the rest agree. Two people in line with one camera overlap in its image,
+    and a track of the farther one took the nearer one's detection there: its other camera's rays do not meet it (the
+    nearer person's knee ray passes the farther one's ankle), and the nearer one's detections are left to make them a
+    track (Shelf, cameras 1 and 3: a person entering behind another was absorbed, and the other's track lost)."""
 
     def __init__(self, gate: float = GATE, pair_gate: float = PAIR_GATE_M):
         self.gate, self.pair_gate = gate, pair_gate
