@@ -27,6 +27,7 @@ from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS, EVAL15_PARENTS
 from priortrack.tracking.association import NOMINAL_HEIGHT_M, Proposal
 from priortrack.tracking.motion import View
 
+
 @lru_cache(maxsize=1)
 def nominal_bones() -> np.ndarray:
     """(15,) the nominal adult's bone of each eval15 joint (its distance to its parent; 0 for the pelvis), metres, in
