@@ -721,7 +721,8 @@ def test_a_detection_alone_is_placed_at_the_depth_its_size_says():
     from priortrack.data.keypoints import detector_map
     from priortrack.data.motion import Motion
     from priortrack.tracking.motion import View
-    from priortrack.tracking.single_view import NOMINAL_HEIGHT_M, at_depth, placed_depth, proposal
+    from priortrack.tracking.association import NOMINAL_HEIGHT_M
+    from priortrack.tracking.single_view import at_depth, placed_depth, proposal
 
     skeleton = scaled_to_height(cmu_skeleton("35"), NOMINAL_HEIGHT_M)
     rest = Motion(skeleton, np.zeros((1, skeleton.num_channels)), 30.0, "rest")

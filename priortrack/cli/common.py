@@ -61,7 +61,6 @@ def load_motions(sources: list[str]):
     return [load_motion(source) for source in expand_sources(sources)]
 
 
-
 def camera_map(text: str | None) -> dict[str, str] | None:
     """``--camera-map FOLDER=CAMERA,…`` as {detection camera: calibration camera}; None where not given."""
     from priortrack.errors import PriortrackError

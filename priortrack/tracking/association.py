@@ -182,7 +182,7 @@ def associate(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray], confid
         if {c for c, _ in A} & {c for c, _ in B}:
             continue                                        # one person per camera
         if (all(distance.get((x, y), 0.0) < pair_gate for x in A for y in B)
-                and not body_scale(_proposal(cameras, xy, conf, dict(sorted(A + B))).joints) > MAX_BODY_SCALE):
+                and not body_scale(_triangulated(cameras, xy, conf, dict(sorted(A + B)))) > MAX_BODY_SCALE):
             groups.join(ra, rb)
     proposals, candidates = [], []
     for members in groups.members.values():
@@ -195,16 +195,23 @@ def associate(cameras: Sequence[PinholeCamera], uv: Sequence[np.ndarray], confid
 
 
 @lru_cache(maxsize=1)
-def nominal_measures() -> np.ndarray:
-    """(15,) the nominal adult's (the template scaled to :data:`NOMINAL_HEIGHT_M`) distance measuring each eval15
-    joint's bone (:func:`~priortrack.body.ik.measured_distances`: the trunk, the shoulders' and hips' widths, each
-    limb's left and right averaged; 0 for the pelvis), metres, in the detector's definitions."""
-    from priortrack.body.ik import rest_distances, scaled_to_height
+def nominal_adult():
+    """The nominal adult's body: the template (CMU 35's skeleton) scaled to :data:`NOMINAL_HEIGHT_M`."""
+    from priortrack.body.ik import scaled_to_height
     from priortrack.data.bundled import cmu_skeleton
+
+    return scaled_to_height(cmu_skeleton("35"), NOMINAL_HEIGHT_M)
+
+
+@lru_cache(maxsize=1)
+def nominal_measures() -> np.ndarray:
+    """(15,) the :func:`nominal_adult`'s distance measuring each eval15 joint's bone
+    (:func:`~priortrack.body.ik.measured_distances`: the trunk, the shoulders' and hips' widths, each limb's left and
+    right averaged; 0 for the pelvis), metres, in the detector's definitions."""
+    from priortrack.body.ik import rest_distances
     from priortrack.data.keypoints import detector_map
 
-    return np.concatenate([[0.0], rest_distances(scaled_to_height(cmu_skeleton("35"), NOMINAL_HEIGHT_M),
-                                                 detector_map())])
+    return np.concatenate([[0.0], rest_distances(nominal_adult(), detector_map())])
 
 
 def body_scale(joints: np.ndarray) -> float:
@@ -220,13 +227,19 @@ def body_scale(joints: np.ndarray) -> float:
     return float(np.median(ratio)) if len(ratio) >= MIN_BODY_MEASURES else float("nan")
 
 
-def _proposal(cameras: Sequence[PinholeCamera], xy, conf, views: dict[int, int]) -> Proposal:
-    """The views' joints triangulated (DLT on normalised points) and each view's median reprojection error,
-    in pixels of its focal length (the normalised error times √(fx fy))."""
-    chosen = [cameras[c] for c in views]
+def _triangulated(cameras: Sequence[PinholeCamera], xy, conf, views: dict[int, int]) -> np.ndarray:
+    """(J, 3) the views' joints triangulated (confidence-weighted DLT on normalised points)."""
     points = np.stack([xy[c][n] for c, n in views.items()])                                 # (V, J, 2)
     weights = np.stack([conf[c][n] for c, n in views.items()])                              # (V, J)
-    joints = dlt_normalised(chosen, np.where(weights[..., None] > 0, points, np.nan), weights)
+    return dlt_normalised([cameras[c] for c in views], np.where(weights[..., None] > 0, points, np.nan), weights)
+
+
+def _proposal(cameras: Sequence[PinholeCamera], xy, conf, views: dict[int, int]) -> Proposal:
+    """The views' joints triangulated (:func:`_triangulated`) and each view's median reprojection error, in pixels of
+    its focal length (the normalised error times √(fx fy))."""
+    chosen = [cameras[c] for c in views]
+    points = np.stack([xy[c][n] for c, n in views.items()])                                 # (V, J, 2)
+    joints = _triangulated(cameras, xy, conf, views)
     errors = []
     for camera, p in zip(chosen, points):
         Xc = joints @ camera.R.double().numpy().T + camera.t.double().numpy()

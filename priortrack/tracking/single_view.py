@@ -24,22 +24,20 @@ from functools import lru_cache
 import numpy as np
 
 from priortrack.data.eval15 import EVAL15_MIRROR_PAIRS, EVAL15_PARENTS
-from priortrack.tracking.association import NOMINAL_HEIGHT_M, Proposal
+from priortrack.tracking.association import Proposal, nominal_adult
 from priortrack.tracking.motion import View
 
 
 @lru_cache(maxsize=1)
 def nominal_bones() -> np.ndarray:
-    """(15,) the nominal adult's bone of each eval15 joint (its distance to its parent; 0 for the pelvis), metres, in
+    """(15,) the :func:`~priortrack.tracking.association.nominal_adult`'s bone of each eval15 joint (its distance to its parent; 0 for the pelvis), metres, in
     the detector's definitions, left and right averaged: what a detection's bones ℓ_b are compared with (not
     :func:`~priortrack.tracking.association.nominal_measures`, whose shoulders and hips are the widths)."""
     from priortrack.body.fk import joint_positions
-    from priortrack.body.ik import scaled_to_height
-    from priortrack.data.bundled import cmu_skeleton
     from priortrack.data.keypoints import detector_map
     from priortrack.data.motion import Motion
 
-    skeleton = scaled_to_height(cmu_skeleton("35"), NOMINAL_HEIGHT_M)
+    skeleton = nominal_adult()
     rest = detector_map() @ joint_positions(Motion(skeleton, np.zeros((1, skeleton.num_channels)), 30.0, "rest"),
                                             "eval15")[0]
     bones = np.r_[0.0, np.linalg.norm(rest[1:] - rest[EVAL15_PARENTS[1:]], axis=-1)]
