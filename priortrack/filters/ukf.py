@@ -94,6 +94,18 @@ out: 26.0 → 30.3 px median, 55 → 94 px p90); no gate (p_gate = 0), no exchan
 Without it a swapped pair is either held out by the gate (its frame's information in that camera lost)
 or, where the two joints project close together, taken as labelled and pulls both joints across.
 
+**The branch no body takes.** A joint one camera sees is free along that camera's ray, and the update moves the
+state along it wherever the covariance says: an elbow seen only by a camera at the person's side can drift through
+the chest onto its other depth branch (the same pixel, the same upper arm) and stay there
+(:mod:`priortrack.geometry.depth_branches`; Shelf, cameras 0, 1, 4: actor 2's right elbow, 0.35–0.5 m off for 3 s).
+After each update, an elbow of the mean inside the trunk and seen by one camera is observed at its reflection about
+the shoulder, its wrist as little moved as the forearm allows, the trunk's joints where they are, by a second
+unscented update with σ = ``BRANCH_SIGMA_M`` (1 cm: the target is as certain as the pixel and the bone lengths that
+place it; 5 cm moved the elbow a quarter of the way a step, and without the trunk held the update moved the body
+instead of the arm). Constraining the estimate by a pseudo-measurement is Simon's "perfect measurement" (D. Simon,
+*Kalman filtering with state constraints: a survey of linear and nonlinear algorithms*, IET CTA 2010) with a
+little noise; one step takes the elbow most of the way (the arm's rotation is nonlinear), the next finishes it.
+
 Only a Gaussian filter: a robust (Student-t) likelihood has no R, and the Lie prior's transition
 (a mixture) has no single noise covariance; both are refused with a PriortrackError (use the
 particle filter).
@@ -116,6 +128,7 @@ from priortrack.filters import placements_kernel
 from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.geometry import so3
+from priortrack.geometry.depth_branches import trunk_repairs
 from priortrack.geometry.manifold_mean import MEAN_MAX_STEPS, MEAN_TOL, signed_mean
 from priortrack.kernels import cpu_kernel_applies
 from priortrack.models.protocols import GaussianTransition
@@ -135,6 +148,8 @@ GATE_PROBABILITY = 1e-4
 #: Consecutive frames whose every observed point (or every camera's detection of one joint) fails the gate
 #: before one is taken ungated.
 GATE_PATIENCE = 3
+#: σ (m) of an elbow's pseudo-observation at its other depth branch (module docstring, "The branch no body takes").
+BRANCH_SIGMA_M = 0.01
 #: torch and BLAS threads a step runs on (:meth:`UnscentedFilter.step`).
 STEP_THREADS = 1
 #: What the filter needs of a model that is not a TrackingModel (the linear-Gaussian test model keeps it).
@@ -253,6 +268,18 @@ class UnscentedTracking:
     def gate(self, z) -> tuple[torch.Tensor, int]:
         """One frame's data with the gross outliers made missing, and their count (the observation model's)."""
         return self.model.gate(z)
+
+    def trunk_repairs(self, s: np.ndarray, taken: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        """The elbows of the state s (A,) to move to their other depth branch, (elbow, target (3,)) each
+        (:func:`~priortrack.geometry.depth_branches.trunk_repairs`), given the measured coordinates an update took
+        (m,) bool; none for joints other than eval15's."""
+        likelihood = self.model.likelihood
+        cameras = getattr(likelihood, "cameras", None) or [getattr(likelihood, "camera", None)]
+        if self.mirror_pairs is None or cameras[0] is None or taken.size != 30 * len(cameras):
+            return []
+        joints = self.observe(torch.from_numpy(s)[None])[0].cpu().numpy()
+        centres = np.stack([camera.center.double().cpu().numpy() for camera in cameras])
+        return trunk_repairs(joints, taken.reshape(len(cameras), 15, 2).all(-1), centres)
 
     def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
         """One frame's data → the measured pixels (m,) (NaN: not seen) and R (m, m), diagonal."""
@@ -723,12 +750,40 @@ class UnscentedFilter(SequentialFilter):
         if not usable.any():
             kf.update(None)
             return
-        x_prior = kf.x.copy()
-        kf.update(z[usable], R=R[np.ix_(usable, usable)], UT=unscented_transform, hx=_Rows(predicted[:, usable]))
+        self._updated(z[usable], R[np.ix_(usable, usable)], predicted[:, usable])
         self.log_evidence += float(kf.log_likelihood)
+        self._off_the_trunk(usable, flags)
+
+    def _updated(self, z: np.ndarray, R: np.ndarray, rows: np.ndarray) -> None:
+        """filterpy's update of (``kf.x``, ``kf.P``) with z (k,), R (k, k) and h of ``kf.sigmas_f`` (2n + 1, k); then P
+        in the coordinates at the new mean (Γ), repaired if need be."""
+        kf = self.kf
+        x_prior = kf.x.copy()
+        kf.update(z, R=R, UT=unscented_transform, hx=_Rows(rows))
         gamma = self.unscented.transport(torch.from_numpy(x_prior), torch.from_numpy(kf.x)).numpy()
         kf.P, repaired = repaired_covariance(gamma @ kf.P @ gamma.T)
         kf.repairs += repaired
+
+    def _off_the_trunk(self, taken: np.ndarray, flags: list[str]) -> None:
+        """After an update that took the coordinates ``taken`` (m,): each elbow of the mean inside the trunk and seen
+        by one camera observed at its other depth branch, its wrist moved as little as the forearm allows and the
+        trunk where it is (:meth:`UnscentedTracking.trunk_repairs`), σ = :data:`BRANCH_SIGMA_M` per coordinate, by a
+        second update on sigma points redrawn from the posterior (flagged "branch-repaired"; module docstring). Its
+        evidence is not the data's: :attr:`log_evidence` keeps the first."""
+        repairs = getattr(self.unscented, "trunk_repairs", None)
+        repairs = repairs(self.kf.x, taken) if repairs is not None else []
+        if not repairs:
+            return
+        kf = self.kf
+        joints = [joint for joint, _ in repairs]
+        kf.sigmas_f = kf.points_fn.sigma_points(kf.x, kf.P)
+        rows = self.unscented.observe(torch.from_numpy(kf.sigmas_f))[:, joints].reshape(len(kf.sigmas_f), -1)
+        target = np.concatenate([point for _, point in repairs])
+        log.debug("frame %d: an elbow inside the trunk observed at its other depth branch (joints %s, %s m away)",
+                  self.frame + 1, joints,
+                  np.round(np.linalg.norm(rows[0].cpu().numpy().reshape(-1, 3) - target.reshape(-1, 3), axis=-1), 3))
+        self._updated(target, BRANCH_SIGMA_M ** 2 * np.eye(len(target)), rows.cpu().numpy())
+        flags.append("branch-repaired")
 
     def _validated(self, z: np.ndarray, R: np.ndarray, z_hat: np.ndarray, P: np.ndarray, usable: np.ndarray,
                    flags: list[str]) -> np.ndarray:
