@@ -82,18 +82,19 @@ def limb_branches(J: np.ndarray, centre: np.ndarray, limb: tuple[int, int, int])
     return out
 
 
-def inside_trunk(J: np.ndarray, joint: int) -> np.ndarray:
-    """(...) whether ``joint`` of joints J (..., 15, 3) is inside the trunk (module docstring): nearer the segment
-    from the mid-hips to the mid-shoulders than :data:`TRUNK_FRACTION` of the shoulder width, its foot on the
-    segment strictly between them. False where a joint is not finite."""
-    base = J[..., _HIPS, :].mean(-2)
-    axis = J[..., _SHOULDERS, :].mean(-2) - base
+def inside_trunk(J, joint: int):
+    """(...) whether ``joint`` of joints J (..., 15, 3) is inside the trunk (module docstring):
+    nearer the segment from the mid-hips to the mid-shoulders than :data:`TRUNK_FRACTION` of the shoulder width, its
+    foot on the segment strictly between them. False where a joint is not finite."""
+    shoulders = J[..., list(_SHOULDERS), :]
+    base = J[..., list(_HIPS), :].mean(-2)
+    axis = shoulders.mean(-2) - base
     p = J[..., joint, :] - base
     with np.errstate(invalid="ignore", divide="ignore"):
         t = (p * axis).sum(-1) / (axis * axis).sum(-1)
-        distance = np.linalg.norm(p - t[..., None] * axis, axis=-1)
-        width = np.linalg.norm(J[..., _SHOULDERS[0], :] - J[..., _SHOULDERS[1], :], axis=-1)
-        return (t > 0) & (t < 1) & (distance < TRUNK_FRACTION * width)
+        off = p - t[..., None] * axis
+        width = shoulders[..., 0, :] - shoulders[..., 1, :]
+        return (t > 0) & (t < 1) & ((off * off).sum(-1) < TRUNK_FRACTION ** 2 * (width * width).sum(-1))
 
 
 def trunk_repairs(J: np.ndarray, seen: np.ndarray, centres: np.ndarray) -> list[tuple[int, np.ndarray]]:
