@@ -117,6 +117,9 @@ def test_step_events_name_what_happened():
     quiet = StepRecord(8, 4.0, 4, False, ("no-observation",))
     assert step_events(8, quiet, observed=False) == [("frame 8: nothing observed: the prediction stands", "WARN")]
     assert step_events(9, None, observed=False) == [("frame 9: missing: nothing observed", "WARN")]
+    repaired = StepRecord(10, 4.0, 4, False, ("branch-repaired",))
+    assert step_events(10, repaired) == [("frame 10: an elbow one camera sees moved off its branch through the chest",
+                                          "INFO")]
 
 
 def test_a_clouds_colours_span_four_decades_of_weight(tmp_path):

@@ -37,6 +37,7 @@ OBSERVATION_COLOR = (40, 200, 255)
 FLAG_EVENTS = {"innovation-gated": ("the gate held out detections the prediction cannot explain", "INFO"),
                "outlier-gated": ("detections far off the body left out", "INFO"),
                "swap-corrected": ("a detector's left/right swap undone", "INFO"),
+               "branch-repaired": ("an elbow one camera sees moved off its branch through the chest", "INFO"),
                "gate-reopened": ("the gate reopened: every detection had failed it too long", "WARN"),
                "joint-reacquired": ("a joint every camera had seen away from the estimate too long taken again",
                                     "WARN"),
