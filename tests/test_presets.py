@@ -54,16 +54,16 @@ def test_mistyped_keys_list_the_valid_ones(changes, message):
         parse_preset(table(**changes), "bad")
 
 
-@pytest.mark.parametrize("key", ["swaps", "reacquire"])
+@pytest.mark.parametrize("key", ["swaps", "reacquire", "branches"])
 def test_the_unscented_filters_switches_must_be_booleans(key):
-    """The unscented filter's swap test and joint re-acquisition are switched by true/false in [filter];
-    a quoted word is refused, naming the key, and the valid keys list both."""
+    """The unscented filter's swap test, joint re-acquisition and depth-branch repair are switched by true/false in
+    [filter]; a quoted word is refused, naming the key, and the valid keys list them."""
     unscented = table(prior__kind="lie", prior__options={})
     unscented["filter"] = {"kind": "ukf", key: "no"}
     with pytest.raises(PriortrackError, match=rf"\[filter\]: {key} = 'no' must be true or false"):
         parse_preset(unscented, "bad")
     unscented["filter"] = {"kind": "ukf", "swap": False}
-    with pytest.raises(PriortrackError, match=r"unknown key 'swap'; valid keys: .*reacquire, swaps"):
+    with pytest.raises(PriortrackError, match=r"unknown key 'swap'; valid keys: .*branches.*reacquire, swaps"):
         parse_preset(unscented, "bad")
     unscented["filter"] = {"kind": "ukf", key: False}
     assert parse_preset(unscented, "ok").filter_options[key] is False

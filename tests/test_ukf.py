@@ -438,11 +438,9 @@ def test_an_elbow_drifted_into_the_trunk_is_moved_to_its_other_depth_branch(walk
     z = obs.camera.project(torch.from_numpy(J))[0].numpy()        # the pixels of that pose: both branches fit them
     after, flags = {}, {}
     for repair in (True, False):
-        f = UnscentedFilter(model)
+        f = UnscentedFilter(model, branches=repair)
         f.initialise(motion)
         f.kf.x = inside.copy()
-        if not repair:
-            f.unscented.trunk_repairs = lambda state, taken: []
         flags[repair] = f.step(z).flags
         after[repair] = joints(f.mean.numpy())
     assert "branch-repaired" in flags[True] and "branch-repaired" not in flags[False]

@@ -98,7 +98,7 @@ class GaussianSumFilter(UnscentedFilter):
             Lie prior, alone or in a defensive mixture); or any model keeping ``UNSCENTED_INTERFACE`` with
             ``step_weights(s)`` (ln π_k at full states s (H, A) → (H, K)) and ``component_model()`` (a new model of
             that interface running one component, chosen by setting its ``k``: the linear mixture of the tests).
-        alpha, beta, kappa, gate_probability, reacquire, swaps: every member's (:class:`UnscentedFilter`).
+        alpha, beta, kappa, gate_probability, reacquire, swaps, branches: every member's (:class:`UnscentedFilter`).
         hypotheses: the Gaussians kept after each step.
         branch, min_share: the components each hypothesis goes on with (module docstring, step 1).
 
@@ -111,7 +111,8 @@ class GaussianSumFilter(UnscentedFilter):
 
     def __init__(self, model, alpha: float = ALPHA, beta: float = BETA, kappa: float = KAPPA,
                  hypotheses: int = HYPOTHESES, branch: int = BRANCH, min_share: float = MIN_SHARE,
-                 gate_probability: float = GATE_PROBABILITY, reacquire: bool = True, swaps: bool = True):
+                 gate_probability: float = GATE_PROBABILITY, reacquire: bool = True, swaps: bool = True,
+                 branches: bool = True):
         if isinstance(model, TrackingModel):
             ComponentTransition(model.prior)                                # a mixture, or a clear error
         elif not (hasattr(model, "step_weights") and hasattr(model, "component_model")):
@@ -122,10 +123,10 @@ class GaussianSumFilter(UnscentedFilter):
                 raise PriortrackError(f"{name} must be a whole number ≥ 1, got {value!r}")
         if isinstance(min_share, bool) or not isinstance(min_share, (int, float)) or not 0 <= min_share < 1:
             raise PriortrackError(f"min_share must be in [0, 1), got {min_share!r}")
-        super().__init__(model, alpha, beta, kappa, True, gate_probability, reacquire, swaps)
+        super().__init__(model, alpha, beta, kappa, True, gate_probability, reacquire, swaps, branches)
         self.max_hypotheses, self.branch, self.min_share = hypotheses, branch, float(min_share)
         self._member_options = {"alpha": alpha, "beta": beta, "kappa": kappa, "gate_probability": gate_probability,
-                                "reacquire": reacquire, "swaps": swaps}
+                                "reacquire": reacquire, "swaps": swaps, "branches": branches}
         self.hypotheses_: list[Hypothesis] = []
         #: Unscented filters on one component each, reused from step to step, with the transition whose ``k`` chooses
         #: that component (:meth:`_member`).

@@ -105,6 +105,7 @@ place it; 5 cm moved the elbow a quarter of the way a step, and without the trun
 instead of the arm). Constraining the estimate by a pseudo-measurement is Simon's "perfect measurement" (D. Simon,
 *Kalman filtering with state constraints: a survey of linear and nonlinear algorithms*, IET CTA 2010) with a
 little noise; one step takes the elbow most of the way (the arm's rotation is nonlinear), the next finishes it.
+``branches = false`` in a preset leaves the estimate where the update puts it.
 
 Only a Gaussian filter: a robust (Student-t) likelihood has no R, and the Lie prior's transition
 (a mixture) has no single noise covariance; both are refused with a PriortrackError (use the
@@ -529,6 +530,9 @@ class UnscentedFilter(SequentialFilter):
         gate_probability: p_gate of the validation gate (module docstring); 0 turns the gate off.
         reacquire: take a joint every camera has seen away from the estimate too long ungated (module
             docstring); off for a latent prior, which cannot move one joint alone (ukf-gpdm).
+        swaps: undo a detector's left/right swaps before the gate (module docstring).
+        branches: move an elbow one camera sees off its branch through the chest (module docstring, "The branch no
+            body takes").
 
     It runs on the CPU in float64 (filterpy works in numpy): the model's tensors must be there.
 
@@ -540,7 +544,8 @@ class UnscentedFilter(SequentialFilter):
     requires = "gaussian"
 
     def __init__(self, model, alpha: float = ALPHA, beta: float = BETA, kappa: float = KAPPA, batched: bool = True,
-                 gate_probability: float = GATE_PROBABILITY, reacquire: bool = True, swaps: bool = True):
+                 gate_probability: float = GATE_PROBABILITY, reacquire: bool = True, swaps: bool = True,
+                 branches: bool = True):
         if not alpha > 0:
             raise PriortrackError(f"alpha must be positive, got {alpha}")
         if not 0 <= gate_probability < 1:
@@ -552,6 +557,7 @@ class UnscentedFilter(SequentialFilter):
             raise PriortrackError(f"kappa must exceed −n = {-n}, got {kappa}")
         self.kf = BatchedUKF(self.unscented, ManifoldSigmaPoints(self.unscented, alpha, beta, kappa), batched)
         self.gate_probability, self.reacquire, self.swaps = gate_probability, bool(reacquire), bool(swaps)
+        self.branches = bool(branches)
         #: The gate's bound on a point's d² (inf without a gate).
         self.threshold = gate_threshold(gate_probability, self.unscented.measurement_block)
         self.initialised = False
@@ -771,7 +777,7 @@ class UnscentedFilter(SequentialFilter):
         second update on sigma points redrawn from the posterior (flagged "branch-repaired"; module docstring). Its
         evidence is not the data's: :attr:`log_evidence` keeps the first."""
         repairs = getattr(self.unscented, "trunk_repairs", None)
-        repairs = repairs(self.kf.x, taken) if repairs is not None else []
+        repairs = repairs(self.kf.x, taken) if repairs is not None and self.branches else []
         if not repairs:
             return
         kf = self.kf
