@@ -34,8 +34,6 @@ LIMBS = ((3, 4, 5), (6, 7, 8), (9, 10, 11), (12, 13, 14))
 #: docstring): a trunk's half-depth is about 0.3 of the shoulder width (0.10–0.12 m against 0.33–0.40 m). Never
 #: so in the 66 bundled CMU clips (walks, runs, jumps, dance: 0.42 at the least) nor in Shelf's annotations (0.24).
 TRUNK_FRACTION = 0.2
-#: (shoulder, elbow) eval15 indices, left and right.
-ARMS = ((3, 4), (6, 7))
 #: eval15's shoulders and hips.
 _SHOULDERS, _HIPS = (3, 6), (9, 12)
 #: The trunk's joints a repair keeps in place: pelvis, neck, shoulders, hips.
@@ -82,7 +80,7 @@ def limb_branches(J: np.ndarray, centre: np.ndarray, limb: tuple[int, int, int])
     return out
 
 
-def inside_trunk(J, joint: int):
+def inside_trunk(J: np.ndarray, joint: int) -> np.ndarray:
     """(...) whether ``joint`` of joints J (..., 15, 3) is inside the trunk (module docstring):
     nearer the segment from the mid-hips to the mid-shoulders than :data:`TRUNK_FRACTION` of the shoulder width, its
     foot on the segment strictly between them. False where a joint is not finite."""
@@ -106,7 +104,7 @@ def trunk_repairs(J: np.ndarray, seen: np.ndarray, centres: np.ndarray) -> list[
     it was (:func:`on_ray`), else to the point at that length towards where it was. With any of these, the trunk's
     joints (:data:`_HELD`) where they are: the arm is what moves, not the body."""
     repairs = []
-    for shoulder, elbow in ARMS:
+    for shoulder, elbow, wrist in LIMBS[:2]:
         cameras = np.flatnonzero(seen[:, elbow])
         if len(cameras) != 1 or not inside_trunk(J, elbow):
             continue
@@ -115,7 +113,7 @@ def trunk_repairs(J: np.ndarray, seen: np.ndarray, centres: np.ndarray) -> list[
         if inside_trunk(moved, elbow):
             continue
         repairs.append((elbow, moved[elbow]))
-        wrist, forearm = elbow + 1, np.linalg.norm(J[elbow + 1] - J[elbow])
+        forearm = np.linalg.norm(J[wrist] - J[elbow])
         cameras = np.flatnonzero(seen[:, wrist])
         if len(cameras) == 1:
             points = [on_ray(J[wrist], centres[cameras[0]], moved[elbow], forearm, sign) for sign in (1.0, -1.0)]
