@@ -195,6 +195,31 @@ def test_what_no_filter_takes_stays_the_scene_trackers():
     assert assigned({0: wants_1, 1: lost}, slots, 13.8).tolist() == [[1, 0, 2]]
     wants_0 = np.array([[1.0, np.inf, np.inf]])
     assert assigned({0: wants_0, 1: lost}, slots, 13.8).tolist() == [[0, -1, 2]]
+    # a filter whose prediction is out of the camera's view keeps nothing there
+    assert assigned({0: wants_1, 1: lost}, slots, 13.8, {0: np.array([True]), 1: np.array([False])}).tolist() == \
+        [[1, -1, 2]]
+
+
+def test_a_prediction_is_in_a_cameras_view_where_its_median_point_is_in_the_widened_image():
+    """detection_costs' view: the median of the predicted points inside the image widened by IN_VIEW_MARGIN each
+    side; a prediction wholly behind a camera (NaN) is in no view. Shelf, cameras 0, 1, 4: a filter 6 m out of the
+    room had been handed a detection at 100,000 px."""
+    from types import SimpleNamespace
+
+    from priortrack.tracking.reassociation import IN_VIEW_MARGIN, detection_costs
+
+    camera = SimpleNamespace(width=1000, height=800)
+    mean = np.full((5, 15, 2), np.nan)                                        # camera 4: every point behind it
+    mean[0] = [500.0, 400.0]                                                  # the image's centre
+    mean[1] = [1000 + 0.9 * IN_VIEW_MARGIN * 1000, 400.0]                     # just beyond, within the margin
+    mean[2] = [500.0, 800 + 1.1 * IN_VIEW_MARGIN * 800]                       # beyond the margin
+    mean[3, :7] = [500.0, 400.0]                                              # 7 points, 8 behind the camera: NaN
+    filt = SimpleNamespace(predicted_measurement=lambda: (mean, np.tile(np.eye(2), (5, 15, 1, 1))),
+                           model=SimpleNamespace(likelihood=SimpleNamespace(cameras=[camera] * 5)))
+    uv = np.full((5, 1, 15, 2), 500.0)
+    costs, in_view = detection_costs(SimpleNamespace(filt=filt), uv, np.ones((5, 1, 15)))
+    assert costs.shape == (5, 1) and np.isfinite(costs[0, 0])
+    assert in_view.tolist() == [True, True, False, True, False]
 
 
 def test_a_second_filter_on_one_person_is_found_after_half_a_second():

@@ -17,7 +17,12 @@ person's filter runs together, tick by tick (the prior's ticks, :func:`~priortra
    assignment with a "not this person" option at the gate (:func:`~priortrack.tracking.scene.gated_assignment`); a
    person whose filter takes nothing in a camera keeps the scene tracker's detection there if no filter took it (a
    filter that lost its person, its prediction covering none of their detections, would otherwise be given none and
-   never come back: Shelf, cameras 1 and 2, ukf-real, an entering person at 735 mm, with it 69);
+   never come back: Shelf, cameras 1 and 2, ukf-real, an entering person at 735 mm, with it 69), but only where the
+   filter's prediction is in that camera's view (the median of its predicted points within the image widened by
+   :data:`IN_VIEW_MARGIN` of it each side): a filter metres off, predicting its person outside the picture or behind
+   the camera, is given no detection the joint model's track of someone else took (Shelf, cameras 0, 1, 4: a
+   person's filter, given a detection now and then while it drifted 6 m out of the room, was handed them at 800 and
+   100,000 px);
 4. **update**: each filter corrects with the detections it was given (``correct``; as detected: a swap is
    the filter's own to undo);
 5. **a second track of one person**: a filter that starts within the association's ``DUPLICATE_M`` (median over
@@ -43,6 +48,7 @@ as they are (:func:`~priortrack.tracking.people.track_scene` runs each person on
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -59,6 +65,9 @@ log = logging.getLogger(__name__)
 
 #: Two people's filters whose estimates stay within DUPLICATE_M this long (seconds) follow one person.
 DUPLICATE_S = 0.5
+#: How far beyond its image (a fraction of its width and height, each side) a camera's view reaches for the
+#: scene tracker's detection kept by a filter that took none (module docstring, 3).
+IN_VIEW_MARGIN = 0.25
 
 
 def predicts(preset: Preset) -> bool:
@@ -68,19 +77,30 @@ def predicts(preset: Preset) -> bool:
                                                                              "correct"))
 
 
-def detection_costs(person: PersonRun, uv: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+def detection_costs(person: PersonRun, uv: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(C, N) the cost of each of a frame's detections, uv (C, N, 15, 2) and confidence (C, N, 15), for the
     person, from their filter's prediction (after ``advance``; module docstring, 3); inf where a slot holds
-    no detection."""
+    no detection. And (C,) whether the prediction is in each camera's view: the median of its predicted points
+    inside the image, widened by a quarter of it each side (module docstring, 3)."""
     mean, covariance = person.filt.predicted_measurement()
-    return np.stack([prediction_costs(mean[c][None], covariance[c][None], np.array([SIGMA_PX]), uv[c],
-                                      confidence[c])[0][0] for c in range(len(uv))])
+    costs = np.stack([prediction_costs(mean[c][None], covariance[c][None], np.array([SIGMA_PX]), uv[c],
+                                       confidence[c])[0][0] for c in range(len(uv))])
+    likelihood = person.filt.model.likelihood
+    cameras = getattr(likelihood, "cameras", None) or [likelihood.camera]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)                  # a camera the prediction is behind: NaN
+        centre = np.nanmedian(mean, axis=1)                                                   # (C, 2)
+    size = np.array([[camera.width, camera.height] for camera in cameras], dtype=float)
+    in_view = (np.abs(centre - size / 2) <= (0.5 + IN_VIEW_MARGIN) * size).all(axis=1)
+    return costs, in_view
 
 
-def assigned(costs: dict[int, np.ndarray], slots: np.ndarray, gate: float) -> np.ndarray:
+def assigned(costs: dict[int, np.ndarray], slots: np.ndarray, gate: float,
+             in_view: dict[int, np.ndarray] | None = None) -> np.ndarray:
     """A frame's slots (C, P) with those of the people deciding (``costs``' keys, each with (C, N) costs of the
     frame's N slots) decided by the optimal assignment; the slots the others hold are offered to nobody; a deciding
-    person given nothing in a camera keeps their slot there where no one else took it (module docstring, 3)."""
+    person given nothing in a camera keeps their slot there where no one else took it and their prediction is in
+    that camera's view (``in_view``: (C,) bool per deciding person; None: everywhere; module docstring, 3)."""
     deciding = list(costs)
     out = slots.copy()
     out[:, deciding] = -1
@@ -92,7 +112,7 @@ def assigned(costs: dict[int, np.ndarray], slots: np.ndarray, gate: float) -> np
             for i, n in gated_assignment(cost[:, offered], gate):
                 out[c, deciding[i]] = offered[n]
         for p in deciding:                       # what no filter took stays the scene tracker's
-            if out[c, p] < 0 <= slots[c, p] and slots[c, p] not in out[c]:
+            if out[c, p] < 0 <= slots[c, p] and slots[c, p] not in out[c] and (in_view is None or in_view[p][c]):
                 out[c, p] = slots[c, p]
     return out
 
@@ -152,10 +172,11 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
             else:
                 for p in running:
                     people[p].filt.advance()
-                costs = {p: detection_costs(people[p], uv[:, f], confidence[:, f]) for p in running
-                         if present[f, p] and p not in ended}
+                judged = {p: detection_costs(people[p], uv[:, f], confidence[:, f]) for p in running
+                          if present[f, p] and p not in ended}
+                costs = {p: cost for p, (cost, _) in judged.items()}
                 if costs:
-                    decided = assigned(costs, slots[f], gate)
+                    decided = assigned(costs, slots[f], gate, {p: view for p, (_, view) in judged.items()})
                     changed += int((decided != slots[f]).any(axis=0).sum())
                     slots[f] = decided
                 for p in running:
