@@ -167,6 +167,7 @@ def test_the_scores_of_hand_made_tracks():
     beside = np.where(np.arange(T)[:, None, None, None] < T // 2, truth, np.nan)       # a DLT of the first half
     row = shelf.score(off, truth, frames, beside)[0]
     assert row["mpjpe_mm"] == pytest.approx(20.0) and row["mpjpe_beside_mm"] == pytest.approx(10.0)
+    assert row["per_joint_mm"]["lwrist"] == pytest.approx(20.0) and row["per_joint_beside_mm"]["lwrist"] == pytest.approx(10.0)
     estimate[3] = np.nan                                                                  # nobody tracked there
     rows = shelf.score(shelf.nearest_tracks(estimate, truth), truth, frames)
     assert rows[0]["pcp"] == pytest.approx(90.0) and rows[0]["frames"] == T
@@ -185,7 +186,7 @@ def test_eval_shelf_scores_every_subset_beside_the_oracle(benchmark, capsys):
     assert main(["eval", "shelf", str(folder), "--cameras", "0,2", "--actors", "0", "1", "--workers", "1",
                  "--per-joint"]) == 0
     out = capsys.readouterr().out
-    assert "| 0,2 | ukf-real |" in out and "MPJPE per limb joint" in out
+    assert "| 0,2 | ukf-real |" in out and "MPJPE per limb joint, mm, where the DLT has it" in out
     assert main(["eval", "shelf", str(folder), "--diagnose"]) == 0
     assert "| lhip |" in capsys.readouterr().out
     assert main(["eval", "shelf", str(folder), "--diagnose", "--subsets", "2"]) == 2

@@ -242,12 +242,15 @@ def _eval_shelf(args: argparse.Namespace) -> None:
                                                               f"{p['mpjpe_root_mm']:.0f}") for p in row["actors"]))
     if args.per_joint:
         for row in result["rows"]:
-            print(f"\ncameras {','.join(row['cameras'])}, {row['preset']}: MPJPE per limb joint, mm (oracle DLT)")
+            print(f"\ncameras {','.join(row['cameras'])}, {row['preset']}: MPJPE per limb joint, mm, where the DLT has "
+                  f"it (the oracle DLT's in brackets) / every frame's")
             joints = list(row["actors"][0]["per_joint_mm"])
             print("| actor | " + " | ".join(joints) + " |")
             print("|---|" + "---|" * len(joints))
             for p in row["actors"]:
-                print(f"| {p['actor']} | " + " | ".join(cell(p["per_joint_mm"][j], p["dlt"]["per_joint_mm"][j], 0)
+                beside = p.get("per_joint_beside_mm") or dict.fromkeys(joints)
+                every = {j: "—" if p["per_joint_mm"][j] is None else round(p["per_joint_mm"][j]) for j in joints}
+                print(f"| {p['actor']} | " + " | ".join(f"{cell(beside[j], p['dlt']['per_joint_mm'][j], 0)} / {every[j]}"
                                                        for j in joints) + " |")
 
 

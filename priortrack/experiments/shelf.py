@@ -221,7 +221,8 @@ def score(estimate: np.ndarray, truth: np.ndarray, frames: np.ndarray, beside: n
     joints: one camera's measure, whose depth is the body's size), and the frames scored; given ``beside``
     (T, A, 15, 3), another estimate (the oracle DLT's), also
     ``mpjpe_beside_mm``: the MPJPE over the joints and frames that one has (where DLT triangulates: two cameras show
-    the joint)."""
+    the joint), and ``per_joint_beside_mm`` each limb joint's over the frames that one has it (side by side with it:
+    a joint the DLT lacks is one no two cameras show, where the tracker's error is larger)."""
     rows = []
     for a in range(truth.shape[1]):
         annotated = frames & np.isfinite(truth[:, a, LIMB_JOINTS]).all(-1).any(-1)
@@ -237,7 +238,10 @@ def score(estimate: np.ndarray, truth: np.ndarray, frames: np.ndarray, beside: n
                "per_joint_mm": {EVAL15_NAMES[j]: _mean(error[known[:, k], k]) for k, j in enumerate(LIMB_JOINTS)},
                "frames": int(annotated.sum())}
         if beside is not None:
-            row["mpjpe_beside_mm"] = _mean(error[known & np.isfinite(beside[annotated, a][:, LIMB_JOINTS]).all(-1)])
+            theirs = known & np.isfinite(beside[annotated, a][:, LIMB_JOINTS]).all(-1)
+            row["mpjpe_beside_mm"] = _mean(error[theirs])
+            row["per_joint_beside_mm"] = {EVAL15_NAMES[j]: _mean(error[theirs[:, k], k])
+                                          for k, j in enumerate(LIMB_JOINTS)}
         rows.append(row)
     return rows
 
