@@ -59,3 +59,8 @@ def test_bad_input(camera):
         JointLikelihood(camera, robust_nu=-1)
     with pytest.raises(PriortrackError, match=r"expected \(P, J, 3\) and \(J, 2\)"):
         JointLikelihood(camera).log_likelihood(torch.zeros(3, 15, 3), np.zeros((14, 2)))
+
+
+def test_one_cameras_likelihood_lists_its_camera_as_a_multi_view_one_does():
+    camera = PinholeCamera.look_at([0.0, 1.5, 5.0], [0.0, 1.0, 0.0])
+    assert JointLikelihood(camera).cameras == [camera]

@@ -129,7 +129,7 @@ from priortrack.filters import placements_kernel
 from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.geometry import so3
-from priortrack.geometry.depth_branches import trunk_repairs
+from priortrack.geometry.depth_branches import ELBOWS, trunk_repairs
 from priortrack.geometry.manifold_mean import MEAN_MAX_STEPS, MEAN_TOL, signed_mean
 from priortrack.kernels import cpu_kernel_applies
 from priortrack.models.protocols import GaussianTransition
@@ -274,13 +274,15 @@ class UnscentedTracking:
         """The elbows of the state s (A,) to move to their other depth branch, (elbow, target (3,)) each
         (:func:`~priortrack.geometry.depth_branches.trunk_repairs`), given the measured coordinates an update took
         (m,) bool; none for joints other than eval15's."""
-        likelihood = self.model.likelihood
-        cameras = getattr(likelihood, "cameras", None) or [getattr(likelihood, "camera", None)]
-        if self.mirror_pairs is None or cameras[0] is None or taken.size != 30 * len(cameras):
+        cameras = getattr(self.model.likelihood, "cameras", None)
+        if self.mirror_pairs is None or cameras is None or taken.size != 30 * len(cameras):
+            return []
+        seen = taken.reshape(len(cameras), 15, 2).all(-1)
+        if not (seen[:, list(ELBOWS)].sum(axis=0) == 1).any():          # no elbow one camera alone sees: no FK
             return []
         joints = self.observe(torch.from_numpy(s)[None])[0].cpu().numpy()
         centres = np.stack([camera.center.double().cpu().numpy() for camera in cameras])
-        return trunk_repairs(joints, taken.reshape(len(cameras), 15, 2).all(-1), centres)
+        return trunk_repairs(joints, seen, centres)
 
     def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
         """One frame's data → the measured pixels (m,) (NaN: not seen) and R (m, m), diagonal."""
@@ -784,11 +786,11 @@ class UnscentedFilter(SequentialFilter):
         joints = [joint for joint, _ in repairs]
         kf.sigmas_f = kf.points_fn.sigma_points(kf.x, kf.P)
         rows = self.unscented.observe(torch.from_numpy(kf.sigmas_f))[:, joints].reshape(len(kf.sigmas_f), -1)
+        rows = rows.cpu().numpy()
         target = np.concatenate([point for _, point in repairs])
         log.debug("frame %d: an elbow inside the trunk observed at its other depth branch (joints %s, %s m away)",
-                  self.frame + 1, joints,
-                  np.round(np.linalg.norm(rows[0].cpu().numpy().reshape(-1, 3) - target.reshape(-1, 3), axis=-1), 3))
-        self._updated(target, BRANCH_SIGMA_M ** 2 * np.eye(len(target)), rows.cpu().numpy())
+                  self.frame + 1, joints, np.round(np.linalg.norm((rows[0] - target).reshape(-1, 3), axis=-1), 3))
+        self._updated(target, BRANCH_SIGMA_M ** 2 * np.eye(len(target)), rows)
         flags.append("branch-repaired")
 
     def _validated(self, z: np.ndarray, R: np.ndarray, z_hat: np.ndarray, P: np.ndarray, usable: np.ndarray,

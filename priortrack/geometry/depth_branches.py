@@ -34,6 +34,8 @@ LIMBS = ((3, 4, 5), (6, 7, 8), (9, 10, 11), (12, 13, 14))
 #: docstring): a trunk's half-depth is about 0.3 of the shoulder width (0.10–0.12 m against 0.33–0.40 m). Never
 #: so in the 66 bundled CMU clips (walks, runs, jumps, dance: 0.42 at the least) nor in Shelf's annotations (0.24).
 TRUNK_FRACTION = 0.2
+#: eval15's elbows, the mid joints of the arms: what :func:`trunk_repairs` repairs.
+ELBOWS = tuple(mid for _, mid, _ in LIMBS[:2])
 #: eval15's shoulders and hips.
 _SHOULDERS, _HIPS = (3, 6), (9, 12)
 #: The trunk's joints a repair keeps in place: pelvis, neck, shoulders, hips.

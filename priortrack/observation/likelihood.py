@@ -75,6 +75,12 @@ class JointLikelihood:
         #: |d_j|² of a predicted joint behind the camera: the squared image diagonal.
         self.miss_sq = float(camera.width ** 2 + camera.height ** 2)
 
+    @property
+    def cameras(self) -> list[PinholeCamera]:
+        """The one camera as a list, as :class:`~priortrack.observation.multiview.MultiViewLikelihood` holds its
+        cameras: what a caller iterates over either way."""
+        return [self.camera]
+
     def gate(self, z) -> tuple[torch.Tensor, int]:
         """One frame's z (J, 2) with the gross outliers made missing, and their count: a detection more
         than one image diagonal outside the image is no pixel of this camera (validation gate)."""

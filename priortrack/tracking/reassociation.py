@@ -85,8 +85,7 @@ def detection_costs(person: PersonRun, uv: np.ndarray, confidence: np.ndarray) -
     mean, covariance = person.filt.predicted_measurement()
     costs = np.stack([prediction_costs(mean[c][None], covariance[c][None], np.array([SIGMA_PX]), uv[c],
                                        confidence[c])[0][0] for c in range(len(uv))])
-    likelihood = person.filt.model.likelihood
-    cameras = getattr(likelihood, "cameras", None) or [likelihood.camera]
+    cameras = person.filt.model.likelihood.cameras
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)                  # a camera the prediction is behind: NaN
         centre = np.nanmedian(mean, axis=1)                                                   # (C, 2)
