@@ -130,6 +130,7 @@ from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.geometry import so3
 from priortrack.geometry.depth_branches import ELBOWS, trunk_repairs
+from priortrack.geometry.facing import facing_turn, turned_placement
 from priortrack.geometry.manifold_mean import MEAN_MAX_STEPS, MEAN_TOL, signed_mean
 from priortrack.kernels import cpu_kernel_applies
 from priortrack.models.protocols import GaussianTransition
@@ -283,6 +284,29 @@ class UnscentedTracking:
         joints = self.observe(torch.from_numpy(s)[None])[0].cpu().numpy()
         centres = np.stack([camera.center.double().cpu().numpy() for camera in cameras])
         return trunk_repairs(joints, seen, centres)
+
+    def facing_turned(self, s: np.ndarray, z: np.ndarray, forward: np.ndarray) -> tuple[np.ndarray, float] | None:
+        """The state s (A,) turned to the trunk's other facing where exactly one camera sees the trunk in z
+        (C, 15, 3) (three of its hips and shoulders) and the detector's forward direction there, ``forward`` (C, 3)
+        (:func:`~priortrack.geometry.facing.image_forward`), says it faces that way
+        (:func:`~priortrack.geometry.facing.facing_turn`): both placements g_t, g_{t−1} turned about the vertical
+        through the mid-hips (:func:`~priortrack.geometry.facing.turned_placement`), the pose kept; and the turn's
+        angle. None otherwise, and for joints other than eval15's."""
+        cameras = getattr(self.model.likelihood, "cameras", None)
+        if self.mirror_pairs is None or cameras is None or z.shape != (len(cameras), 15, 3):
+            return None
+        trunk = np.isfinite(z[:, [3, 6, 9, 12], 0]).sum(axis=1) >= 3
+        if trunk.sum() != 1:
+            return None
+        c = int(np.flatnonzero(trunk)[0])
+        joints = self.observe(torch.from_numpy(s)[None])[0].cpu().numpy()
+        angle = facing_turn(joints, cameras[c], forward[c])
+        if angle is None:
+            return None
+        pivot, S, out = joints[[9, 12]].mean(0), self.model.pose_dim, s.copy()
+        for g in (S, S + GLOBAL_DIM):
+            out[g:g + GLOBAL_DIM] = turned_placement(s[g:g + GLOBAL_DIM], angle, pivot)
+        return out, angle
 
     def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
         """One frame's data → the measured pixels (m,) (NaN: not seen) and R (m, m), diagonal."""
@@ -584,6 +608,11 @@ class UnscentedFilter(SequentialFilter):
         #: b-dimensional N at d² = χ²_b(1 − p_gate)): what a bank of these filters weighs its members by
         #: (:mod:`priortrack.filters.gaussian_sum`). 0 for a step without observations.
         self.log_evidence = 0.0
+        #: (T, C, 3) per tick of the run (tick t is the step that makes frame t) and camera, the detector's forward
+        #: direction in the image (:func:`~priortrack.geometry.facing.image_forward`: its feet and face), which
+        #: turns a trunk one camera sees to its other facing (module docstring, "The trunk's facing"); None: not
+        #: used. Set by whoever feeds the filter real detections (:func:`~priortrack.tracking.person.prepared`).
+        self.forward: np.ndarray | None = None
 
     @property
     def mean(self) -> torch.Tensor:
@@ -697,6 +726,7 @@ class UnscentedFilter(SequentialFilter):
         if not self._advanced:
             raise PriortrackError("no prediction to correct: call advance() first")
         kf, flags = self.kf, []
+        self._faced(z, flags)
         gated, count = self.unscented.gate(z)
         if count:
             flags.append("outlier-gated")
@@ -771,6 +801,26 @@ class UnscentedFilter(SequentialFilter):
         gamma = self.unscented.transport(torch.from_numpy(x_prior), torch.from_numpy(kf.x)).numpy()
         kf.P, repaired = repaired_covariance(gamma @ kf.P @ gamma.T)
         kf.repairs += repaired
+
+    def _faced(self, z: np.ndarray, flags: list[str]) -> None:
+        """Before the update of frame ``self.frame + 1``: the predicted mean turned to the trunk's other facing where
+        one camera sees the trunk and the detector's feet and face say so (:attr:`forward`;
+        :meth:`UnscentedTracking.facing_turned`), its sigma points redrawn about it with the same covariance (flagged
+        "facing-turned"; module docstring, "The trunk's facing")."""
+        tick = self.frame + 1
+        turn = getattr(self.unscented, "facing_turned", None)
+        if turn is None or self.forward is None or not self.branches or tick >= len(self.forward):
+            return
+        turned = turn(self.kf.x, z, self.forward[tick])
+        if turned is None:
+            return
+        kf = self.kf
+        kf.x = turned[0]
+        kf.sigmas_f = kf.points_fn.sigma_points(kf.x, kf.P)
+        self._measured = None
+        flags.append("facing-turned")
+        log.debug("frame %d: the trunk turned %.0f° to the facing the detector's feet and face show", tick,
+                  np.degrees(turned[1]))
 
     def _off_the_trunk(self, taken: np.ndarray, flags: list[str]) -> None:
         """After an update that took the coordinates ``taken`` (m,): each elbow of the mean inside the trunk and seen

@@ -17,6 +17,8 @@ import operator
 
 import numpy as np
 
+from priortrack.geometry.facing import image_forward
+
 #: Ticks read at a time (a block of 4 cameras' observations: 1.4 MB as float64).
 BLOCK_TICKS = 1000
 
@@ -77,6 +79,24 @@ class TickObservations:
         read = self.raw if raw else self.block
         for start in range(0, len(self), self.block_ticks):
             yield start, read(start, min(start + self.block_ticks, len(self)))
+
+    def forward(self) -> np.ndarray:
+        """(T, C, 3) each tick's detector's forward direction in each camera's image, from its feet and face
+        (:func:`~priortrack.geometry.facing.image_forward`; 0 where the tick has no frame, the layout no such
+        keypoints, or the camera-tick is ``left_out``), read a block of ticks at a time."""
+        out = np.zeros(self.shape[:2] + (3,))
+        read = getattr(self.detections, "keypoints_of", None)
+        for start in range(0, len(self), self.block_ticks):
+            index = self.index[start:start + self.block_ticks]
+            used = np.flatnonzero(index >= 0)
+            if not len(used):
+                continue
+            lo, hi = int(index[used].min()), int(index[used].max()) + 1
+            keypoints = read(lo, hi) if read is not None else self.detections.keypoints[:, lo:hi]      # (C, ·, K, 3)
+            cues = image_forward(keypoints[:, index[used] - lo], self.detections.keypoint_names, self.min_confidence)
+            out[start + used] = cues.transpose(1, 0, 2)
+        out[self.left_out] = 0.0
+        return out
 
     def between(self, start: int, stop: int | None = None) -> "TickObservations":
         """The ticks [start, stop) as observations of their own (tick 0 is ``start``)."""

@@ -55,6 +55,7 @@ import numpy as np
 
 from priortrack.data.scene_detections import SceneDetections
 from priortrack.filters.snapshot import KNOWN_FRAMES
+from priortrack.geometry.facing import image_forward
 from priortrack.tracking.association import DUPLICATE_M, median_distance
 from priortrack.tracking.motion import SIGMA_PX
 from priortrack.tracking.person import PersonRun
@@ -127,6 +128,17 @@ def observation(uv: np.ndarray, confidence: np.ndarray, slots: np.ndarray) -> np
     return z
 
 
+def detected_forward(scene: SceneDetections, f: int, slots: np.ndarray, min_confidence: float) -> np.ndarray:
+    """(C, 3) the forward direction in each camera's image of frame f's detections ``slots`` (C,) (−1: none, 0)
+    from their feet and face (:func:`~priortrack.geometry.facing.image_forward`): what the unscented filter turns
+    a trunk one camera sees by (:attr:`~priortrack.filters.ukf.UnscentedFilter.forward`)."""
+    keypoints = np.full((len(slots),) + scene.keypoints.shape[-2:], np.nan)
+    for c, n in enumerate(slots):
+        if n >= 0:
+            keypoints[c] = scene.keypoints[c, f, n]
+    return image_forward(keypoints, scene.keypoint_names, min_confidence)
+
+
 def reassociated(scene: SceneDetections, association: SceneAssociation, people: dict[int, PersonRun],
                  index: np.ndarray, min_confidence: float, gate: float = GATE,
                  progress: Callable[[int, int], None] | None = None,
@@ -179,6 +191,9 @@ def reassociated(scene: SceneDetections, association: SceneAssociation, people: 
                     changed += int((decided != slots[f]).any(axis=0).sum())
                     slots[f] = decided
                 for p in running:
+                    forward = getattr(people[p].filt, "forward", None)
+                    if forward is not None:                         # the feet and face of the detections it takes
+                        forward[k - first[p]] = detected_forward(scene, f, slots[f, :, p], min_confidence)
                     runs[p].record(people[p].filt.correct(observation(uv[:, f], confidence[:, f], slots[f, :, p])))
             ended |= _duplicates([p for p in running if p not in ended], runs, first, together, needed,
                                  association.person_ids)
