@@ -120,6 +120,9 @@ def test_step_events_name_what_happened():
     repaired = StepRecord(10, 4.0, 4, False, ("branch-repaired",))
     assert step_events(10, repaired) == [("frame 10: an elbow one camera sees moved off its branch through the chest",
                                           "INFO")]
+    turned = StepRecord(11, 4.0, 4, False, ("facing-turned",))
+    assert step_events(11, turned) == [("frame 11: a trunk one camera sees turned to the facing its feet and face show",
+                                        "INFO")]
 
 
 def test_a_clouds_colours_span_four_decades_of_weight(tmp_path):

@@ -40,6 +40,10 @@ FORWARD_CUES = ((("left_heel",), ("left_big_toe", "left_small_toe", "left_foot_i
 #: How much nearer (in cosine) the detections' forward must be to the reflected facing's image than to the
 #: current one's for :func:`facing_turn` to turn the body (set once from the cosines' range [−2, 2], not varied).
 MARGIN = 0.5
+#: The trunk's predicted pixels must be within this fraction of its image height (mid-shoulders to mid-hips) of
+#: its detections for :func:`facing_turn` to turn it (set once, not varied: a tracked trunk is within 0.1, a filter
+#: following no one or someone else is off by more than the trunk's height).
+FIT_FRACTION = 0.25
 #: eval15's hips and shoulders (left, right).
 _HIPS, _SHOULDERS = (9, 12), (3, 6)
 #: A direction shorter than this (pixels) says nothing.
@@ -82,12 +86,18 @@ def _mean_point(points: np.ndarray, min_confidence: float) -> tuple[np.ndarray, 
     return mean, least
 
 
-def facing_turn(J: np.ndarray, camera, forward: np.ndarray) -> float | None:
+def facing_turn(J: np.ndarray, camera, forward: np.ndarray, trunk_px: np.ndarray) -> float | None:
     """The turn (radians, about :data:`UP`) that takes the body of joints J (15, 3) from its facing to the
     reflected one (module docstring) where the detections' forward direction in ``camera``'s image, ``forward``
     (3,) of :func:`image_forward`, is nearer the reflected facing's image than the current one's by more than
-    :data:`MARGIN` in cosine; None otherwise (no cue, no trunk, the camera on the trunk's line)."""
+    :data:`MARGIN` in cosine; None otherwise (no cue, no trunk, the camera on the trunk's line), and where the
+    trunk does not already fit its detected pixels ``trunk_px`` (4, 2: eval15's left and right hips, left and right
+    shoulders; NaN missing) within :data:`FIT_FRACTION` of the trunk's image height: the reversal keeps the
+    trunk's pixels, so it is the question only where they fit (a filter off its person, given someone else's feet,
+    is not turned)."""
     if not forward[2] > 0 or not np.isfinite(J[list(_HIPS + _SHOULDERS)]).all():
+        return None
+    if not _fits(J, camera, trunk_px):
         return None
     mid = J[list(_HIPS)].mean(0)
     across = _horizontal((J[_HIPS[0]] - J[_HIPS[1]]) + (J[_SHOULDERS[0]] - J[_SHOULDERS[1]]))
@@ -100,6 +110,21 @@ def facing_turn(J: np.ndarray, camera, forward: np.ndarray) -> float | None:
     if not np.isfinite(agree).all() or agree[1] - agree[0] <= MARGIN:
         return None
     return float(np.arctan2(np.cross(across, reflected) @ UP, across @ reflected))
+
+
+def _fits(J: np.ndarray, camera, trunk_px: np.ndarray) -> bool:
+    """Whether J's hips and shoulders project within :data:`FIT_FRACTION` of the detected trunk's image height
+    (mid-shoulders to mid-hips) of their detections ``trunk_px`` (4, 2), on average over those detected."""
+    detected = np.asarray(trunk_px, dtype=float)
+    seen = np.isfinite(detected).all(-1)
+    hips, shoulders = seen[:2], seen[2:]
+    if not (hips.any() and shoulders.any()):
+        return False
+    height = np.linalg.norm(detected[2:][shoulders].mean(0) - detected[:2][hips].mean(0))
+    points = torch.as_tensor(J[list(_HIPS + _SHOULDERS)], dtype=torch.float64)
+    predicted = camera.project(points)[0].cpu().numpy()
+    error = np.linalg.norm(predicted[seen] - detected[seen], axis=-1)
+    return bool(np.isfinite(error).all() and error.mean() <= FIT_FRACTION * height)
 
 
 def turned_placement(g: np.ndarray, angle: float, pivot: np.ndarray) -> np.ndarray:

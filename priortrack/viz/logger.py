@@ -38,6 +38,7 @@ FLAG_EVENTS = {"innovation-gated": ("the gate held out detections the prediction
                "outlier-gated": ("detections far off the body left out", "INFO"),
                "swap-corrected": ("a detector's left/right swap undone", "INFO"),
                "branch-repaired": ("an elbow one camera sees moved off its branch through the chest", "INFO"),
+               "facing-turned": ("a trunk one camera sees turned to the facing its feet and face show", "INFO"),
                "gate-reopened": ("the gate reopened: every detection had failed it too long", "WARN"),
                "joint-reacquired": ("a joint every camera had seen away from the estimate too long taken again",
                                     "WARN"),

@@ -1,0 +1,197 @@
+"""The trunk's facing seen by one camera: the detector's feet and face against the Necker reversal of the hips' and
+shoulders' line (priortrack.geometry.facing), and the unscented filter turned by them."""
+
+import numpy as np
+import pytest
+import torch
+
+from priortrack import load_walkjog
+from priortrack.body.fk import joint_positions
+from priortrack.data.keypoints import LAYOUTS
+from priortrack.filters.ukf import UnscentedFilter
+from priortrack.geometry import so3
+from priortrack.geometry.camera import PinholeCamera
+from priortrack.geometry.facing import MARGIN, UP, facing_turn, image_forward, turned_placement
+from priortrack.models.tracking import TrackingModel
+from priortrack.observation.likelihood import JointLikelihood
+from priortrack.priors import Diffusion
+from priortrack.priors.global_motion import GlobalMotion
+
+
+def lateral(J):
+    v = (J[9] - J[12]) + (J[3] - J[6])
+    v = v - (v @ UP) * UP
+    return v / np.linalg.norm(v)
+
+
+def turned(J, angle):
+    """Joints J (…, 15, 3) turned by ``angle`` about the vertical through their mid-hips."""
+    R = so3.exp(torch.tensor(angle * UP)[None])[0].numpy()
+    pivot = J[..., [9, 12], :].mean(-2, keepdims=True)
+    return pivot + (J - pivot) @ R.T
+
+
+def reflection_angle(J, centre):
+    """The turn that takes J's hips-and-shoulders line to its reflection across the camera's vertical plane."""
+    across = lateral(J)
+    ray = J[[9, 12]].mean(0) - centre
+    ray = ray - (ray @ UP) * UP
+    ray /= np.linalg.norm(ray)
+    other = across - 2 * (across @ ray) * ray
+    return np.arctan2(np.cross(across, other) @ UP, across @ other)
+
+
+def forward_pixels(camera, J, facing):
+    """The image direction (3,) with weight 1 of a step along ``facing`` from J's mid-hips: a detector's cue."""
+    mid = J[[9, 12]].mean(0)
+    uv = camera.project(torch.from_numpy(np.stack([mid, mid + 0.3 * facing]))[None])[0][0].numpy()
+    d = uv[1] - uv[0]
+    return np.array([*(d / np.linalg.norm(d)), 1.0])
+
+
+@pytest.fixture(scope="module")
+def walk():
+    w = load_walkjog()
+    return list(w.walks("train")), w.test[1]
+
+
+@pytest.fixture(scope="module")
+def standing(walk):
+    """A walker's frame (15, 3), Y-up metres, and cameras at its side (its hips-and-shoulders line 20° off the ray,
+    as Shelf's side-on actors) and in front of it."""
+    J = joint_positions(walk[1][:1], "eval15")[0]
+    across, mid = lateral(J), J[[9, 12]].mean(0)
+    facing = np.cross(across, UP)
+    side = np.cos(np.radians(20)) * across + np.sin(np.radians(20)) * facing
+    eye_side = mid + 4.0 * side + np.array([0, 1.0, 0])
+    eye_front = mid + 4.0 * facing + np.array([0, 0.5, 0])
+    return J, PinholeCamera.look_at(eye_side, mid), PinholeCamera.look_at(eye_front, mid)
+
+
+def test_image_forward_sums_the_feet_and_the_face():
+    names = LAYOUTS["body25"]
+    k = np.full((2, len(names), 3), np.nan)
+    ix = {n: i for i, n in enumerate(names)}
+    k[0, ix["left_heel"]] = (100, 200, 0.9)
+    k[0, ix["left_big_toe"]] = (130, 200, 0.8)                    # the left foot points +x, weight 0.8
+    k[0, ix["left_small_toe"]] = (130, 220, 0.6)                  # the toes' mean (130, 210): (30, 10) → unit
+    k[0, ix["right_heel"]] = (100, 300, 0.2)                      # below the threshold: left out
+    k[0, ix["right_big_toe"]] = (60, 300, 0.9)
+    k[0, ix["left_ear"]] = (50, 50, 0.7)
+    k[0, ix["right_ear"]] = (50, 70, 0.5)
+    k[0, ix["nose"]] = (50, 90, 0.9)                              # the face points +y from the ears' mean, weight 0.5
+    out = image_forward(k, names, 0.3)
+    foot = np.array([30.0, 10.0]) / np.hypot(30, 10)
+    np.testing.assert_allclose(out[0, :2], 0.6 * foot + 0.5 * np.array([0.0, 1.0]), atol=1e-12)
+    assert out[0, 2] == pytest.approx(1.1)
+    np.testing.assert_array_equal(out[1], 0.0)                    # nothing seen: no cue
+    coco = LAYOUTS["coco17"]                                      # no feet: the face alone
+    kc = np.zeros((len(coco), 3))
+    kc[coco.index("nose")] = (10, 0, 1.0)
+    kc[coco.index("left_ear")] = (0, 0, 1.0)
+    np.testing.assert_allclose(image_forward(kc, coco, 0.3), [1.0, 0.0, 1.0])
+    assert not image_forward(np.zeros((4, 3)), ("a", "b", "c", "d"), 0.3).any()      # a layout without cues
+
+
+def test_the_reflected_trunk_keeps_its_pixels_and_is_turned_back_by_the_feet(standing):
+    J, side, _ = standing
+    centre = side.center.double().numpy()
+    angle = reflection_angle(J, centre)
+    assert abs(np.degrees(angle)) > 100                           # side-on: the reflection is a large turn
+    M = turned(J, angle)
+    trunk = [3, 6, 9, 12]
+    pixels = [side.project(torch.from_numpy(X[trunk]))[0].numpy() for X in (J, M)]
+    assert np.abs(pixels[0] - pixels[1]).max() < 0.1 * np.abs(np.diff(pixels[0], axis=0)).max() + 6.0
+    cue = forward_pixels(side, J, np.cross(lateral(J), UP))      # the detector's feet: the true facing
+    px = side.project(torch.from_numpy(J[[9, 12, 3, 6]]))[0].numpy()             # the detected trunk
+    assert facing_turn(J, side, cue, px) is None                  # the truth agrees with its feet
+    back = facing_turn(M, side, cue, px)
+    assert back is not None
+    np.testing.assert_allclose(lateral(turned(M, back)), lateral(J), atol=1e-9)
+    assert facing_turn(M, side, np.array([*-cue[:2], 1.0]), px) is None         # feet that agree with M's facing
+    assert facing_turn(M, side, np.zeros(3), px) is None                         # no cue
+    assert facing_turn(np.full((15, 3), np.nan), side, cue, px) is None
+    height = np.linalg.norm(px[2:].mean(0) - px[:2].mean(0))
+    assert facing_turn(M, side, cue, px + [0.1 * height, 0]) is not None          # a trunk that fits its pixels
+    assert facing_turn(M, side, cue, px + [0.5 * height, 0]) is None              # a filter off its person: not turned
+    only_hips = px.copy()
+    only_hips[2:] = np.nan
+    assert facing_turn(M, side, cue, only_hips) is None                          # no trunk's height to judge by
+
+
+def test_a_frontal_camera_sees_no_reversal(standing):
+    J, _, front = standing
+    px = front.project(torch.from_numpy(J[[9, 12, 3, 6]]))[0].numpy()
+    for cue in (forward_pixels(front, J, np.cross(lateral(J), UP)), np.array([1.0, 0.0, 1.0]), np.array([0, -1.0, 1])):
+        angle = facing_turn(J, front, cue, px)
+        assert angle is None or abs(angle) < np.radians(45)       # facing the camera, the two facings nearly one
+    assert MARGIN > 0
+
+
+def test_a_turned_placement_turns_the_world_joints_about_the_pivot(standing):
+    J = standing[0]
+    body = torch.from_numpy(J - J[0])[None]
+    g = np.array([0.3, 0.9, -1.2, 0.2, -0.5, 0.1])
+    world = lambda g_: (body[0] @ so3.exp(torch.tensor(g_[3:])[None])[0].T + torch.tensor(g_[:3])).numpy()  # noqa: E731
+    pivot = np.array([0.5, 0.0, -1.0])
+    X = world(g)
+    R = so3.exp(torch.tensor(1.1 * UP)[None])[0].numpy()
+    np.testing.assert_allclose(world(turned_placement(g, 1.1, pivot)), pivot + (X - pivot) @ R.T, atol=1e-12)
+
+
+def test_the_unscented_filter_turns_a_reversed_trunk_to_the_facing_the_feet_show(walk, standing):
+    """A walker seen by one side camera, the filter's state turned to the Necker reversal of its trunk (the same
+    pixels of hips and shoulders): with the detector's feet showing the true facing, one step turns it back (flag
+    "facing-turned"); without them it stays reversed."""
+    train, motion = walk
+    prior = Diffusion.fit(train[:2], local=True, space="angles")
+    X = joint_positions(motion[:4], "eval15")
+    _, side, _ = standing
+    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train[:2]]),
+                          JointLikelihood(side))
+    z = side.project(torch.from_numpy(X[2]))[0].numpy()
+    cue = forward_pixels(side, X[2], np.cross(lateral(X[2]), UP))
+    out = {}
+    for given in (True, False):
+        f = UnscentedFilter(model)
+        f.initialise(motion)
+        s = f.kf.x.copy()
+        S = model.pose_dim
+        angle = reflection_angle(X[1], side.center.double().numpy())
+        pivot = X[1][[9, 12]].mean(0)
+        for g in (S, S + 6):
+            s[g:g + 6] = turned_placement(s[g:g + 6], angle, pivot)
+        f.kf.x = s
+        if given:
+            f.forward = np.tile(cue, (4, 1, 1))                   # (ticks, cameras, 3)
+        flags = f.step(z).flags
+        estimate = model.observe(f.mean[None])[0].numpy()
+        out[given] = (flags, np.degrees(np.arccos(np.clip(lateral(estimate) @ lateral(X[2]), -1, 1))))
+    assert "facing-turned" in out[True][0] and "facing-turned" not in out[False][0]
+    assert out[True][1] < 20 and out[False][1] > 90, out
+
+
+def test_a_runs_ticks_read_the_detectors_forward_per_camera(tmp_path):
+    """TickObservations.forward: each tick's cue from its detection frame (the same from a file read a block at a
+    time), none where the tick has no frame or the camera-tick is left out."""
+    from priortrack.data.detections import Detections, open_detections
+    from priortrack.observation.ticks import TickObservations
+
+    names = LAYOUTS["body25"]
+    rng = np.random.default_rng(0)
+    k = np.concatenate([rng.uniform(0, 500, (2, 6, 25, 2)), rng.uniform(0.2, 1.0, (2, 6, 25, 1))], -1)
+    detections = Detections("body25", ("a", "b"), np.arange(6), 30.0, "test", keypoints=k)
+    index = np.array([0, 2, -1, 5])
+    left_out = np.zeros((4, 2), dtype=bool)
+    left_out[3, 1] = True
+    ticks = TickObservations(detections, index, 0.3, left_out, block_ticks=2)
+    out = ticks.forward()
+    expected = image_forward(k.astype(np.float32)[:, [0, 2, 5]], names, 0.3).transpose(1, 0, 2)
+    np.testing.assert_allclose(out[[0, 1]], expected[:2], atol=1e-9)
+    np.testing.assert_allclose(out[3, 0], expected[2, 0], atol=1e-9)
+    assert not out[2].any() and not out[3, 1].any() and out[0, :, 2].min() > 0
+    path = tmp_path / "d.npz"
+    np.savez(path, keypoints=k, keypoint_names=np.array(names), camera_names=np.array(["a", "b"]), fps=30.0)
+    on_disk = open_detections(path)
+    assert type(on_disk).__name__ == "DetectionFile"                  # keypoints read a block at a time
+    np.testing.assert_allclose(TickObservations(on_disk, index, 0.3, left_out, block_ticks=2).forward(), out, atol=1e-6)
