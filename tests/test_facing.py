@@ -11,7 +11,7 @@ from priortrack.data.keypoints import LAYOUTS
 from priortrack.filters.ukf import UnscentedFilter
 from priortrack.geometry import so3
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.geometry.facing import MARGIN, UP, facing_turn, image_forward, turned_placement
+from priortrack.geometry.facing import MARGIN, UP, facing_turn, image_forward, reflection_turns, turned_placements
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
@@ -98,6 +98,8 @@ def test_the_reflected_trunk_keeps_its_pixels_and_is_turned_back_by_the_feet(sta
     centre = side.center.double().numpy()
     angle = reflection_angle(J, centre)
     assert abs(np.degrees(angle)) > 100                           # side-on: the reflection is a large turn
+    assert reflection_turns(J, centre) == pytest.approx(angle, abs=1e-12)
+    np.testing.assert_allclose(reflection_turns(np.stack([J, J]), centre), [angle, angle], atol=1e-12)
     M = turned(J, angle)
     trunk = [3, 6, 9, 12]
     pixels = [side.project(torch.from_numpy(X[trunk]))[0].numpy() for X in (J, M)]
@@ -136,7 +138,13 @@ def test_a_turned_placement_turns_the_world_joints_about_the_pivot(standing):
     pivot = np.array([0.5, 0.0, -1.0])
     X = world(g)
     R = so3.exp(torch.tensor(1.1 * UP)[None])[0].numpy()
-    np.testing.assert_allclose(world(turned_placement(g, 1.1, pivot)), pivot + (X - pivot) @ R.T, atol=1e-12)
+    turned_g = turned_placements(torch.tensor(g)[None], torch.tensor([1.1], dtype=torch.float64), torch.tensor(pivot)[None])[0].numpy()
+    np.testing.assert_allclose(world(turned_g), pivot + (X - pivot) @ R.T, atol=1e-12)
+    many = turned_placements(torch.tensor(np.stack([g, g])), torch.tensor([1.1, -0.4], dtype=torch.float64), torch.tensor(np.stack([pivot] * 2)))
+    np.testing.assert_allclose(many[0].numpy(), turned_g, atol=1e-12)                       # each row its own turn
+    np.testing.assert_allclose(many[1, 3:].norm().item(), np.linalg.norm(so3.log(torch.from_numpy(
+        so3.exp(torch.tensor(-0.4 * UP)[None])[0].numpy() @ so3.exp(torch.tensor(g[3:])[None])[0].numpy())[None])[0]),
+        atol=1e-12)
 
 
 def test_the_unscented_filter_turns_a_reversed_trunk_to_the_facing_the_feet_show(walk, standing):
@@ -160,7 +168,8 @@ def test_the_unscented_filter_turns_a_reversed_trunk_to_the_facing_the_feet_show
         angle = reflection_angle(X[1], side.center.double().numpy())
         pivot = X[1][[9, 12]].mean(0)
         for g in (S, S + 6):
-            s[g:g + 6] = turned_placement(s[g:g + 6], angle, pivot)
+            s[g:g + 6] = turned_placements(torch.tensor(s[None, g:g + 6]), torch.tensor([angle], dtype=torch.float64),
+                                           torch.tensor(pivot)[None])[0].numpy()
         f.kf.x = s
         if given:
             f.forward = np.tile(cue, (4, 1, 1))                   # (ticks, cameras, 3)
@@ -195,3 +204,71 @@ def test_a_runs_ticks_read_the_detectors_forward_per_camera(tmp_path):
     on_disk = open_detections(path)
     assert type(on_disk).__name__ == "DetectionFile"                  # keypoints read a block at a time
     np.testing.assert_allclose(TickObservations(on_disk, index, 0.3, left_out, block_ticks=2).forward(), out, atol=1e-6)
+
+
+def test_the_particle_filter_turns_its_cloud_to_the_facing_the_feet_show(walk, standing):
+    """The particle filter's turn: every particle of a cloud on the reversed trunk turned to its own reflection (its
+    translation's Kalman covariance with it) where the feet show the true facing; without them the cloud stays
+    reversed."""
+    from priortrack.filters.particle import ParticleFilter
+
+    train, motion = walk
+    prior = Diffusion.fit(train[:2], local=True, space="angles")
+    X = joint_positions(motion[:4], "eval15")
+    _, side, _ = standing
+    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train[:2]]),
+                          JointLikelihood(side))
+    z = side.project(torch.from_numpy(X[2]))[0].numpy()
+    cue = forward_pixels(side, X[2], np.cross(lateral(X[2]), UP))
+    angle = reflection_angle(X[1], side.center.double().numpy())
+    pivot = torch.tensor(X[1][[9, 12]].mean(0))[None].expand(200, 3)
+    out = {}
+    for given in (True, False):
+        f = ParticleFilter(model, particles=200, translation="marginalised", seed=0)
+        f.initialise(motion, translation_std=0.01)
+        S, states = model.pose_dim, f.states.clone()
+        for g in (S, S + 6):
+            states[:, g:g + 6] = turned_placements(f.states[:, g:g + 6], torch.full((200,), angle, dtype=torch.float64),
+                                                   pivot)
+        f.states = states
+        f.covariance[:, 0, 0] = 4e-4                             # a covariance the turn must carry along
+        if given:
+            f.forward = np.tile(cue, (4, 1, 1))
+        snap = f.step(z)
+        out[given] = (snap.flags, np.degrees(np.arccos(np.clip(lateral(snap.estimate) @ lateral(X[2]), -1, 1))))
+    assert "facing-turned" in out[True][0] and "facing-turned" not in out[False][0]
+    assert out[True][1] < 20 and out[False][1] > 90, out
+
+
+def test_the_particle_filters_turn_carries_the_translations_covariance(walk, standing):
+    """Each particle's Kalman covariance of (t_t, t_{t−1}) is turned with it: B C Bᵀ, B = diag(R, R)."""
+    from priortrack.filters.particle import ParticleFilter
+
+    train, motion = walk
+    prior = Diffusion.fit(train[:2], local=True, space="angles")
+    X = joint_positions(motion[:4], "eval15")
+    _, side, _ = standing
+    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train[:2]]),
+                          JointLikelihood(side))
+    f = ParticleFilter(model, particles=50, translation="marginalised", seed=0)
+    f.initialise(motion, translation_std=0.01)
+    angle = reflection_angle(X[1], side.center.double().numpy())
+    S, states = model.pose_dim, f.states.clone()
+    pivot = torch.tensor(X[1][[9, 12]].mean(0))[None].expand(50, 3)
+    for g in (S, S + 6):
+        states[:, g:g + 6] = turned_placements(f.states[:, g:g + 6], torch.full((50,), angle, dtype=torch.float64), pivot)
+    f.states = states
+    f.covariance[:, 0, 0] = 4e-4
+    before = f.covariance.clone()
+    f.forward = np.tile(forward_pixels(side, X[2], np.cross(lateral(X[2]), UP)), (4, 1, 1))
+    f.advance()
+    joints = f.predicted_joints().numpy()
+    flags = []
+    f._faced(torch.from_numpy(side.project(torch.from_numpy(X[2]))[0].numpy()), flags)
+    assert flags == ["facing-turned"]
+    turns = reflection_turns(joints, side.center.double().numpy())
+    R = so3.exp(torch.tensor(turns)[:, None] * torch.tensor(UP))
+    B = torch.zeros((50, 6, 6), dtype=torch.float64)
+    B[:, :3, :3], B[:, 3:, 3:] = R, R
+    np.testing.assert_allclose(f.covariance.numpy(), (B @ before @ B.transpose(-1, -2)).numpy(), atol=1e-15)
+    assert np.allclose(f.covariance[:, 2, 2].numpy(), 1e-4 + 3e-4 * np.sin(turns) ** 2)      # the x variance turned

@@ -51,6 +51,8 @@ from priortrack.filters.snapshot import Snapshot
 from priortrack.filters.step_store import Column, StepStore
 from priortrack.filters.tempering import MAX_STAGES, annealing_exponent
 from priortrack.filters.ukf import ALPHA, BETA, KAPPA, ManifoldSigmaPoints, unscented_form
+from priortrack.geometry import so3
+from priortrack.geometry.facing import UP, alone, facing_turn, reflection_turns, turned_placements
 from priortrack.models.protocols import GaussianTransition
 from priortrack.models.tracking import TrackingModel
 from priortrack.threads import torch_threads
@@ -198,6 +200,9 @@ class ParticleFilter(SequentialFilter):
         self._parents: tuple | None = None
         self._observed: torch.Tensor | None = None
         self._predict_seconds = 0.0
+        #: (T, C, 3) per tick and camera, the detector's forward direction in the image (its feet and face;
+        #: :attr:`~priortrack.filters.ukf.UnscentedFilter.forward`, :meth:`_faced`); None: not used.
+        self.forward: np.ndarray | None = None
 
     def initialise(self, motion: Motion, start: int = 1, translation_std: float = 0.0) -> None:
         """Particles around frame ``start`` of a motion (its first two frames); ``translation_std``
@@ -337,6 +342,7 @@ class ParticleFilter(SequentialFilter):
                 parents, parent_covariance = self._guided_draw(z, parents, parent_covariance)
             elif self.states is parents:
                 self._prior_draw(parents)
+        self._faced(z, flags)
         t1 = time.perf_counter()
         predicted = self.states
         if torch.isfinite(z).any():
@@ -368,6 +374,46 @@ class ParticleFilter(SequentialFilter):
         self.frame += 1
         return Snapshot(self.frame, snapshot_states, weights, ess, ancestors, estimate.cpu().numpy(),
                         best.cpu().numpy(), joints, flags, timings, snapshot_covariance, mean=mean)
+
+    def _faced(self, z: torch.Tensor, flags: list[str]) -> None:
+        """After the frame's draw, before its weights: where one camera alone sees the person
+        (:func:`~priortrack.geometry.facing.alone`) and the detector's feet and face there (:attr:`forward`) show
+        the cloud's mean turned the other way, its trunk fitting its pixels (:func:`~priortrack.geometry.facing
+        .facing_turn`), every particle is turned to its own reflected facing (both placements about the vertical
+        through its mid-hips, the translation's Kalman covariance turned with them; flagged "facing-turned"). As
+        the unscented filter's turn (:mod:`~priortrack.filters.ukf`, "The trunk's facing"), a repair outside Bayes'
+        rule: a cloud wholly on the reversed facing has no particle to weigh up, and the transition forbids a turn
+        of 150° in a tick. Not after a guided draw that looked at the frame (its weights' ratio is the draw's) nor
+        with tempering (whose stages weigh by the draw's density)."""
+        tick = self.frame + 1
+        cameras = getattr(getattr(self.model, "likelihood", None), "cameras", None)
+        drawn_by_prior = self._log_ratio is None or not bool(self._log_ratio.any())
+        if (self.forward is None or cameras is None or tick >= len(self.forward) or self.tempering
+                or not drawn_by_prior or not isinstance(self.model, TrackingModel) or z.numel() % (15 * len(cameras))):
+            return
+        observed = z.detach().cpu().double().numpy().reshape(len(cameras), 15, -1)
+        c = alone(observed)
+        if c is None:
+            return
+        mean = self.model.mean(self.states, torch.exp(self.log_weights).to(self.states))
+        J = self.model.observe(mean[None])[0].detach().cpu().double().numpy()
+        if facing_turn(J, cameras[c], self.forward[tick][c], observed[c, [9, 12, 3, 6], :2]) is None:
+            return
+        joints = self.predicted_joints().detach().cpu().double().numpy()
+        centre = torch.as_tensor(cameras[c].center).double().cpu().numpy()
+        angles = torch.as_tensor(reflection_turns(joints, centre), dtype=self.dtype, device=self.device)
+        pivots = torch.as_tensor(joints[:, [9, 12]].mean(1), dtype=self.dtype, device=self.device)
+        S, states = self.model.pose_dim, self.states.clone()
+        for g in (S, S + 6):
+            states[:, g:g + 6] = turned_placements(self.states[:, g:g + 6], angles, pivots)
+        self.states = states
+        if self.covariance is not None:
+            R = so3.exp(angles[:, None] * torch.as_tensor(UP, dtype=self.dtype, device=self.device))
+            B = torch.zeros((len(R), 6, 6), dtype=self.dtype, device=self.device)
+            B[:, :3, :3], B[:, 3:, 3:] = R, R
+            self.covariance = B @ self.covariance @ B.transpose(-1, -2)
+        self._observed = None
+        flags.append("facing-turned")
 
     def update(self, z: torch.Tensor, flags: list[str]) -> torch.Tensor:
         """Bayes' rule on the predicted particles: log w += log p(z | s), normalised.

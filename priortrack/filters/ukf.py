@@ -142,7 +142,7 @@ from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.geometry import so3
 from priortrack.geometry.depth_branches import ELBOWS, trunk_repairs
-from priortrack.geometry.facing import facing_turn, turned_placement
+from priortrack.geometry.facing import alone, facing_turn, turned_placements
 from priortrack.geometry.manifold_mean import MEAN_MAX_STEPS, MEAN_TOL, signed_mean
 from priortrack.kernels import cpu_kernel_applies
 from priortrack.models.protocols import GaussianTransition
@@ -299,27 +299,26 @@ class UnscentedTracking:
 
     def facing_turned(self, s: np.ndarray, z: np.ndarray, forward: np.ndarray) -> tuple[np.ndarray, float] | None:
         """The state s (A,) turned to the trunk's other facing where one camera alone sees the person in z (C, 15, ·)
-        (no other camera any joint; it three of the hips and shoulders) and the detector's forward direction there,
-        ``forward`` (C, 3)
+        (:func:`~priortrack.geometry.facing.alone`) and the detector's forward direction there, ``forward`` (C, 3)
         (:func:`~priortrack.geometry.facing.image_forward`), says it faces that way, its trunk fitting its pixels there
         (:func:`~priortrack.geometry.facing.facing_turn`): both placements g_t, g_{t−1} turned about the vertical
-        through the mid-hips (:func:`~priortrack.geometry.facing.turned_placement`), the pose kept; and the turn's
+        through the mid-hips (:func:`~priortrack.geometry.facing.turned_placements`), the pose kept; and the turn's
         angle. None otherwise, and for joints other than eval15's."""
         cameras = getattr(self.model.likelihood, "cameras", None)
         if self.mirror_pairs is None or cameras is None or z.size % (15 * len(cameras)) or len(forward) != len(cameras):
             return None
         z = z.reshape(len(cameras), 15, -1)
-        trunk = np.isfinite(z[:, [3, 6, 9, 12], 0]).sum(axis=1) >= 3
-        if trunk.sum() != 1 or np.isfinite(z[..., 0]).any(axis=1).sum() != 1:
+        c = alone(z)
+        if c is None:
             return None
-        c = int(np.flatnonzero(trunk)[0])
         joints = self.observe(torch.from_numpy(s)[None])[0].cpu().numpy()
         angle = facing_turn(joints, cameras[c], forward[c], z[c, [9, 12, 3, 6], :2])
         if angle is None:
             return None
-        pivot, S, out = joints[[9, 12]].mean(0), self.model.pose_dim, s.copy()
+        pivot, S, out = torch.from_numpy(joints[[9, 12]].mean(0))[None], self.model.pose_dim, s.copy()
         for g in (S, S + GLOBAL_DIM):
-            out[g:g + GLOBAL_DIM] = turned_placement(s[g:g + GLOBAL_DIM], angle, pivot)
+            out[g:g + GLOBAL_DIM] = turned_placements(torch.from_numpy(s[None, g:g + GLOBAL_DIM]),
+                                                      torch.tensor([angle], dtype=torch.float64), pivot)[0].numpy()
         return out, angle
 
     def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:

@@ -86,6 +86,18 @@ def _mean_point(points: np.ndarray, min_confidence: float) -> tuple[np.ndarray, 
     return mean, least
 
 
+def alone(z: np.ndarray) -> int | None:
+    """The camera that alone sees a person in one frame's observation z (C, 15, ·) (eval15; NaN missing): the only
+    camera with any joint, three of the four hips and shoulders among them; None otherwise. Where a second camera
+    sees any joint it holds a depth a turn would contradict (Shelf's cameras 0, 4: turning wherever one camera alone
+    saw the trunk cost actor 1 6 points of PCP)."""
+    seen = np.isfinite(z[..., 0])
+    cameras = np.flatnonzero(seen.any(axis=1))
+    if len(cameras) != 1 or seen[cameras[0], list(_HIPS + _SHOULDERS)].sum() < 3:
+        return None
+    return int(cameras[0])
+
+
 def facing_turn(J: np.ndarray, camera, forward: np.ndarray, trunk_px: np.ndarray) -> float | None:
     """The turn (radians, about :data:`UP`) that takes the body of joints J (15, 3) from its facing to the
     reflected one (module docstring) where the detections' forward direction in ``camera``'s image, ``forward``
@@ -99,17 +111,29 @@ def facing_turn(J: np.ndarray, camera, forward: np.ndarray, trunk_px: np.ndarray
         return None
     if not _fits(J, camera, trunk_px):
         return None
-    mid = J[list(_HIPS)].mean(0)
-    across = _horizontal((J[_HIPS[0]] - J[_HIPS[1]]) + (J[_SHOULDERS[0]] - J[_SHOULDERS[1]]))
-    ray = _horizontal(mid - torch.as_tensor(camera.center).double().cpu().numpy())
-    if across is None or ray is None:
+    centre = torch.as_tensor(camera.center).double().cpu().numpy()
+    across, angle = _across(J), float(reflection_turns(J, centre))
+    if across is None or angle == 0.0:
         return None
-    reflected = across - 2 * (across @ ray) * ray
+    reflected = _rotation(angle) @ across
+    mid = J[list(_HIPS)].mean(0)
     cue = forward[:2] / max(np.linalg.norm(forward[:2]), np.finfo(float).tiny)
     agree = [cue @ _image_direction(camera, mid, np.cross(line, UP)) for line in (across, reflected)]
     if not np.isfinite(agree).all() or agree[1] - agree[0] <= MARGIN:
         return None
-    return float(np.arctan2(np.cross(across, reflected) @ UP, across @ reflected))
+    return angle
+
+
+def reflection_turns(J: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(...) the turn (radians, about :data:`UP`) of each body of joints J (..., 15, 3) from its line across the body
+    l to that line reflected across the vertical plane through the camera's centre (3,) and the body's mid-hips,
+    l' = l − 2 (l·r) r (module docstring); 0 where either is not defined."""
+    mid = J[..., list(_HIPS), :].mean(-2)
+    across = (J[..., _HIPS[0], :] - J[..., _HIPS[1], :]) + (J[..., _SHOULDERS[0], :] - J[..., _SHOULDERS[1], :])
+    across, ray = _flat(across), _flat(mid - centre)
+    reflected = across - 2 * (across * ray).sum(-1, keepdims=True) * ray
+    angle = np.arctan2((np.cross(across, reflected) * UP).sum(-1), (across * reflected).sum(-1))
+    return np.where(np.isfinite(angle), angle, 0.0)
 
 
 def _fits(J: np.ndarray, camera, trunk_px: np.ndarray) -> bool:
@@ -127,21 +151,32 @@ def _fits(J: np.ndarray, camera, trunk_px: np.ndarray) -> bool:
     return bool(np.isfinite(error).all() and error.mean() <= FIT_FRACTION * height)
 
 
-def turned_placement(g: np.ndarray, angle: float, pivot: np.ndarray) -> np.ndarray:
-    """A placement g = (t, ω) (6,) (world = exp(ω) · body + t) turned by ``angle`` about :data:`UP` through
-    ``pivot`` (3,): exp(ω') = R exp(ω), t' = pivot + R (t − pivot), R = exp(angle · up)."""
-    R = so3.exp(torch.as_tensor(angle * UP, dtype=torch.float64)[None])[0]
-    rotation = R @ so3.exp(torch.as_tensor(g[3:], dtype=torch.float64)[None])[0]
-    out = np.empty(6)
-    out[:3] = pivot + R.numpy() @ (np.asarray(g[:3], dtype=float) - pivot)
-    out[3:] = so3.log(rotation[None])[0].numpy()
-    return out
+def turned_placements(g: torch.Tensor, angles: torch.Tensor, pivots: torch.Tensor) -> torch.Tensor:
+    """Placements g = (t, ω) (N, 6) (world = exp(ω) · body + t) each turned by its angle (N,) about :data:`UP`
+    through its pivot (N, 3): exp(ω') = R exp(ω), t' = pivot + R (t − pivot), R = exp(angle · up); in g's dtype and
+    on its device."""
+    up = torch.as_tensor(UP, dtype=g.dtype, device=g.device)
+    R = so3.exp(angles.to(g)[:, None] * up)
+    pivots = pivots.to(g)
+    t = pivots + ((g[:, :3] - pivots)[:, None, :] @ R.transpose(-1, -2))[:, 0]
+    return torch.cat([t, so3.log(R @ so3.exp(g[:, 3:]))], -1)
 
 
-def _horizontal(v: np.ndarray) -> np.ndarray | None:
-    v = v - (v @ UP) * UP
-    norm = np.linalg.norm(v)
-    return v / norm if norm > 1e-9 else None
+def _rotation(angle: float) -> np.ndarray:
+    return so3.exp(torch.as_tensor(angle * UP, dtype=torch.float64)[None])[0].numpy()
+
+
+def _flat(v: np.ndarray) -> np.ndarray:
+    """v (..., 3) made horizontal and unit (NaN where it has no horizontal part)."""
+    v = v - (v * UP).sum(-1, keepdims=True) * UP
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norm = np.linalg.norm(v, axis=-1, keepdims=True)
+        return np.where(norm > 1e-9, v / norm, np.nan)
+
+
+def _across(J: np.ndarray) -> np.ndarray | None:
+    across = _flat((J[_HIPS[0]] - J[_HIPS[1]]) + (J[_SHOULDERS[0]] - J[_SHOULDERS[1]]))
+    return across if np.isfinite(across).all() else None
 
 
 def _image_direction(camera, point: np.ndarray, direction: np.ndarray) -> np.ndarray:

@@ -736,7 +736,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     torch.manual_seed(config.seed)
     initial = {"translation_std": START_TRANSLATION_STD} if preset.filter_kind in ("pf", "apf") else {}
     z, index = z.between(first), index[first:]         # from here on, tick 0 is the filter's first
-    if hasattr(filt, "forward"):                     # the trunk's facing from the feet and face (UKF)
+    if hasattr(filt, "forward"):                     # the trunk's facing from the feet and face
         filt.forward = z.forward()
     return PersonRun(detections, config, preset, prior, model, filt, z, index, None if single else X[first:], A, up,
                      cameras, world_cameras, M, skeleton, pose, unmeasured, rejected, known, initial, start_time,
