@@ -272,3 +272,34 @@ def test_the_particle_filters_turn_carries_the_translations_covariance(walk, sta
     B[:, :3, :3], B[:, 3:, 3:] = R, R
     np.testing.assert_allclose(f.covariance.numpy(), (B @ before @ B.transpose(-1, -2)).numpy(), atol=1e-15)
     assert np.allclose(f.covariance[:, 2, 2].numpy(), 1e-4 + 3e-4 * np.sin(turns) ** 2)      # the x variance turned
+
+
+def test_the_gaussian_sums_members_turn_with_the_feet_too(walk, standing):
+    """ukf-lie's bank: each member unscented filter reads the bank's forward directions, so a reversed trunk seen
+    by one camera is turned in every member (the bank's flags are its heaviest member's)."""
+    from priortrack.filters.gaussian_sum import GaussianSumFilter
+    from priortrack.priors.lie import LiePrior
+
+    train, motion = walk
+    prior = LiePrior.fit(train[:4], seed=0)
+    X = joint_positions(motion[:4], "eval15")
+    _, side, _ = standing
+    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train[:4]]),
+                          JointLikelihood(side))
+    z = side.project(torch.from_numpy(X[2]))[0].numpy()
+    out = {}
+    for given in (True, False):
+        f = GaussianSumFilter(model)
+        f.initialise(motion)
+        s, S = f.hypotheses_[0].x, model.pose_dim
+        angle = reflection_angle(X[1], side.center.double().numpy())
+        for g in (S, S + 6):
+            s[g:g + 6] = turned_placements(torch.tensor(s[None, g:g + 6]), torch.tensor([angle], dtype=torch.float64),
+                                           torch.tensor(X[1][[9, 12]].mean(0))[None])[0].numpy()
+        if given:
+            f.forward = np.tile(forward_pixels(side, X[2], np.cross(lateral(X[2]), UP)), (4, 1, 1))
+        flags = f.step(z).flags
+        estimate = model.observe(f.mean[None])[0].numpy()
+        out[given] = (flags, np.degrees(np.arccos(np.clip(lateral(estimate) @ lateral(X[2]), -1, 1))))
+    assert "facing-turned" in out[True][0] and "facing-turned" not in out[False][0]
+    assert out[True][1] < 20 and out[False][1] > 90, out

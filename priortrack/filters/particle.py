@@ -23,6 +23,10 @@ With ``translation="marginalised"`` the body's translation is not sampled: each 
 a Gaussian over (t_t, t_{t-1}) (its mean in the state, its covariance in ``covariance``), predicted
 and updated by a Kalman filter, and weighted by the predictive likelihood p(z_t | x_t, R_t, z_{1:t-1})
 with t integrated out (:mod:`priortrack.filters.marginal_translation`).
+
+Where one camera alone sees the person and the run has the detector's feet and face (``forward``), a cloud whose mean
+faces the other way than they show is turned, each particle to its own reflected facing (:meth:`ParticleFilter._faced`;
+:mod:`priortrack.geometry.facing`), a repair outside Bayes' rule as the unscented filter's.
 """
 
 from __future__ import annotations
