@@ -147,35 +147,54 @@ def test_a_turned_placement_turns_the_world_joints_about_the_pivot(standing):
         atol=1e-12)
 
 
-def test_the_unscented_filter_turns_a_reversed_trunk_to_the_facing_the_feet_show(walk, standing):
+@pytest.fixture(scope="module")
+def seen_side_on(walk, standing):
+    """A held-out walk's joints X (4, 15, 3), its frame 2's pixels z in the side camera and the feet's cue there, and
+    a model on a prior: (X, side camera, z, cue (3,), model(prior, train))."""
+    train, motion = walk
+    X = joint_positions(motion[:4], "eval15")
+    side = standing[1]
+    z = side.project(torch.from_numpy(X[2]))[0].numpy()
+
+    def model(prior, fitted_on):
+        return TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in fitted_on]),
+                             JointLikelihood(side))
+
+    return X, side, z, forward_pixels(side, X[2], np.cross(lateral(X[2]), UP)), model
+
+
+def reversed_states(states: torch.Tensor, model, X: np.ndarray, side) -> torch.Tensor:
+    """States (N, A) with both placements turned to the Necker reversal of frame 1's trunk in the side camera."""
+    angle = reflection_angle(X[1], side.center.double().numpy())
+    pivot = torch.tensor(X[1][[9, 12]].mean(0))[None].expand(len(states), 3)
+    out, S = states.clone(), model.pose_dim
+    for g in (S, S + 6):
+        out[:, g:g + 6] = turned_placements(states[:, g:g + 6], torch.full((len(states),), angle, dtype=torch.float64),
+                                            pivot)
+    return out
+
+
+def facing_error(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """Degrees between two bodies' lines across the body."""
+    return float(np.degrees(np.arccos(np.clip(lateral(estimate) @ lateral(truth), -1, 1))))
+
+
+def test_the_unscented_filter_turns_a_reversed_trunk_to_the_facing_the_feet_show(walk, seen_side_on):
     """A walker seen by one side camera, the filter's state turned to the Necker reversal of its trunk (the same
     pixels of hips and shoulders): with the detector's feet showing the true facing, one step turns it back (flag
     "facing-turned"); without them it stays reversed."""
     train, motion = walk
-    prior = Diffusion.fit(train[:2], local=True, space="angles")
-    X = joint_positions(motion[:4], "eval15")
-    _, side, _ = standing
-    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train[:2]]),
-                          JointLikelihood(side))
-    z = side.project(torch.from_numpy(X[2]))[0].numpy()
-    cue = forward_pixels(side, X[2], np.cross(lateral(X[2]), UP))
+    X, side, z, cue, model_on = seen_side_on
+    model = model_on(Diffusion.fit(train[:2], local=True, space="angles"), train[:2])
     out = {}
     for given in (True, False):
         f = UnscentedFilter(model)
         f.initialise(motion)
-        s = f.kf.x.copy()
-        S = model.pose_dim
-        angle = reflection_angle(X[1], side.center.double().numpy())
-        pivot = X[1][[9, 12]].mean(0)
-        for g in (S, S + 6):
-            s[g:g + 6] = turned_placements(torch.tensor(s[None, g:g + 6]), torch.tensor([angle], dtype=torch.float64),
-                                           torch.tensor(pivot)[None])[0].numpy()
-        f.kf.x = s
+        f.kf.x = reversed_states(torch.from_numpy(f.kf.x)[None], model, X, side)[0].numpy()
         if given:
             f.forward = np.tile(cue, (4, 1, 1))                   # (ticks, cameras, 3)
         flags = f.step(z).flags
-        estimate = model.observe(f.mean[None])[0].numpy()
-        out[given] = (flags, np.degrees(np.arccos(np.clip(lateral(estimate) @ lateral(X[2]), -1, 1))))
+        out[given] = (flags, facing_error(model.observe(f.mean[None])[0].numpy(), X[2]))
     assert "facing-turned" in out[True][0] and "facing-turned" not in out[False][0]
     assert out[True][1] < 20 and out[False][1] > 90, out
 
@@ -206,65 +225,46 @@ def test_a_runs_ticks_read_the_detectors_forward_per_camera(tmp_path):
     np.testing.assert_allclose(TickObservations(on_disk, index, 0.3, left_out, block_ticks=2).forward(), out, atol=1e-6)
 
 
-def test_the_particle_filter_turns_its_cloud_to_the_facing_the_feet_show(walk, standing):
+def test_the_particle_filter_turns_its_cloud_to_the_facing_the_feet_show(walk, seen_side_on):
     """The particle filter's turn: every particle of a cloud on the reversed trunk turned to its own reflection (its
     translation's Kalman covariance with it) where the feet show the true facing; without them the cloud stays
     reversed."""
     from priortrack.filters.particle import ParticleFilter
 
     train, motion = walk
-    prior = Diffusion.fit(train[:2], local=True, space="angles")
-    X = joint_positions(motion[:4], "eval15")
-    _, side, _ = standing
-    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train[:2]]),
-                          JointLikelihood(side))
-    z = side.project(torch.from_numpy(X[2]))[0].numpy()
-    cue = forward_pixels(side, X[2], np.cross(lateral(X[2]), UP))
-    angle = reflection_angle(X[1], side.center.double().numpy())
-    pivot = torch.tensor(X[1][[9, 12]].mean(0))[None].expand(200, 3)
+    X, side, z, cue, model_on = seen_side_on
+    model = model_on(Diffusion.fit(train[:2], local=True, space="angles"), train[:2])
     out = {}
     for given in (True, False):
         f = ParticleFilter(model, particles=200, translation="marginalised", seed=0)
         f.initialise(motion, translation_std=0.01)
-        S, states = model.pose_dim, f.states.clone()
-        for g in (S, S + 6):
-            states[:, g:g + 6] = turned_placements(f.states[:, g:g + 6], torch.full((200,), angle, dtype=torch.float64),
-                                                   pivot)
-        f.states = states
+        f.states = reversed_states(f.states, model, X, side)
         f.covariance[:, 0, 0] = 4e-4                             # a covariance the turn must carry along
         if given:
             f.forward = np.tile(cue, (4, 1, 1))
         snap = f.step(z)
-        out[given] = (snap.flags, np.degrees(np.arccos(np.clip(lateral(snap.estimate) @ lateral(X[2]), -1, 1))))
+        out[given] = (snap.flags, facing_error(snap.estimate, X[2]))
     assert "facing-turned" in out[True][0] and "facing-turned" not in out[False][0]
     assert out[True][1] < 20 and out[False][1] > 90, out
 
 
-def test_the_particle_filters_turn_carries_the_translations_covariance(walk, standing):
+def test_the_particle_filters_turn_carries_the_translations_covariance(walk, seen_side_on):
     """Each particle's Kalman covariance of (t_t, t_{t−1}) is turned with it: B C Bᵀ, B = diag(R, R)."""
     from priortrack.filters.particle import ParticleFilter
 
     train, motion = walk
-    prior = Diffusion.fit(train[:2], local=True, space="angles")
-    X = joint_positions(motion[:4], "eval15")
-    _, side, _ = standing
-    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train[:2]]),
-                          JointLikelihood(side))
+    X, side, z, cue, model_on = seen_side_on
+    model = model_on(Diffusion.fit(train[:2], local=True, space="angles"), train[:2])
     f = ParticleFilter(model, particles=50, translation="marginalised", seed=0)
     f.initialise(motion, translation_std=0.01)
-    angle = reflection_angle(X[1], side.center.double().numpy())
-    S, states = model.pose_dim, f.states.clone()
-    pivot = torch.tensor(X[1][[9, 12]].mean(0))[None].expand(50, 3)
-    for g in (S, S + 6):
-        states[:, g:g + 6] = turned_placements(f.states[:, g:g + 6], torch.full((50,), angle, dtype=torch.float64), pivot)
-    f.states = states
+    f.states = reversed_states(f.states, model, X, side)
     f.covariance[:, 0, 0] = 4e-4
     before = f.covariance.clone()
-    f.forward = np.tile(forward_pixels(side, X[2], np.cross(lateral(X[2]), UP)), (4, 1, 1))
+    f.forward = np.tile(cue, (4, 1, 1))
     f.advance()
     joints = f.predicted_joints().numpy()
     flags = []
-    f._faced(torch.from_numpy(side.project(torch.from_numpy(X[2]))[0].numpy()), flags)
+    f._faced(torch.from_numpy(z), flags)
     assert flags == ["facing-turned"]
     turns = reflection_turns(joints, side.center.double().numpy())
     R = so3.exp(torch.tensor(turns)[:, None] * torch.tensor(UP))
@@ -274,32 +274,23 @@ def test_the_particle_filters_turn_carries_the_translations_covariance(walk, sta
     assert np.allclose(f.covariance[:, 2, 2].numpy(), 1e-4 + 3e-4 * np.sin(turns) ** 2)      # the x variance turned
 
 
-def test_the_gaussian_sums_members_turn_with_the_feet_too(walk, standing):
+def test_the_gaussian_sums_members_turn_with_the_feet_too(walk, seen_side_on):
     """ukf-lie's bank: each member unscented filter reads the bank's forward directions, so a reversed trunk seen
     by one camera is turned in every member (the bank's flags are its heaviest member's)."""
     from priortrack.filters.gaussian_sum import GaussianSumFilter
     from priortrack.priors.lie import LiePrior
 
     train, motion = walk
-    prior = LiePrior.fit(train[:4], seed=0)
-    X = joint_positions(motion[:4], "eval15")
-    _, side, _ = standing
-    model = TrackingModel(prior, GlobalMotion.fit([prior.space.global_pose(m) for m in train[:4]]),
-                          JointLikelihood(side))
-    z = side.project(torch.from_numpy(X[2]))[0].numpy()
+    X, side, z, cue, model_on = seen_side_on
+    model = model_on(LiePrior.fit(train[:4], seed=0), train[:4])
     out = {}
     for given in (True, False):
         f = GaussianSumFilter(model)
         f.initialise(motion)
-        s, S = f.hypotheses_[0].x, model.pose_dim
-        angle = reflection_angle(X[1], side.center.double().numpy())
-        for g in (S, S + 6):
-            s[g:g + 6] = turned_placements(torch.tensor(s[None, g:g + 6]), torch.tensor([angle], dtype=torch.float64),
-                                           torch.tensor(X[1][[9, 12]].mean(0))[None])[0].numpy()
+        f.hypotheses_[0].x = reversed_states(torch.from_numpy(f.hypotheses_[0].x)[None], model, X, side)[0].numpy()
         if given:
-            f.forward = np.tile(forward_pixels(side, X[2], np.cross(lateral(X[2]), UP)), (4, 1, 1))
+            f.forward = np.tile(cue, (4, 1, 1))
         flags = f.step(z).flags
-        estimate = model.observe(f.mean[None])[0].numpy()
-        out[given] = (flags, np.degrees(np.arccos(np.clip(lateral(estimate) @ lateral(X[2]), -1, 1))))
+        out[given] = (flags, facing_error(model.observe(f.mean[None])[0].numpy(), X[2]))
     assert "facing-turned" in out[True][0] and "facing-turned" not in out[False][0]
     assert out[True][1] < 20 and out[False][1] > 90, out
