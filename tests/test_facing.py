@@ -11,7 +11,7 @@ from priortrack.data.keypoints import LAYOUTS
 from priortrack.filters.ukf import UnscentedFilter
 from priortrack.geometry import so3
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.geometry.facing import MARGIN, UP, facing_turn, image_forward, reflection_turns, turned_placements
+from priortrack.geometry.facing import MARGIN, UP, facing_turns, image_forward, reflection_turns, turned_placements
 from priortrack.models.tracking import TrackingModel
 from priortrack.observation.likelihood import JointLikelihood
 from priortrack.priors import Diffusion
@@ -106,27 +106,28 @@ def test_the_reflected_trunk_keeps_its_pixels_and_is_turned_back_by_the_feet(sta
     assert np.abs(pixels[0] - pixels[1]).max() < 0.1 * np.abs(np.diff(pixels[0], axis=0)).max() + 6.0
     cue = forward_pixels(side, J, np.cross(lateral(J), UP))      # the detector's feet: the true facing
     px = side.project(torch.from_numpy(J[[9, 12, 3, 6]]))[0].numpy()             # the detected trunk
-    assert facing_turn(J, side, cue, px) is None                  # the truth agrees with its feet
-    back = facing_turn(M, side, cue, px)
-    assert back is not None
+    assert facing_turns(J[None], side, cue, px)[0] == 0             # the truth agrees with its feet
+    back = facing_turns(M[None], side, cue, px)[0]
+    assert back != 0
     np.testing.assert_allclose(lateral(turned(M, back)), lateral(J), atol=1e-9)
-    assert facing_turn(M, side, np.array([*-cue[:2], 1.0]), px) is None         # feet that agree with M's facing
-    assert facing_turn(M, side, np.zeros(3), px) is None                         # no cue
-    assert facing_turn(np.full((15, 3), np.nan), side, cue, px) is None
+    np.testing.assert_array_equal(facing_turns(np.stack([J, M, J]), side, cue, px), [0, back, 0])   # each its own
+    assert facing_turns(M[None], side, np.array([*-cue[:2], 1.0]), px)[0] == 0    # feet that agree with M's facing
+    assert facing_turns(M[None], side, np.zeros(3), px)[0] == 0                   # no cue
+    assert facing_turns(np.full((1, 15, 3), np.nan), side, cue, px)[0] == 0
     height = np.linalg.norm(px[2:].mean(0) - px[:2].mean(0))
-    assert facing_turn(M, side, cue, px + [0.1 * height, 0]) is not None          # a trunk that fits its pixels
-    assert facing_turn(M, side, cue, px + [0.5 * height, 0]) is None              # a filter off its person: not turned
+    assert facing_turns(M[None], side, cue, px + [0.1 * height, 0])[0] != 0       # a trunk that fits its pixels
+    assert facing_turns(M[None], side, cue, px + [0.5 * height, 0])[0] == 0       # a filter off its person: not turned
     only_hips = px.copy()
     only_hips[2:] = np.nan
-    assert facing_turn(M, side, cue, only_hips) is None                          # no trunk's height to judge by
+    assert facing_turns(M[None], side, cue, only_hips)[0] == 0                    # no trunk's height to judge by
 
 
 def test_a_frontal_camera_sees_no_reversal(standing):
     J, _, front = standing
     px = front.project(torch.from_numpy(J[[9, 12, 3, 6]]))[0].numpy()
     for cue in (forward_pixels(front, J, np.cross(lateral(J), UP)), np.array([1.0, 0.0, 1.0]), np.array([0, -1.0, 1])):
-        angle = facing_turn(J, front, cue, px)
-        assert angle is None or abs(angle) < np.radians(45)       # facing the camera, the two facings nearly one
+        angle = facing_turns(J[None], front, cue, px)[0]
+        assert abs(angle) < np.radians(45)                        # facing the camera, the two facings nearly one
     assert MARGIN > 0
 
 
@@ -294,3 +295,25 @@ def test_the_gaussian_sums_members_turn_with_the_feet_too(walk, seen_side_on):
         out[given] = (flags, facing_error(model.observe(f.mean[None])[0].numpy(), X[2]))
     assert "facing-turned" in out[True][0] and "facing-turned" not in out[False][0]
     assert out[True][1] < 20 and out[False][1] > 90, out
+
+
+def test_the_particles_that_face_as_the_feet_show_are_kept(walk, seen_side_on):
+    """A cloud half on the reversed trunk, half on the true one: the feet turn the first half and leave the second
+    as it was (a decision per particle, not by the cloud's mean)."""
+    from priortrack.filters.particle import ParticleFilter
+
+    train, motion = walk
+    X, side, z, cue, model_on = seen_side_on
+    model = model_on(Diffusion.fit(train[:2], local=True, space="angles"), train[:2])
+    f = ParticleFilter(model, particles=40, translation="marginalised", seed=0)
+    f.initialise(motion, translation_std=0.01)
+    f.states[:20] = reversed_states(f.states[:20], model, X, side)
+    f.forward = np.tile(cue, (4, 1, 1))
+    f.advance()
+    drawn = f.states.clone()
+    flags = []
+    f._faced(torch.from_numpy(z), flags)
+    assert flags == ["facing-turned"]
+    assert torch.equal(f.states[20:], drawn[20:]) and not torch.equal(f.states[:20], drawn[:20])
+    joints = f.predicted_joints().numpy()
+    assert max(facing_error(J, X[2]) for J in joints) < 30

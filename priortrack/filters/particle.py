@@ -24,8 +24,8 @@ a Gaussian over (t_t, t_{t-1}) (its mean in the state, its covariance in ``covar
 and updated by a Kalman filter, and weighted by the predictive likelihood p(z_t | x_t, R_t, z_{1:t-1})
 with t integrated out (:mod:`priortrack.filters.marginal_translation`).
 
-Where one camera alone sees the person and the run has the detector's feet and face (``forward``), a cloud whose mean
-faces the other way than they show is turned, each particle to its own reflected facing (:meth:`ParticleFilter._faced`;
+Where one camera alone sees the person and the run has the detector's feet and face (``forward``), each particle that
+faces the other way than they show is turned to its reflected facing (:meth:`ParticleFilter._faced`;
 :mod:`priortrack.geometry.facing`), a repair outside Bayes' rule as the unscented filter's.
 """
 
@@ -56,7 +56,7 @@ from priortrack.filters.step_store import Column, StepStore
 from priortrack.filters.tempering import MAX_STAGES, annealing_exponent
 from priortrack.filters.ukf import ALPHA, BETA, KAPPA, ManifoldSigmaPoints, unscented_form
 from priortrack.geometry import so3
-from priortrack.geometry.facing import UP, alone, facing_turn, reflection_turns, turned_placements
+from priortrack.geometry.facing import UP, alone, facing_turns, turned_placements
 from priortrack.models.protocols import GaussianTransition
 from priortrack.models.tracking import TrackingModel
 from priortrack.threads import torch_threads
@@ -381,14 +381,14 @@ class ParticleFilter(SequentialFilter):
 
     def _faced(self, z: torch.Tensor, flags: list[str]) -> None:
         """After the frame's draw, before its weights: where one camera alone sees the person
-        (:func:`~priortrack.geometry.facing.alone`) and the detector's feet and face there (:attr:`forward`) show
-        the cloud's mean turned the other way, its trunk fitting its pixels (:func:`~priortrack.geometry.facing
-        .facing_turn`), every particle is turned to its own reflected facing (both placements about the vertical
-        through its mid-hips, the translation's Kalman covariance turned with them; flagged "facing-turned"). As
-        the unscented filter's turn (:mod:`~priortrack.filters.ukf`, "The trunk's facing"), a repair outside Bayes'
-        rule: a cloud wholly on the reversed facing has no particle to weigh up, and the transition forbids a turn
-        of 150° in a tick. Not after a guided draw that looked at the frame (its weights' ratio is the draw's) nor
-        with tempering (whose stages weigh by the draw's density)."""
+        (:func:`~priortrack.geometry.facing.alone`), each particle whose own facing the detector's feet and face there
+        (:attr:`forward`) show reversed, its trunk fitting its pixels, is turned to its reflected facing
+        (:func:`~priortrack.geometry.facing.facing_turns`: both placements about the vertical through its mid-hips,
+        the translation's Kalman covariance turned with them; flagged "facing-turned"); the particles that face as
+        the feet show are kept. As the unscented filter's turn (:mod:`~priortrack.filters.ukf`, "The trunk's
+        facing"), a repair outside Bayes' rule: a cloud wholly on the reversed facing has no particle to weigh up,
+        and the transition forbids a turn of 150° in a tick. Not after a guided draw that looked at the frame (its
+        weights' ratio is the draw's) nor with tempering (whose stages weigh by the draw's density)."""
         tick = self.frame + 1
         cameras = getattr(getattr(self.model, "likelihood", None), "cameras", None)
         drawn_by_prior = self._log_ratio is None or not bool(self._log_ratio.any())
@@ -399,23 +399,24 @@ class ParticleFilter(SequentialFilter):
         c = alone(observed)
         if c is None:
             return
-        mean = self.model.mean(self.states, torch.exp(self.log_weights).to(self.states))
-        J = self.model.observe(mean[None])[0].detach().cpu().double().numpy()
-        if facing_turn(J, cameras[c], self.forward[tick][c], observed[c, [9, 12, 3, 6], :2]) is None:
-            return
         joints = self.predicted_joints().detach().cpu().double().numpy()
-        centre = torch.as_tensor(cameras[c].center).double().cpu().numpy()
-        angles = torch.as_tensor(reflection_turns(joints, centre), dtype=self.dtype, device=self.device)
-        pivots = torch.as_tensor(joints[:, [9, 12]].mean(1), dtype=self.dtype, device=self.device)
+        angles = facing_turns(joints, cameras[c], self.forward[tick][c], observed[c, [9, 12, 3, 6], :2])
+        turned = torch.as_tensor(angles != 0, device=self.device)
+        if not bool(turned.any()):
+            return
+        angles = torch.as_tensor(angles, dtype=self.dtype, device=self.device)[turned]
+        pivots = torch.as_tensor(joints[:, [9, 12]].mean(1), dtype=self.dtype, device=self.device)[turned]
         S, states = self.model.pose_dim, self.states.clone()
         for g in (S, S + 6):
-            states[:, g:g + 6] = turned_placements(self.states[:, g:g + 6], angles, pivots)
+            states[turned, g:g + 6] = turned_placements(self.states[turned, g:g + 6], angles, pivots)
         self.states = states
         if self.covariance is not None:
             R = so3.exp(angles[:, None] * torch.as_tensor(UP, dtype=self.dtype, device=self.device))
             B = torch.zeros((len(R), 6, 6), dtype=self.dtype, device=self.device)
             B[:, :3, :3], B[:, 3:, 3:] = R, R
-            self.covariance = B @ self.covariance @ B.transpose(-1, -2)
+            covariance = self.covariance.clone()
+            covariance[turned] = B @ self.covariance[turned] @ B.transpose(-1, -2)
+            self.covariance = covariance
         self._observed = None
         flags.append("facing-turned")
 

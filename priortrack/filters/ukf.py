@@ -142,7 +142,7 @@ from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.geometry import so3
 from priortrack.geometry.depth_branches import ELBOWS, trunk_repairs
-from priortrack.geometry.facing import alone, facing_turn, turned_placements
+from priortrack.geometry.facing import alone, facing_turns, turned_placements
 from priortrack.geometry.manifold_mean import MEAN_MAX_STEPS, MEAN_TOL, signed_mean
 from priortrack.kernels import cpu_kernel_applies
 from priortrack.models.protocols import GaussianTransition
@@ -301,7 +301,7 @@ class UnscentedTracking:
         """The state s (A,) turned to the trunk's other facing where one camera alone sees the person in z (C, 15, ·)
         (:func:`~priortrack.geometry.facing.alone`) and the detector's forward direction there, ``forward`` (C, 3)
         (:func:`~priortrack.geometry.facing.image_forward`), says it faces that way, its trunk fitting its pixels there
-        (:func:`~priortrack.geometry.facing.facing_turn`): both placements g_t, g_{t−1} turned about the vertical
+        (:func:`~priortrack.geometry.facing.facing_turns`): both placements g_t, g_{t−1} turned about the vertical
         through the mid-hips (:func:`~priortrack.geometry.facing.turned_placements`), the pose kept; and the turn's
         angle. None otherwise, and for joints other than eval15's."""
         cameras = getattr(self.model.likelihood, "cameras", None)
@@ -312,8 +312,8 @@ class UnscentedTracking:
         if c is None:
             return None
         joints = self.observe(torch.from_numpy(s)[None])[0].cpu().numpy()
-        angle = facing_turn(joints, cameras[c], forward[c], z[c, [9, 12, 3, 6], :2])
-        if angle is None:
+        angle = float(facing_turns(joints[None], cameras[c], forward[c], z[c, [9, 12, 3, 6], :2])[0])
+        if angle == 0.0:
             return None
         pivot, S, out = torch.from_numpy(joints[[9, 12]].mean(0))[None], self.model.pose_dim, s.copy()
         for g in (S, S + GLOBAL_DIM):

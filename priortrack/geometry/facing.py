@@ -16,7 +16,7 @@ root-relative there against 105–287 elsewhere.
 
 A detector tells the two apart where it gives the feet and the face: a foot points the way its person faces
 (heel → toes), the nose is in front of the ears. :func:`image_forward` sums those keypoints' image directions
-(unit vectors weighted by the lesser confidence of each pair); :func:`facing_turn` compares them with the images of
+(unit vectors weighted by the lesser confidence of each pair); :func:`facing_turns` compares them with the images of
 f and f' at the mid-hips and gives the turn to f' where the detections' direction is nearer f''s by more than
 :data:`MARGIN` in cosine. Measured on Shelf's annotated actors (every camera, the detections given to each actor by
 the truth's projection): side-on (|l·r| > 0.7), the feet and the nose prefer the truth's facing over its reflection
@@ -38,10 +38,10 @@ FORWARD_CUES = ((("left_heel",), ("left_big_toe", "left_small_toe", "left_foot_i
                 (("right_heel",), ("right_big_toe", "right_small_toe", "right_foot_index")),
                 (("left_ear", "right_ear"), ("nose",)))
 #: How much nearer (in cosine) the detections' forward must be to the reflected facing's image than to the
-#: current one's for :func:`facing_turn` to turn the body (set once from the cosines' range [−2, 2], not varied).
+#: current one's for :func:`facing_turns` to turn the body (set once from the cosines' range [−2, 2], not varied).
 MARGIN = 0.5
 #: The trunk's predicted pixels must be within this fraction of its image height (mid-shoulders to mid-hips) of
-#: its detections for :func:`facing_turn` to turn it (set once, not varied: a tracked trunk is within 0.1, a filter
+#: its detections for :func:`facing_turns` to turn it (set once, not varied: a tracked trunk is within 0.1, a filter
 #: following no one or someone else is off by more than the trunk's height).
 FIT_FRACTION = 0.25
 #: eval15's hips and shoulders (left, right).
@@ -98,30 +98,28 @@ def alone(z: np.ndarray) -> int | None:
     return int(cameras[0])
 
 
-def facing_turn(J: np.ndarray, camera, forward: np.ndarray, trunk_px: np.ndarray) -> float | None:
-    """The turn (radians, about :data:`UP`) that takes the body of joints J (15, 3) from its facing to the
-    reflected one (module docstring) where the detections' forward direction in ``camera``'s image, ``forward``
-    (3,) of :func:`image_forward`, is nearer the reflected facing's image than the current one's by more than
-    :data:`MARGIN` in cosine; None otherwise (no cue, no trunk, the camera on the trunk's line), and where the
-    trunk does not already fit its detected pixels ``trunk_px`` (4, 2: eval15's left and right hips, left and right
-    shoulders; NaN missing) within :data:`FIT_FRACTION` of the trunk's image height: the reversal keeps the
-    trunk's pixels, so it is the question only where they fit (a filter off its person, given someone else's feet,
-    is not turned)."""
-    if not forward[2] > 0 or not np.isfinite(J[list(_HIPS + _SHOULDERS)]).all():
-        return None
-    if not _fits(J, camera, trunk_px):
-        return None
+def facing_turns(J: np.ndarray, camera, forward: np.ndarray, trunk_px: np.ndarray) -> np.ndarray:
+    """(N,) the turn (radians, about :data:`UP`) that takes each body of joints J (N, 15, 3) from its facing to the
+    reflected one (module docstring, :func:`reflection_turns`) where the detections' forward direction in
+    ``camera``'s image, ``forward`` (3,) of :func:`image_forward`, is nearer the reflected facing's image than the
+    body's own by more than :data:`MARGIN` in cosine, and the body's trunk fits its detected pixels ``trunk_px`` (4,
+    2: eval15's left and right hips, left and right shoulders; NaN missing) within :data:`FIT_FRACTION` of the
+    trunk's image height (the reversal keeps the trunk's pixels, so it is the question only where they fit: a
+    filter off its person, given someone else's feet, is not turned); 0 elsewhere (no cue, no trunk, the camera on
+    the trunk's line)."""
+    out = np.zeros(len(J))
+    if not forward[2] > 0:
+        return out
     centre = torch.as_tensor(camera.center).double().cpu().numpy()
-    across, angle = _across(J), float(reflection_turns(J, centre))
-    if across is None or angle == 0.0:
-        return None
-    reflected = _rotation(angle) @ across
-    mid = J[list(_HIPS)].mean(0)
+    angles = reflection_turns(J, centre)
+    across = _flat((J[:, _HIPS[0]] - J[:, _HIPS[1]]) + (J[:, _SHOULDERS[0]] - J[:, _SHOULDERS[1]]))
+    reflected = (so3.exp(torch.as_tensor(angles[:, None] * UP)).numpy() @ across[..., None])[..., 0]
+    mid = J[:, list(_HIPS)].mean(1)
     cue = forward[:2] / max(np.linalg.norm(forward[:2]), np.finfo(float).tiny)
-    agree = [cue @ _image_direction(camera, mid, np.cross(line, UP)) for line in (across, reflected)]
-    if not np.isfinite(agree).all() or agree[1] - agree[0] <= MARGIN:
-        return None
-    return angle
+    own, other = (_image_directions(camera, mid, np.cross(line, UP)) @ cue for line in (across, reflected))
+    turned = (other - own > MARGIN) & (angles != 0) & _fits(J, camera, trunk_px)
+    out[turned] = angles[turned]
+    return out
 
 
 def reflection_turns(J: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -136,19 +134,20 @@ def reflection_turns(J: np.ndarray, centre: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(angle), angle, 0.0)
 
 
-def _fits(J: np.ndarray, camera, trunk_px: np.ndarray) -> bool:
-    """Whether J's hips and shoulders project within :data:`FIT_FRACTION` of the detected trunk's image height
-    (mid-shoulders to mid-hips) of their detections ``trunk_px`` (4, 2), on average over those detected."""
+def _fits(J: np.ndarray, camera, trunk_px: np.ndarray) -> np.ndarray:
+    """(N,) whether each body's hips and shoulders of J (N, 15, 3) project within :data:`FIT_FRACTION` of the
+    detected trunk's image height (mid-shoulders to mid-hips) of their detections ``trunk_px`` (4, 2), on average
+    over those detected."""
     detected = np.asarray(trunk_px, dtype=float)
     seen = np.isfinite(detected).all(-1)
     hips, shoulders = seen[:2], seen[2:]
     if not (hips.any() and shoulders.any()):
-        return False
+        return np.zeros(len(J), dtype=bool)
     height = np.linalg.norm(detected[2:][shoulders].mean(0) - detected[:2][hips].mean(0))
-    points = torch.as_tensor(J[list(_HIPS + _SHOULDERS)], dtype=torch.float64)
+    points = torch.as_tensor(J[:, list(_HIPS + _SHOULDERS)], dtype=torch.float64)
     predicted = camera.project(points)[0].cpu().numpy()
-    error = np.linalg.norm(predicted[seen] - detected[seen], axis=-1)
-    return bool(np.isfinite(error).all() and error.mean() <= FIT_FRACTION * height)
+    error = np.linalg.norm(predicted[:, seen] - detected[seen], axis=-1)
+    return np.isfinite(error).all(-1) & (error.mean(-1) <= FIT_FRACTION * height)
 
 
 def turned_placements(g: torch.Tensor, angles: torch.Tensor, pivots: torch.Tensor) -> torch.Tensor:
@@ -162,10 +161,6 @@ def turned_placements(g: torch.Tensor, angles: torch.Tensor, pivots: torch.Tenso
     return torch.cat([t, so3.log(R @ so3.exp(g[:, 3:]))], -1)
 
 
-def _rotation(angle: float) -> np.ndarray:
-    return so3.exp(torch.as_tensor(angle * UP, dtype=torch.float64)[None])[0].numpy()
-
-
 def _flat(v: np.ndarray) -> np.ndarray:
     """v (..., 3) made horizontal and unit (NaN where it has no horizontal part)."""
     v = v - (v * UP).sum(-1, keepdims=True) * UP
@@ -174,14 +169,11 @@ def _flat(v: np.ndarray) -> np.ndarray:
         return np.where(norm > 1e-9, v / norm, np.nan)
 
 
-def _across(J: np.ndarray) -> np.ndarray | None:
-    across = _flat((J[_HIPS[0]] - J[_HIPS[1]]) + (J[_SHOULDERS[0]] - J[_SHOULDERS[1]]))
-    return across if np.isfinite(across).all() else None
-
-
-def _image_direction(camera, point: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """The unit image direction (2,) of a short step from ``point`` along ``direction`` (3,) through ``camera``."""
-    ends = torch.as_tensor(np.stack([point, point + 0.3 * direction]), dtype=torch.float64)[None]
-    uv = camera.project(ends)[0][0].cpu().numpy()
-    d = uv[1] - uv[0]
-    return d / max(np.linalg.norm(d), np.finfo(float).tiny)
+def _image_directions(camera, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(N, 2) the unit image direction of a short step from each of ``points`` (N, 3) along its direction (N, 3)
+    through ``camera`` (NaN where either end is behind it)."""
+    ends = torch.as_tensor(np.stack([points, points + 0.3 * directions], 1), dtype=torch.float64)
+    uv = camera.project(ends)[0].cpu().numpy()
+    d = uv[:, 1] - uv[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
