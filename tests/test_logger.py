@@ -120,6 +120,8 @@ def test_step_events_name_what_happened():
     repaired = StepRecord(10, 4.0, 4, False, ("branch-repaired",))
     assert step_events(10, repaired) == [("frame 10: an elbow one camera sees moved off its branch through the chest",
                                           "INFO")]
+    assert step_events(-1, quiet, observed=False) == [("a tick without a detection frame: nothing observed: the "
+                                                      "prediction stands", "WARN")]
     turned = StepRecord(11, 4.0, 4, False, ("facing-turned",))
     assert step_events(11, turned) == [("frame 11: a trunk one camera sees turned to the facing its feet and face show",
                                         "INFO")]

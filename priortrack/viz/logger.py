@@ -51,20 +51,23 @@ FLAG_EVENTS = {"innovation-gated": ("the gate held out detections the prediction
 def step_events(frame: int, step: StepRecord | None = None, mismatch: bool | None = None,
                 observed: bool = True) -> list[tuple[str, str]]:
     """The text events of one frame, (text, level): resampling, the flags of :data:`FLAG_EVENTS`
-    (a held-out count where the step says it), mismatch, a frame with nothing observed."""
+    (a held-out count where the step says it), mismatch, a frame with nothing observed. A negative ``frame`` is a
+    tick without a detection frame (the prior's ticks outrun the detections' rate, or the person's detections have
+    ended): said so, not "frame -1"."""
     events = []
+    where = f"frame {frame}" if frame >= 0 else "a tick without a detection frame"
     if step is not None:
         if step.resampled:
-            events.append((f"frame {frame}: resampled (ESS {step.ess:.0f} of {step.points})", "DEBUG"))
+            events.append((f"{where}: resampled (ESS {step.ess:.0f} of {step.points})", "DEBUG"))
         for flag in step.flags:
             text, level = FLAG_EVENTS.get(flag, (flag, "INFO"))
             count = (f" ({int(step.held_out.sum())} points)" if flag == "innovation-gated" and step.held_out is not None
                      else "")
-            events.append((f"frame {frame}: {text}{count}", level))
+            events.append((f"{where}: {text}{count}", level))
     if mismatch:
-        events.append((f"frame {frame}: mismatch: the prior does not explain this frame", "WARN"))
+        events.append((f"{where}: mismatch: the prior does not explain this frame", "WARN"))
     if not observed and not (step is not None and "no-observation" in step.flags):
-        events.append((f"frame {frame}: missing: nothing observed", "WARN"))
+        events.append((f"{where}: missing: nothing observed", "WARN"))
     return events
 
 
