@@ -110,11 +110,8 @@ def facing_turns(J: np.ndarray, camera, forward: np.ndarray, trunk_px: np.ndarra
     out = np.zeros(len(J))
     if not forward[2] > 0:
         return out
-    centre = torch.as_tensor(camera.center).double().cpu().numpy()
-    angles = reflection_turns(J, centre)
-    across = _flat((J[:, _HIPS[0]] - J[:, _HIPS[1]]) + (J[:, _SHOULDERS[0]] - J[:, _SHOULDERS[1]]))
-    reflected = (so3.exp(torch.as_tensor(angles[:, None] * UP)).numpy() @ across[..., None])[..., 0]
-    mid = J[:, list(_HIPS)].mean(1)
+    mid, across, reflected = _reflection(J, torch.as_tensor(camera.center).double().cpu().numpy())
+    angles = _turns(across, reflected)
     cue = forward[:2] / max(np.linalg.norm(forward[:2]), np.finfo(float).tiny)
     own, other = (_image_directions(camera, mid, np.cross(line, UP)) @ cue for line in (across, reflected))
     turned = (other - own > MARGIN) & (angles != 0) & _fits(J, camera, trunk_px)
@@ -126,10 +123,21 @@ def reflection_turns(J: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """(...) the turn (radians, about :data:`UP`) of each body of joints J (..., 15, 3) from its line across the body
     l to that line reflected across the vertical plane through the camera's centre (3,) and the body's mid-hips,
     l' = l − 2 (l·r) r (module docstring); 0 where either is not defined."""
+    return _turns(*_reflection(J, centre)[1:])
+
+
+def _reflection(J: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mid-hips (..., 3) of joints J (..., 15, 3), their horizontal unit line across the body l and its reflection
+    l' = l − 2 (l·r) r across the vertical plane through the camera's centre (3,) (r the horizontal unit ray to the
+    mid-hips), NaN where not defined."""
     mid = J[..., list(_HIPS), :].mean(-2)
     across = (J[..., _HIPS[0], :] - J[..., _HIPS[1], :]) + (J[..., _SHOULDERS[0], :] - J[..., _SHOULDERS[1], :])
     across, ray = _flat(across), _flat(mid - centre)
-    reflected = across - 2 * (across * ray).sum(-1, keepdims=True) * ray
+    return mid, across, across - 2 * (across * ray).sum(-1, keepdims=True) * ray
+
+
+def _turns(across: np.ndarray, reflected: np.ndarray) -> np.ndarray:
+    """(...) the angle about :data:`UP` from each line to its reflection; 0 where not defined."""
     angle = np.arctan2((np.cross(across, reflected) * UP).sum(-1), (across * reflected).sum(-1))
     return np.where(np.isfinite(angle), angle, 0.0)
 
