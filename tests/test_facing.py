@@ -105,7 +105,7 @@ def test_the_reflected_trunk_keeps_its_pixels_and_is_turned_back_by_the_feet(sta
     pixels = [side.project(torch.from_numpy(X[trunk]))[0].numpy() for X in (J, M)]
     assert np.abs(pixels[0] - pixels[1]).max() < 0.1 * np.abs(np.diff(pixels[0], axis=0)).max() + 6.0
     cue = forward_pixels(side, J, np.cross(lateral(J), UP))      # the detector's feet: the true facing
-    px = side.project(torch.from_numpy(J[[9, 12, 3, 6]]))[0].numpy()             # the detected trunk
+    px = side.project(torch.from_numpy(J))[0].numpy()                             # the detections (15, 2)
     assert facing_turns(J[None], side, cue, px)[0] == 0             # the truth agrees with its feet
     back = facing_turns(M[None], side, cue, px)[0]
     assert back != 0
@@ -114,17 +114,17 @@ def test_the_reflected_trunk_keeps_its_pixels_and_is_turned_back_by_the_feet(sta
     assert facing_turns(M[None], side, np.array([*-cue[:2], 1.0]), px)[0] == 0    # feet that agree with M's facing
     assert facing_turns(M[None], side, np.zeros(3), px)[0] == 0                   # no cue
     assert facing_turns(np.full((1, 15, 3), np.nan), side, cue, px)[0] == 0
-    height = np.linalg.norm(px[2:].mean(0) - px[:2].mean(0))
+    height = np.linalg.norm(px[[3, 6]].mean(0) - px[[9, 12]].mean(0))
     assert facing_turns(M[None], side, cue, px + [0.1 * height, 0])[0] != 0       # a trunk that fits its pixels
     assert facing_turns(M[None], side, cue, px + [0.5 * height, 0])[0] == 0       # a filter off its person: not turned
     only_hips = px.copy()
-    only_hips[2:] = np.nan
+    only_hips[[3, 6]] = np.nan
     assert facing_turns(M[None], side, cue, only_hips)[0] == 0                    # no trunk's height to judge by
 
 
 def test_a_frontal_camera_sees_no_reversal(standing):
     J, _, front = standing
-    px = front.project(torch.from_numpy(J[[9, 12, 3, 6]]))[0].numpy()
+    px = front.project(torch.from_numpy(J))[0].numpy()
     for cue in (forward_pixels(front, J, np.cross(lateral(J), UP)), np.array([1.0, 0.0, 1.0]), np.array([0, -1.0, 1])):
         angle = facing_turns(J[None], front, cue, px)[0]
         assert abs(angle) < np.radians(45)                        # facing the camera, the two facings nearly one
@@ -168,11 +168,7 @@ def reversed_states(states: torch.Tensor, model, X: np.ndarray, side) -> torch.T
     """States (N, A) with both placements turned to the Necker reversal of frame 1's trunk in the side camera."""
     angle = reflection_angle(X[1], side.center.double().numpy())
     pivot = torch.tensor(X[1][[9, 12]].mean(0))[None].expand(len(states), 3)
-    out, S = states.clone(), model.pose_dim
-    for g in (S, S + 6):
-        out[:, g:g + 6] = turned_placements(states[:, g:g + 6], torch.full((len(states),), angle, dtype=torch.float64),
-                                            pivot)
-    return out
+    return model.turned(states, torch.full((len(states),), angle, dtype=torch.float64), pivot)
 
 
 def facing_error(estimate: np.ndarray, truth: np.ndarray) -> float:

@@ -56,7 +56,7 @@ from priortrack.filters.step_store import Column, StepStore
 from priortrack.filters.tempering import MAX_STAGES, annealing_exponent
 from priortrack.filters.ukf import ALPHA, BETA, KAPPA, ManifoldSigmaPoints, unscented_form
 from priortrack.geometry import so3
-from priortrack.geometry.facing import UP, alone, facing_turns, turned_placements
+from priortrack.geometry.facing import UP, alone, facing_turns
 from priortrack.models.protocols import GaussianTransition
 from priortrack.models.tracking import TrackingModel
 from priortrack.threads import torch_threads
@@ -403,15 +403,14 @@ class ParticleFilter(SequentialFilter):
         if c is None:
             return
         joints = self.predicted_joints().detach().cpu().double().numpy()
-        angles = facing_turns(joints, cameras[c], self.forward[tick][c], observed[c, [9, 12, 3, 6], :2])
+        angles = facing_turns(joints, cameras[c], self.forward[tick][c], observed[c])
         turned = torch.as_tensor(angles != 0, device=self.device)
         if not bool(turned.any()):
             return
         angles = torch.as_tensor(angles, dtype=self.dtype, device=self.device)[turned]
         pivots = torch.as_tensor(joints[:, [9, 12]].mean(1), dtype=self.dtype, device=self.device)[turned]
-        S, states = self.model.pose_dim, self.states.clone()
-        for g in (S, S + 6):
-            states[turned, g:g + 6] = turned_placements(self.states[turned, g:g + 6], angles, pivots)
+        states = self.states.clone()
+        states[turned] = self.model.turned(self.states[turned], angles, pivots)
         self.states = states
         if self.covariance is not None:
             R = so3.exp(angles[:, None] * torch.as_tensor(UP, dtype=self.dtype, device=self.device))

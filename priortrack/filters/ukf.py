@@ -142,7 +142,7 @@ from priortrack.filters.driver import SequentialFilter
 from priortrack.filters.snapshot import Snapshot
 from priortrack.geometry import so3
 from priortrack.geometry.depth_branches import ELBOWS, trunk_repairs
-from priortrack.geometry.facing import alone, facing_turns, turned_placements
+from priortrack.geometry.facing import alone, facing_turns
 from priortrack.geometry.manifold_mean import MEAN_MAX_STEPS, MEAN_TOL, signed_mean
 from priortrack.kernels import cpu_kernel_applies
 from priortrack.models.protocols import GaussianTransition
@@ -302,7 +302,7 @@ class UnscentedTracking:
         (:func:`~priortrack.geometry.facing.alone`) and the detector's forward direction there, ``forward`` (C, 3)
         (:func:`~priortrack.geometry.facing.image_forward`), says it faces that way, its trunk fitting its pixels there
         (:func:`~priortrack.geometry.facing.facing_turns`): both placements g_t, g_{t−1} turned about the vertical
-        through the mid-hips (:func:`~priortrack.geometry.facing.turned_placements`), the pose kept; and the turn's
+        through the mid-hips (:meth:`~priortrack.models.tracking.TrackingModel.turned`), the pose kept; and the turn's
         angle. None otherwise, and for joints other than eval15's."""
         cameras = getattr(self.model.likelihood, "cameras", None)
         if self.mirror_pairs is None or cameras is None or z.size % (15 * len(cameras)) or len(forward) != len(cameras):
@@ -312,14 +312,12 @@ class UnscentedTracking:
         if c is None:
             return None
         joints = self.observe(torch.from_numpy(s)[None])[0].cpu().numpy()
-        angle = float(facing_turns(joints[None], cameras[c], forward[c], z[c, [9, 12, 3, 6], :2])[0])
+        angle = float(facing_turns(joints[None], cameras[c], forward[c], z[c])[0])
         if angle == 0.0:
             return None
-        pivot, S, out = torch.from_numpy(joints[[9, 12]].mean(0))[None], self.model.pose_dim, s.copy()
-        for g in (S, S + GLOBAL_DIM):
-            out[g:g + GLOBAL_DIM] = turned_placements(torch.from_numpy(s[None, g:g + GLOBAL_DIM]),
-                                                      torch.tensor([angle], dtype=torch.float64), pivot)[0].numpy()
-        return out, angle
+        pivot = torch.from_numpy(joints[[9, 12]].mean(0))[None]
+        turned = self.model.turned(torch.from_numpy(s)[None], torch.tensor([angle], dtype=torch.float64), pivot)
+        return turned[0].numpy(), angle
 
     def measurement(self, z) -> tuple[torch.Tensor, torch.Tensor]:
         """One frame's data → the measured pixels (m,) (NaN: not seen) and R (m, m), diagonal."""

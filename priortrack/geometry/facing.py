@@ -98,12 +98,12 @@ def alone(z: np.ndarray) -> int | None:
     return int(cameras[0])
 
 
-def facing_turns(J: np.ndarray, camera, forward: np.ndarray, trunk_px: np.ndarray) -> np.ndarray:
+def facing_turns(J: np.ndarray, camera, forward: np.ndarray, detected: np.ndarray) -> np.ndarray:
     """(N,) the turn (radians, about :data:`UP`) that takes each body of joints J (N, 15, 3) from its facing to the
     reflected one (module docstring, :func:`reflection_turns`) where the detections' forward direction in
     ``camera``'s image, ``forward`` (3,) of :func:`image_forward`, is nearer the reflected facing's image than the
-    body's own by more than :data:`MARGIN` in cosine, and the body's trunk fits its detected pixels ``trunk_px`` (4,
-    2: eval15's left and right hips, left and right shoulders; NaN missing) within :data:`FIT_FRACTION` of the
+    body's own by more than :data:`MARGIN` in cosine, and the body's trunk fits its detected pixels there (``detected``
+    (15, ≥ 2): the camera's eval15 detections, u and v first; NaN missing) within :data:`FIT_FRACTION` of the
     trunk's image height (the reversal keeps the trunk's pixels, so it is the question only where they fit: a
     filter off its person, given someone else's feet, is not turned); 0 elsewhere (no cue, no trunk, the camera on
     the trunk's line)."""
@@ -114,7 +114,7 @@ def facing_turns(J: np.ndarray, camera, forward: np.ndarray, trunk_px: np.ndarra
     angles = _turns(across, reflected)
     cue = forward[:2] / max(np.linalg.norm(forward[:2]), np.finfo(float).tiny)
     own, other = (_image_directions(camera, mid, np.cross(line, UP)) @ cue for line in (across, reflected))
-    turned = (other - own > MARGIN) & (angles != 0) & _fits(J, camera, trunk_px)
+    turned = (other - own > MARGIN) & (angles != 0) & _fits(J, camera, detected[list(_HIPS + _SHOULDERS), :2])
     out[turned] = angles[turned]
     return out
 

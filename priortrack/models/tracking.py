@@ -15,6 +15,7 @@ import torch
 from priortrack.data.motion import Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
+from priortrack.geometry.facing import turned_placements
 from priortrack.models.protocols import ObservationModel, TransitionModel
 from priortrack.priors.global_motion import GlobalMotion, to_world
 
@@ -111,6 +112,14 @@ class TrackingModel:
     def shift_translation(self, s: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
         """s (P, S + 12) with t_t moved by shift[:, :3] and t_{t-1} by shift[:, 3:] (P, 6)."""
         return self.with_translation(s, self.translation(s) + shift.to(s))
+
+    def turned(self, s: torch.Tensor, angles: torch.Tensor, pivots: torch.Tensor) -> torch.Tensor:
+        """s (P, S + 12) with both placements g_t and g_{t−1} of each row turned by its angle (P,) about the world's
+        up through its pivot (P, 3) (:func:`~priortrack.geometry.facing.turned_placements`), the pose kept."""
+        S, out = self.pose_dim, s.clone()
+        for g in (S, S + GLOBAL_DIM):
+            out[:, g:g + GLOBAL_DIM] = turned_placements(s[:, g:g + GLOBAL_DIM], angles, pivots)
+        return out
 
     def mean_step(self, s: torch.Tensor) -> torch.Tensor:
         """The deterministic mean step (the unscented filter's fx)."""

@@ -130,8 +130,8 @@ def observation(uv: np.ndarray, confidence: np.ndarray, slots: np.ndarray) -> np
 
 def detected_forward(scene: SceneDetections, f: int, slots: np.ndarray, min_confidence: float) -> np.ndarray:
     """(C, 3) the forward direction in each camera's image of frame f's detections ``slots`` (C,) (−1: none, 0)
-    from their feet and face (:func:`~priortrack.geometry.facing.image_forward`): what the unscented filter turns
-    a trunk one camera sees by (:attr:`~priortrack.filters.ukf.UnscentedFilter.forward`)."""
+    from their feet and face (:func:`~priortrack.geometry.facing.image_forward`): what a filter turns a person one
+    camera alone sees by (:attr:`~priortrack.filters.ukf.UnscentedFilter.forward`)."""
     keypoints = np.full((len(slots),) + scene.keypoints.shape[-2:], np.nan)
     for c, n in enumerate(slots):
         if n >= 0:
