@@ -61,6 +61,30 @@ def load_motions(sources: list[str]):
     return [load_motion(source) for source in expand_sources(sources)]
 
 
+def add_height_options(parser) -> None:
+    """``--height`` and ``--floor``: a one-camera person's size, given or measured from the floor."""
+    parser.add_argument("--height", type=float,
+                        help="the person's standing height, metres (one camera: the body's size and depth; default: "
+                             "measured from the floor, else 1.7)")
+    parser.add_argument("--floor",
+                        help="one camera: where the floor is along the calibration's up, metres (default 0: its "
+                             "origin on the floor), or none (not known: the height is --height or 1.7)")
+
+
+def floor_level(text: str | None) -> float | None:
+    """``--floor`` as metres along up: 0 where not given, None for ``none``; a PriortrackError for anything else."""
+    from priortrack.errors import PriortrackError
+
+    if text is None:
+        return 0.0
+    if text.strip().lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise PriortrackError(f"--floor must be metres along up or none, got {text!r}") from None
+
+
 def camera_map(text: str | None) -> dict[str, str] | None:
     """``--camera-map FOLDER=CAMERA,…`` as {detection camera: calibration camera}; None where not given."""
     from priortrack.errors import PriortrackError

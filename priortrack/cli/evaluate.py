@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from priortrack.cli.common import camera_map, print_json
+from priortrack.cli.common import add_height_options, camera_map, floor_level, print_json
 from priortrack.errors import PriortrackError
 
 
@@ -162,7 +162,7 @@ def _eval_against_trc(args: argparse.Namespace) -> None:
     from priortrack.experiments.against_trc import against_trc
 
     result = against_trc(args.detections, args.cameras, args.reference, args.fps, args.filter, args.keypoints,
-                         camera_map(args.camera_map), args.height)
+                         camera_map(args.camera_map), args.height, floor_level(args.floor))
     if args.json:
         print_json(result)
         return
@@ -380,8 +380,7 @@ def add_parsers(verbs) -> None:
     against.add_argument("--fps", type=float, help="the detections' frame rate (if their files do not say it)")
     against.add_argument("--keypoints", help="the detections' layout, where it cannot be told")
     against.add_argument("--camera-map", help="FOLDER=CAMERA,… matching detection folders to calibration cameras")
-    against.add_argument("--height", type=float, default=1.7,
-                         help="the person's standing height, metres (one camera: the body's size and depth; 1.7)")
+    add_height_options(against)
     against.add_argument("--filter", default="ukf-real", help="the preset (default %(default)s)")
     against.add_argument("--json", action="store_true", help="print the table as JSON")
     against.set_defaults(run=_eval_against_trc)

@@ -7,7 +7,7 @@ import logging
 import sys
 from dataclasses import replace
 
-from priortrack.cli.common import Progress, camera_map, print_json
+from priortrack.cli.common import Progress, add_height_options, camera_map, floor_level, print_json
 from priortrack.errors import PriortrackError
 from priortrack.output import output_path
 
@@ -22,9 +22,11 @@ def _track(args: argparse.Namespace) -> None:
     from priortrack.viz.replay import replay
 
     for name in ("cameras", "keypoints", "up", "camera_map", "out", "person", "people", "skeleton", "memory",
-                 "workers", "association", "no_fit_check", "rate", "lowpass"):     # (--height has a default)
+                 "workers", "association", "no_fit_check", "rate", "lowpass", "floor"):
         if getattr(args, name):
             raise PriortrackError(f"--{name.replace('_', '-')} is for tracking --detections, not a motion")
+    if args.height is not None:
+        raise PriortrackError("--height is for tracking --detections, not a motion (its body is the motion's own)")
     if args.rrd:
         output_path(args.rrd, "rerun recording")
     progress = Progress(f"track {args.filter}", "tick {0} of {1}", rate=True)
@@ -110,7 +112,7 @@ def _track_detections(args: argparse.Namespace) -> None:
         raise PriortrackError(f"--lowpass is a cut-off frequency in Hz above 0, got {args.lowpass:g}")
     config = TrackConfig(fps=args.fps, up=args.up, camera_map=camera_map(args.camera_map),
                          min_confidence=args.min_confidence,
-                         seed=args.seed, height=args.height, device=args.device,
+                         seed=args.seed, height=args.height, floor=floor_level(args.floor), device=args.device,
                          memory=DEFAULT_MEMORY if args.memory is None else parse_memory(args.memory),
                          fit_check=not args.no_fit_check, **_smoothing(args))
     skeleton = _skeleton(args.skeleton) if args.skeleton else None
@@ -289,8 +291,7 @@ def add_parsers(verbs) -> None:
     track.add_argument("--no-fit-check", action="store_true",
                        help="--detections: do not judge the tracked motion under the prior after the last tick (its "
                             "reference is fitted once if not cached; mismatch flags then from the detections alone)")
-    track.add_argument("--height", type=float, default=1.7,
-                       help="the person's standing height, metres (one camera: the body's size and depth; 1.7)")
+    add_height_options(track)
     track.add_argument("--out", action="append",
                        help="write the result by suffix: .npz (joints, spread, ESS, log-likelihood, flags), .csv, "
                             ".trc (Y up, metres, every keypoint: OpenSim), .mot (joint angles, degrees: OpenSim) or "

@@ -56,9 +56,9 @@ def _distance_to(person, frames: np.ndarray, theirs: np.ndarray, their_names: li
 
 def against_trc(detections: str | Path, cameras: str | Path, reference: str | Path, fps: float | None = None,
                 preset: str = "ukf-real", keypoints: str | None = None, camera_map: dict[str, str] | None = None,
-                height: float = 1.7) -> dict:
+                height: float | None = None, floor: float | None = 0.0) -> dict:
     """The table of the module docstring: {"person": id, "frames", "fps", "reference_wrist_m_s2", "rows": [{"run",
-    "limbs_mm", "feet_mm", "wrist_m_s2"}]}; ``camera_map`` and ``height`` as ``track`` takes them (one camera: the
+    "limbs_mm", "feet_mm", "wrist_m_s2"}]}; ``camera_map``, ``height`` and ``floor`` as ``track`` takes them (one camera: the
     body's size and depth)."""
     from priortrack.data.calibration import read_calibration
     from priortrack.data.scene_detections import read_scene_detections
@@ -70,7 +70,8 @@ def against_trc(detections: str | Path, cameras: str | Path, reference: str | Pa
     rows, chosen = [], None
     for smooth in (False, True):
         tracked = track_scene(scene, calibration, preset, TrackConfig(fps=fps, smooth=smooth, camera_map=camera_map,
-                                                                  height=height)).at_detection_frames()
+                                                                  height=height, floor=floor)
+                              ).at_detection_frames()
         up = tracked.people[0].up
         if not (isinstance(up, str) and up in ("y", "z")):
             raise PriortrackError(f"{cameras}: a TRC is compared in a Y-up or Z-up world; this calibration's up is {up!r}")

@@ -88,7 +88,9 @@ from priortrack.data.keypoints import detector_map
 from priortrack.errors import PriortrackError
 from priortrack.tracking.held_out import MIN_CAMERAS, WORSE_RATIO, held_out_errors, held_out_ratio
 from priortrack.tracking.presets import UNSCENTED_KINDS, Preset, load_preset
+from priortrack.tracking.association import NOMINAL_HEIGHT_M
 from priortrack.tracking.extra_keypoints import carried
+from priortrack.tracking.floor_height import measured_height
 from priortrack.tracking.lowpass import lowpassed
 from priortrack.tracking.resample import frame_times, interpolated, nearest_tick
 from priortrack.filters.snapshot import KNOWN_FRAMES
@@ -576,7 +578,10 @@ class TrackConfig:
         camera_map: {detection camera (folder): calibration camera} where they are not matched in order.
         min_confidence: keypoints below it are missing.
         seed: seeds the filter.
-        height: the person's standing height, metres: the body's size and depth from one camera.
+        height: the person's standing height, metres: the body's size and depth from one camera; None: measured
+            there from the floor (:mod:`~priortrack.tracking.floor_height`), else :data:`NOMINAL_HEIGHT_M`.
+        floor: where the floor is along the calibration's up, metres (0: its origin is on the floor); None: not known
+            (one camera then takes the nominal height).
         smooth: also smooth the run (:mod:`priortrack.filters.smoothing`) and give the smoothed joints;
             lag: with a fixed lag of that many ticks (None: over the whole run); particle_smoother: a
             particle filter's, "gaussian" or "backward"; trajectories: backward simulation's.
@@ -597,7 +602,8 @@ class TrackConfig:
     camera_map: dict[str, str] | None = None
     min_confidence: float = 0.3
     seed: int = 0
-    height: float = 1.7
+    height: float | None = None
+    floor: float | None = 0.0
     smooth: bool = False
     lag: int | None = None
     particle_smoother: str = PARTICLE_SMOOTHERS[0]
@@ -617,7 +623,10 @@ class TrackConfig:
             raise PriortrackError(f"min_confidence must be in [0, 1], got {self.min_confidence!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)):
             raise PriortrackError(f"seed must be a whole number, got {self.seed!r}")
-        check_height(self.height)
+        if self.height is not None:
+            check_height(self.height)
+        if self.floor is not None and not (isinstance(self.floor, (int, float)) and abs(self.floor) < 100):
+            raise PriortrackError(f"floor must be the floor's height along up in metres, got {self.floor!r}")
 
 
 def track_detections(detections: Detections, calibration: Calibration, preset: Preset | str,
@@ -715,8 +724,8 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
         window += 1
     unmeasured = ()
     if skeleton is None:                           # else the user's own body, as given (not scaled)
-        skeleton = (scaled_to_height(template, config.height) if single else
-                    fitted_skeleton(template, X, M))
+        skeleton = (scaled_to_height(template, _height(config, cameras[0], z, template, M, detections.source))
+                    if single else fitted_skeleton(template, X, M))
         unmeasured = () if single else tuple(unmeasured_measures(X))
         unlikely = None if single else implausible_body(skeleton, M)
         if unlikely:
@@ -741,6 +750,26 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     return PersonRun(detections, config, preset, prior, model, filt, z, index, None if single else X[first:], A, up,
                      cameras, world_cameras, M, skeleton, pose, unmeasured, rejected, known, initial, start_time,
                      first_tick=first, data_fps=data_fps)
+
+
+def _height(config: TrackConfig, camera: PinholeCamera, z: TickObservations, template: Skeleton, M: np.ndarray,
+            source: str) -> float:
+    """The standing height of one camera's person: ``config.height`` where given, else measured from the floor over
+    the whole trial (:func:`~priortrack.tracking.floor_height.measured_height`), else :data:`NOMINAL_HEIGHT_M`;
+    logged."""
+    if config.height is not None:
+        return config.height
+    if config.floor is None:
+        log.info("%s: one camera, the floor not known: the body is %g m tall (--height)", source, NOMINAL_HEIGHT_M)
+        return NOMINAL_HEIGHT_M
+    measured, why = measured_height(camera, z[:][:, 0], template, M, config.floor)
+    if measured is None:
+        log.warning("%s: one camera and no height measured from the floor (%s): the body is %g m tall (--height)",
+                    source, why, NOMINAL_HEIGHT_M)
+        return NOMINAL_HEIGHT_M
+    log.info("%s: %.2f m tall, measured from the floor over %d ticks (quartiles %.2f–%.2f m; --height to give it)",
+             source, measured.height_m, measured.ticks, *measured.iqr_m)
+    return measured.height_m
 
 
 @dataclass(eq=False)
