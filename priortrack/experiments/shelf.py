@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from priortrack.body.ik import ANKLE_HEIGHT
 from priortrack.data.calibration import Calibration, read_calibration
 from priortrack.data.eval15 import EVAL15_NAMES
 from priortrack.data.scene_detections import SceneDetections, read_scene_detections
@@ -44,7 +45,7 @@ from priortrack.data.shelf_truth import read_shelf_truth
 from priortrack.errors import PriortrackError
 from priortrack.experiments.metrics import PCP_LIMB_PARTS, pcp
 from priortrack.geometry.camera import PinholeCamera
-from priortrack.geometry.frames import up_from_person
+from priortrack.geometry.frames import up_from_person, up_vector
 from priortrack.geometry.triangulation import triangulate
 from priortrack.tracking.scene import SceneConfig, median_of_seen
 
@@ -132,6 +133,16 @@ def truth_up(truth: np.ndarray) -> np.ndarray:
     people = truth.reshape(-1, *truth.shape[2:]).copy()
     people[:, 1] = np.where(np.isfinite(people[:, 1]), people[:, 1], 0.5 * (people[:, 3] + people[:, 6]))
     return up_from_person(people)[0]
+
+
+def truth_floor(truth: np.ndarray, up: np.ndarray | str) -> float:
+    """The floor's level along ``up`` (an axis name or (3,)) from the truth's people (T, A, 15, 3): the median over
+    frames and people of their lower ankle's, less :data:`~priortrack.body.ik.ANKLE_HEIGHT` (Shelf's annotated ankles
+    lie 0.01–0.06 m *below* its origin: the floor is not at 0); what a one-camera person's height is measured from
+    (:mod:`~priortrack.tracking.floor_height`), like the up a property of the world that one camera cannot find."""
+    axis = np.asarray(up_vector(up), dtype=np.float64)
+    lower = np.nanmin(truth[:, :, [11, 14]] @ axis, axis=-1)
+    return float(np.nanmedian(lower) - ANKLE_HEIGHT)
 
 
 def oracle_slots(cameras: list[PinholeCamera], uv: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -286,6 +297,7 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
     frames[scene.frames[(scene.frames >= 0) & (scene.frames < len(truth))]] = True
     uv, confidence = scene.eval15(min_confidence)
     up = calibration.up if calibration.up is not None else truth_up(everyone)
+    floor = truth_floor(everyone, up)
     at = np.flatnonzero((scene.frames >= 0) & (scene.frames < len(truth)))            # detection frames with truth
     rows = []
     for subset in subsets:
@@ -306,7 +318,7 @@ def eval_shelf(directory: str | Path, presets=("ukf-real",), cameras: str | None
                        "per_joint_mm": dict.fromkeys(row["per_joint_mm"])} for row in score(dlt, truth, frames)]
         part = replace(scene, camera_names=tuple(scene.camera_names[c] for c in own), keypoints=scene.keypoints[own])
         config = TrackConfig(fps=fps, seed=seed, min_confidence=min_confidence, cache=cache,
-                             up=up if len(subset) == 1 else None,
+                             up=up if len(subset) == 1 else None, floor=floor,
                              camera_map={scene.camera_names[o]: calibration.cameras[c].name for o, c in zip(own, subset)})
         for preset in presets:
             fitted_once(preset, cache)                                     # the prior's fit is not the run's time

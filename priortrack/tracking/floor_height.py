@@ -9,23 +9,24 @@ ground; ``floor`` otherwise) fixes the scale: the camera stands a known height h
 standing or walking person has a foot on it.
 
 In the working frame (Y up, the floor at y = ``floor``), each tick's detected ankles a have rays r_a = Rᵀ (x_a,
-y_a, 1) from the camera centre c (undistorted normalised points x, y). The foot on the floor is the ankle whose ray
-meets the plane y = ``floor`` + :data:`~priortrack.body.ik.ANKLE_HEIGHT` nearest the camera, at
+y_a, 1) from the camera centre c (undistorted normalised points x, y), meeting the plane of a foot on the floor,
+y = ``floor`` + :data:`~priortrack.body.ik.ANKLE_HEIGHT`, at
 
-    f = c + d r_a,    d = (floor + ANKLE_HEIGHT − c_y) / r_a,y    (r_a,y < 0: the ray goes down),
+    p_a = c + d_a r_a,    d_a = (floor + ANKLE_HEIGHT − c_y) / r_a,y    (r_a,y < 0: the ray goes down);
 
-and the shoulders stand above it: the mid-shoulders' ray r_s is followed to the horizontal distance ρ = ‖f − c‖_h
-of the foot (a body is vertical; the optical axis of a camera looking down is not, so one depth for both would
-place the shoulders too near: 0.4–0.6 m on the bench's cameras), giving their height above the floor
+a lifted foot's ray meets it beyond the foot. The body stands over f: the middle of the two points where they are
+within :data:`FEET_APART_M` (both feet down: standing, or a short step), else the nearer (the foot on the floor).
+The mid-shoulders' ray r_s is followed to the horizontal distance ρ = ‖f − c‖_h (a body is vertical; the optical
+axis of a camera looking down is not, so one depth for feet and shoulders would place the shoulders too near: 0.4–0.6
+m on the bench's cameras), giving their height above the floor
 
     Y_s = c_y − floor + (ρ / ‖r_s‖_h) r_s,y.
 
 Over the ticks that show both shoulders and a foot, the median Y_s is the person's shoulder height, and their
-standing height is Y_s / (the template's shoulder height over its standing height, at rest): the body the filter
-is given is the template scaled there (:func:`~priortrack.body.ik.scaled_to_height`), its shoulders where the
-person's are. On the real-format bench's four cameras and eight held-out walks (five CMU people), the estimate is
-within −1 to +4 % of the mocap skeleton's standing height (within 2 % of the height that puts the template's
-shoulders at the person's).
+standing height the one at which the template, scaled (:func:`~priortrack.body.ik.scaled_to_height`), has its
+shoulders there (:func:`height_for_shoulders`): the body the filter is given. On the real-format bench's four
+cameras and eight held-out walks (five CMU people), the estimate is within −0.7 to +3.6 % of the mocap skeleton's
+standing height, −1.5 to +1.7 % of the height that puts the template's shoulders at the person's.
 
 A calibration whose origin is not on the floor (a board held up, on a table) measures a wrong height; one outside
 :data:`PLAUSIBLE_M` is refused (:func:`measured_height` says why and the caller takes the nominal height).
@@ -49,6 +50,8 @@ from priortrack.geometry.triangulation import undistort_normalised
 SHOULDERS, ANKLES = (3, 6), (11, 14)
 #: Standing heights (metres) a measurement is taken at; outside, the floor is not where the calibration says.
 PLAUSIBLE_M = (1.2, 2.2)
+#: Two feet whose floor points are nearer than this (metres) both stand on the floor: the body is over their middle.
+FEET_APART_M = 0.35
 #: Ticks with a foot and both shoulders a measurement needs.
 MIN_TICKS = 10
 
@@ -63,13 +66,21 @@ class FloorHeight:
     iqr_m: tuple[float, float]
 
 
-def shoulder_ratio(template: Skeleton, M: np.ndarray) -> float:
-    """The template's mid-shoulders' height above the floor over its standing height, at rest (the detector's
+def rest_heights(template: Skeleton, M: np.ndarray) -> tuple[float, float]:
+    """The template's mid-shoulders' height above the floor and its standing height, metres, at rest (the detector's
     shoulders: M (15, 15) on its eval15 joints; the floor :data:`ANKLE_HEIGHT` below its lower ankle)."""
     rest = M @ ForwardKinematics(template, dtype=torch.float64)(np.zeros(template.num_channels))[
         eval15_indices(template)].numpy()
-    shoulders = rest[list(SHOULDERS), 1].mean() - rest[list(ANKLES), 1].min() + ANKLE_HEIGHT
-    return float(shoulders / stature(template))
+    return float(rest[list(SHOULDERS), 1].mean() - rest[list(ANKLES), 1].min() + ANKLE_HEIGHT), stature(template)
+
+
+def height_for_shoulders(template: Skeleton, M: np.ndarray, shoulders: np.ndarray) -> np.ndarray:
+    """The standing heights h (...) at which the template scaled to h (:func:`~priortrack.body.ik.scaled_to_height`:
+    its ankle-to-head scaled, its ankle :data:`ANKLE_HEIGHT` above the floor) has its mid-shoulders ``shoulders`` (...)
+    metres above the floor: h − a = (Y_s − a) (h₀ − a) / (Y₀ − a), a = ANKLE_HEIGHT, the template's own Y₀ and h₀."""
+    Y0, h0 = rest_heights(template, M)
+    a = ANKLE_HEIGHT
+    return a + (np.asarray(shoulders, dtype=np.float64) - a) * (h0 - a) / (Y0 - a)
 
 
 def shoulder_heights(camera: PinholeCamera, z: np.ndarray, floor: float = 0.0) -> np.ndarray:
@@ -90,13 +101,14 @@ def shoulder_heights(camera: PinholeCamera, z: np.ndarray, floor: float = 0.0) -
     ankles = rays[:, list(ANKLES)]
     down = seen[:, list(ANKLES)] & (ankles[..., 1] < 0)
     depth = np.where(down, above / -np.where(down, ankles[..., 1], -1.0), np.inf)   # d of each ankle (T, 2)
-    foot = np.argmin(depth, axis=1)
-    d = depth[np.arange(T), foot]
-    r_a = ankles[np.arange(T), foot]
-    rho = d * np.linalg.norm(r_a[:, [0, 2]], axis=-1)                   # the foot's horizontal distance
+    points = np.where(np.isfinite(depth)[..., None], depth[..., None] * ankles, np.nan)   # floor points − c (T, 2, 3)
+    nearer = points[np.arange(T), np.argmin(depth, axis=1)]
+    together = np.linalg.norm(points[:, 0, [0, 2]] - points[:, 1, [0, 2]], axis=-1) < FEET_APART_M
+    foot = np.where(together[:, None], points.mean(axis=1), nearer)
+    rho = np.linalg.norm(foot[:, [0, 2]], axis=-1)                       # f's horizontal distance
     r_s = rays[:, list(SHOULDERS)].mean(axis=1)
     level = np.linalg.norm(r_s[:, [0, 2]], axis=-1)
-    ok = np.isfinite(d) & seen[:, list(SHOULDERS)].all(axis=1) & (level > 0)
+    ok = np.isfinite(depth).any(axis=1) & seen[:, list(SHOULDERS)].all(axis=1) & (level > 0)
     out[ok] = c[1] - floor + rho[ok] / level[ok] * r_s[ok, 1]
     return out
 
@@ -111,8 +123,7 @@ def measured_height(camera: PinholeCamera, z: np.ndarray, template: Skeleton, M:
     if len(Y) < MIN_TICKS:
         return None, (f"{len(Y)} ticks show a foot on the floor and both shoulders (the height needs "
                       f"{MIN_TICKS})")
-    ratio = shoulder_ratio(template, M)
-    q1, height, q3 = (np.percentile(Y, [25, 50, 75]) / ratio).tolist()
+    q1, height, q3 = height_for_shoulders(template, M, np.percentile(Y, [25, 50, 75])).tolist()
     if not PLAUSIBLE_M[0] <= height <= PLAUSIBLE_M[1]:
         return None, (f"the floor at {floor:g} m gives a standing height of {height:.2f} m, no adult's: is the "
                       f"calibration's origin on the floor (--floor)?")
