@@ -216,21 +216,14 @@ def limb_sides(skeleton: Skeleton, joint_map: np.ndarray | None = None) -> dict[
 
 def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | None = None) -> Skeleton:
     """The template scaled so that its distances (module docstring) match those of the targets X
-    (T, 15, 3), both in the targets' definitions (``joint_map`` M applied to the template): :func:`with_lengths` of
-    :func:`person_lengths`. A bone no frame measures (legs under a desk, seen by one camera or none) is scaled as the
-    measured ones are (their median ratio to the template's: its proportions), logged; none measured is refused."""
-    return with_lengths(template, person_lengths(X), joint_map)
-
-
-def with_lengths(template: Skeleton, lengths: np.ndarray, joint_map: np.ndarray | None = None) -> Skeleton:
-    """The template with each eval15 bone scaled to ``lengths`` (14,) (:func:`measured_distances`' order, each side its
-    own, in the definitions of ``joint_map`` M applied to the template; NaN: not measured, scaled as the measured are,
-    logged; all NaN refused)."""
+    (T, 15, 3), both in the targets' definitions (``joint_map`` M applied to the template). A bone no
+    frame measures (legs under a desk, seen by one camera or none) is scaled as the measured ones are (their
+    median ratio to the template's: its proportions), logged; none measured is refused."""
     index = eval15_indices(template)
     offsets = template.offsets.copy()
     points, rest = _rest(template)
     M = np.eye(15) if joint_map is None else np.asarray(joint_map, dtype=np.float64)
-    measured = np.asarray(lengths, dtype=np.float64)                  # each side's length …
+    measured = person_lengths(X)                                      # each side's length …
     scale = measured / measured_distances((M @ rest)[None], own_side=True)   # … given to that side of the template
     unmeasured = ~np.isfinite(scale)
     if unmeasured.all():
