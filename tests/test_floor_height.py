@@ -10,6 +10,7 @@ from priortrack.body.fk import ForwardKinematics
 from priortrack.body.ik import ANKLE_HEIGHT, scaled_to_height, stature
 from priortrack.body.layout import eval15_indices
 from priortrack.cli.main import main
+from priortrack.cli.track import body_text
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import Calibration, read_calibration
 from priortrack.data.keypoints import LAYOUTS, detector_map
@@ -132,11 +133,15 @@ def test_one_camera_tracking_takes_the_measured_height(tmp_path):
 
     detections = read_detections(folder, keypoints="body25b")
     heights = {}
-    for label, config in (("measured", TrackConfig(fps=60)), ("given", TrackConfig(fps=60, height=1.81)),
-                          ("unknown floor", TrackConfig(fps=60, floor=None))):
-        heights[label] = stature(prepared(detections, one, "ukf-real", config).skeleton)
-    assert abs(heights["measured"] - 1.58) < 0.03 and abs(heights["given"] - 1.81) < 1e-6
-    assert abs(heights["unknown floor"] - NOMINAL_HEIGHT_M) < 1e-6
+    for label, config in (("floor", TrackConfig(fps=60)), ("given", TrackConfig(fps=60, height=1.81)),
+                          ("nominal", TrackConfig(fps=60, floor=None))):
+        run = prepared(detections, one, "ukf-real", config)
+        heights[label] = stature(run.skeleton)
+        assert run.height_from == label
+    assert abs(heights["floor"] - 1.58) < 0.03 and abs(heights["given"] - 1.81) < 1e-6
+    assert abs(heights["nominal"] - NOMINAL_HEIGHT_M) < 1e-6
+    summary = {"height_m": heights["floor"], "height_from": "floor", "limbs_left_right_m": {"thigh": [0.4, 0.41]}}
+    assert body_text(summary).startswith(f"body {heights['floor']:.2f} m tall (measured from the floor)")
 
 
 def test_the_command_line_says_what_a_floor_is(capsys):

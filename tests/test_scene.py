@@ -100,7 +100,7 @@ def test_each_person_is_within_30_mm_of_pose2sims_own_output(demo, tmp_path, cap
     # body is named as no adult's
     summary = result.summary()["per_person"]
     for pid, height in (("0", 1.21), ("1", 1.72)):
-        assert abs(summary[pid]["height_m"] - height) < 0.08, summary[pid]
+        assert abs(summary[pid]["height_m"] - height) < 0.08 and summary[pid]["height_from"] == "triangulated"
         assert summary[pid]["frames_seen"] == 100 and len(summary[pid]["cameras"]) == 4
         assert len(summary[pid]["mean_position_m"]) == 3
     assert "(person 0): the body measured over the trial is no adult's (1.1" in caplog.text

@@ -238,7 +238,7 @@ class SceneTrack:
                 "ticks_present": int(present[:, p].sum()), "frames_seen": int(seen[:, :, p].any(axis=1).sum()),
                 "cameras": [names[c] for c in np.flatnonzero(seen[:, :, p].any(axis=0))],
                 "mean_position_m": None if at is None else [float(v) for v in at],
-                "height_m": own["height_m"], "reprojection_px": own["reprojection_px"],
+                "height_m": own["height_m"], "height_from": own["height_from"], "reprojection_px": own["reprojection_px"],
                 "mismatch_fraction": result.mismatch_fraction, "bones_m": own["bones_m"]}
         return {"people": [int(i) for i in self.person_ids], "frames": int(len(self.frames)), "fps": self.fps,
                 "seconds": self.seconds, "interrupted": self.interrupted, "unclaimed_frames": self.unclaimed,

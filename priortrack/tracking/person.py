@@ -217,6 +217,8 @@ class DetectionTrack:
     #: The body measures (:data:`~priortrack.body.ik.BODY_MEASURES`) no tick measured, which took the template's
     #: proportions (a seated person's legs; :func:`~priortrack.body.ik.fitted_skeleton`).
     bones_unmeasured: tuple[str, ...] = ()
+    #: Where the body's height came from (:data:`HEIGHT_FROM`'s keys).
+    height_from: str = ""
     #: (T,) the filter's held-out ratio q a tick (:mod:`~priortrack.tracking.held_out`; over ``WORSE_RATIO``: worse
     #: than triangulation), NaN where not judged or with fewer than three cameras.
     held_out_ratio: np.ndarray | None = field(default=None, repr=False)
@@ -295,7 +297,7 @@ class DetectionTrack:
                 "interrupted": self.interrupted,
                 "bones_m": None if self.skeleton is None else body_measures(self.skeleton, detector_map()),
                 "limbs_left_right_m": None if self.skeleton is None else limb_sides(self.skeleton, detector_map()),
-                "height_m": None if self.skeleton is None else stature(self.skeleton),
+                "height_m": None if self.skeleton is None else stature(self.skeleton), "height_from": self.height_from,
                 "bones_unmeasured": list(self.bones_unmeasured),
                 "up": self.up if isinstance(self.up, str) else [float(v) for v in self.up]}
 
@@ -722,10 +724,13 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     window = first + KNOWN_FRAMES
     while window < min(first + START_TICKS, len(counts)) and counts[window] >= min(MIN_FIT_JOINTS, needed):
         window += 1
-    unmeasured = ()
+    unmeasured, height_from = (), "skeleton"
     if skeleton is None:                           # else the user's own body, as given (not scaled)
-        skeleton = (scaled_to_height(template, _height(config, cameras[0], z, template, M, detections.source))
-                    if single else fitted_skeleton(template, X, M))
+        if single:
+            height, height_from = _height(config, cameras[0], z, template, M, detections.source)
+            skeleton = scaled_to_height(template, height)
+        else:
+            skeleton, height_from = fitted_skeleton(template, X, M), "triangulated"
         unmeasured = () if single else tuple(unmeasured_measures(X))
         unlikely = None if single else implausible_body(skeleton, M)
         if unlikely:
@@ -749,27 +754,32 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
         filt.forward = z.forward()
     return PersonRun(detections, config, preset, prior, model, filt, z, index, None if single else X[first:], A, up,
                      cameras, world_cameras, M, skeleton, pose, unmeasured, rejected, known, initial, start_time,
-                     first_tick=first, data_fps=data_fps)
+                     first_tick=first, data_fps=data_fps, height_from=height_from)
+
+
+#: Where a tracked body's height came from: the summary's ``height_from`` in words.
+HEIGHT_FROM = {"triangulated": "measured", "floor": "measured from the floor", "given": "as given (--height)",
+               "nominal": "assumed", "skeleton": "the body given"}
 
 
 def _height(config: TrackConfig, camera: PinholeCamera, z: TickObservations, template: Skeleton, M: np.ndarray,
-            source: str) -> float:
-    """The standing height of one camera's person: ``config.height`` where given, else measured from the floor over
-    the whole trial (:func:`~priortrack.tracking.floor_height.measured_height`), else :data:`NOMINAL_HEIGHT_M`;
-    logged."""
+            source: str) -> tuple[float, str]:
+    """The standing height of one camera's person and where it came from (:data:`HEIGHT_FROM`): ``config.height``
+    where given, else measured from the floor over the whole trial
+    (:func:`~priortrack.tracking.floor_height.measured_height`), else :data:`NOMINAL_HEIGHT_M`; logged."""
     if config.height is not None:
-        return config.height
+        return config.height, "given"
     if config.floor is None:
         log.info("%s: one camera, the floor not known: the body is %g m tall (--height)", source, NOMINAL_HEIGHT_M)
-        return NOMINAL_HEIGHT_M
+        return NOMINAL_HEIGHT_M, "nominal"
     measured, why = measured_height(camera, z[:][:, 0], template, M, config.floor)
     if measured is None:
         log.warning("%s: one camera and no height measured from the floor (%s): the body is %g m tall (--height)",
                     source, why, NOMINAL_HEIGHT_M)
-        return NOMINAL_HEIGHT_M
+        return NOMINAL_HEIGHT_M, "nominal"
     log.info("%s: %.2f m tall, measured from the floor over %d ticks (quartiles %.2f–%.2f m; --height to give it)",
              source, measured.height_m, measured.ticks, *measured.iqr_m)
-    return measured.height_m
+    return measured.height_m, "floor"
 
 
 @dataclass(eq=False)
@@ -805,6 +815,7 @@ class PersonRun:
     #: The filter's first tick on the detections' schedule, and their frame rate.
     first_tick: int = 0
     data_fps: float | None = None
+    height_from: str = ""
 
     def __post_init__(self):
         config = self.config
@@ -897,6 +908,7 @@ class PersonRun:
                                 self.config.lag if self.config.smooth else None,
                                 filtered_spread=filtered_spread, interrupted=run.interrupted, reprojection_by_tick=by_tick,
                                 gated=gated, pose_spread=self.pose, bones_unmeasured=self.unmeasured,
+                                height_from=self.height_from,
                                 held_out_ratio=np.full(T, np.nan) if held_out is None else held_out,
                                 tick_times=(self.first_tick + np.arange(T)) / float(self.prior.fps),
                                 data_fps=self.data_fps, data_frames=np.asarray(self.detections.frames),
