@@ -173,13 +173,19 @@ def written_text(written: list[str], output) -> str:
 def body_text(summary: dict) -> str:
     """The tracked body of a person's JSON summary in words: height (and where it came from), each limb's left / right,
     metres."""
-    from priortrack.tracking.person import HEIGHT_FROM
-
     if summary.get("height_m") is None:
         return "the body given (--skeleton)"
     limbs = ", ".join(f"{name.replace('_', ' ')} {left:.2f} / {right:.2f}"
                       for name, (left, right) in summary["limbs_left_right_m"].items())
-    return f"body {summary['height_m']:.2f} m tall ({HEIGHT_FROM[summary['height_from']]}), left / right m: {limbs}"
+    return f"body {summary['height_m']:.2f} m tall{_from(summary)}, left / right m: {limbs}"
+
+
+def _from(summary: dict) -> str:
+    """Where a summary's body height came from, in words: " (measured from the floor)" and the like, else ""."""
+    from priortrack.tracking.person import HEIGHT_FROM
+
+    words = HEIGHT_FROM.get(summary.get("height_from", ""))
+    return f" ({words})" if words else ""
 
 
 #: ``--rate``: the outputs' frames, the detections' own (the default) or the filter's ticks.
@@ -244,11 +250,9 @@ def _track_scene(args: argparse.Namespace, config, skeleton) -> None:
     if args.json:
         print_json(summary)
         return
-    from priortrack.tracking.person import HEIGHT_FROM
-
     people_text = "; ".join(
-        f"person {pid} ({v['ticks_present']} ticks, {v['height_m']:.2f} m tall ({HEIGHT_FROM[v['height_from']]}), seen in {v['frames_seen']} frames by "
-        f"{', '.join(v['cameras'])}, at {', '.join(f'{x:.2f}' for x in v['mean_position_m'])} m)"
+        f"person {pid} ({v['ticks_present']} ticks, {v['height_m']:.2f} m tall{_from(v)}, seen in {v['frames_seen']} "
+        f"frames by {', '.join(v['cameras'])}, at {', '.join(f'{x:.2f}' for x in v['mean_position_m'])} m)"
         for pid, v in summary["per_person"].items())
     skipped = "".join(f"; person {k} not tracked: {v}" for k, v in summary["skipped"].items())
     print(f"{args.filter}: {len(result.person_ids)} {'person' if len(result.person_ids) == 1 else 'people'}, "

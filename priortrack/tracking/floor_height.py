@@ -116,7 +116,7 @@ def shoulder_heights(camera: PinholeCamera, z: np.ndarray, floor: float = 0.0) -
 def measured_height(camera: PinholeCamera, z: np.ndarray, template: Skeleton, M: np.ndarray,
                     floor: float = 0.0) -> tuple[FloorHeight | None, str]:
     """The person's standing height (module docstring) from one camera's observations z (T, 15, 3) through
-    ``camera`` (the working frame) for the ``template`` body (through the detector map M), and "" ; or None and why
+    ``camera`` (the working frame) for the ``template`` body (through the detector map M) and ""; or None and why
     not (too few ticks with a foot and both shoulders, a height outside :data:`PLAUSIBLE_M`)."""
     Y = shoulder_heights(camera, z, floor)
     Y = Y[np.isfinite(Y)]

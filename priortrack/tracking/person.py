@@ -758,7 +758,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
 
 
 #: Where a tracked body's height came from: the summary's ``height_from`` in words.
-HEIGHT_FROM = {"triangulated": "measured", "floor": "measured from the floor", "given": "as given (--height)",
+HEIGHT_FROM = {"triangulated": "measured", "floor": "measured from the floor", "given": "given",
                "nominal": "assumed", "skeleton": "the body given"}
 
 
