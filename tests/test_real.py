@@ -417,7 +417,7 @@ def test_the_printed_summary_says_ticks_frames_written_and_the_body(tmp_path, ca
     assert main(["track", "--detections", POSE, "--cameras", CALIB, "--fps", "60", "--out", str(tmp_path / "r.npz")]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert line.startswith("ukf-real: 6 ticks at 30 fps in ") and "mismatch 0% of ticks" in line
-    assert re.search(r"body 1\.\d\d m tall, left / right m: upper arm 0\.\d\d / 0\.\d\d, forearm .* shin", line), line
+    assert re.search(r"body 1\.\d\d m tall \(measured\), left / right m: upper arm 0\.\d\d / 0\.\d\d, forearm .* shin", line), line
     assert line.endswith(f"wrote {tmp_path / 'r.npz'} (12 frames at 60 fps)")
 
 

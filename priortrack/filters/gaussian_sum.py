@@ -173,6 +173,7 @@ class GaussianSumFilter(UnscentedFilter):
                 member.kf.x, member.kf.P = h.x.copy(), h.P.copy()
                 member.gated_frames, member.lost_frames, member.frame = h.gated_frames, h.lost_frames.copy(), self.frame
                 member.forward = self.forward                    # the feet and face, each member turned alone
+                member.floor = self.floor                        # and each on the floor
                 member._advance()
                 children.append((h.log_weight + float(lp[k]), int(k), member))
         self._children = children

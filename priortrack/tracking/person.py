@@ -752,6 +752,8 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
     z, index = z.between(first), index[first:]         # from here on, tick 0 is the filter's first
     if hasattr(filt, "forward"):                     # the trunk's facing from the feet and face
         filt.forward = z.forward()
+    if hasattr(filt, "floor") and single and config.floor is not None:    # one camera: a foot on the floor
+        filt.floor = config.floor
     return PersonRun(detections, config, preset, prior, model, filt, z, index, None if single else X[first:], A, up,
                      cameras, world_cameras, M, skeleton, pose, unmeasured, rejected, known, initial, start_time,
                      first_tick=first, data_fps=data_fps, height_from=height_from)
