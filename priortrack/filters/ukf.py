@@ -898,9 +898,8 @@ class UnscentedFilter(SequentialFilter):
         if abs(innovation) > FLOOR_GATE_M:
             return
         C = self.unscented.boxminus(sigmas, x).numpy().T @ (kf.Wc * e)              # (n,)
-        n = self.unscented.tangent_dim
-        translations = np.zeros(n, dtype=bool)
-        translations[[n - 12, n - 11, n - 10, n - 6, n - 5, n - 4]] = True            # g_t's and g_{t−1}'s t
+        translations = np.zeros(self.unscented.tangent_dim, dtype=bool)             # g_t's and g_{t−1}'s t: (t, ω) each
+        translations[-2 * GLOBAL_DIM:] = np.tile(np.arange(GLOBAL_DIM) < 3, 2)
         K = np.where(translations, C / S, 0.0)
         moved = self.unscented.boxplus(x[None], torch.from_numpy(K * innovation)[None])[0]
         P = kf.P - np.outer(K, C) - np.outer(C, K) + S * np.outer(K, K)
