@@ -125,6 +125,8 @@ def test_step_events_name_what_happened():
     turned = StepRecord(11, 4.0, 4, False, ("facing-turned",))
     assert step_events(11, turned) == [("frame 11: a trunk one camera sees turned to the facing its feet and face show",
                                         "INFO")]
+    floored = StepRecord(12, 4.0, 4, False, ("floor-contact",))           # every tick of a one-camera unscented run
+    assert step_events(12, floored) == [("frame 12: the lower ankle held on the floor (one camera)", "DEBUG")]
 
 
 def test_a_clouds_colours_span_four_decades_of_weight(tmp_path):

@@ -39,6 +39,7 @@ FLAG_EVENTS = {"innovation-gated": ("the gate held out detections the prediction
                "swap-corrected": ("a detector's left/right swap undone", "INFO"),
                "branch-repaired": ("an elbow one camera sees moved off its branch through the chest", "INFO"),
                "facing-turned": ("a trunk one camera sees turned to the facing its feet and face show", "INFO"),
+               "floor-contact": ("the lower ankle held on the floor (one camera)", "DEBUG"),
                "gate-reopened": ("the gate reopened: every detection had failed it too long", "WARN"),
                "joint-reacquired": ("a joint every camera had seen away from the estimate too long taken again",
                                     "WARN"),
