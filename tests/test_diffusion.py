@@ -12,6 +12,7 @@ from priortrack.priors import Diffusion, load_prior
 from priortrack.priors.base import prepare_motions
 from priortrack.priors.spaces import AngleSpace, DirectionSpace
 from priortrack.body.fk import joint_positions
+from priortrack.data.motion import Motion
 
 
 @pytest.fixture(scope="module")
@@ -173,3 +174,27 @@ def test_angle_prior_needs_one_channel_layout(tmp_path, walks):
         Diffusion.fit([walks[1], as_bvh], space="angles")
     # The direction space only needs the eval15 joints: mixing layouts is fine there.
     assert Diffusion.fit([walks[1], as_bvh], space="directions").state_dim == 42
+
+
+def test_a_body_keeps_its_own_posture_where_the_training_never_moves(walks):
+    """CMU 35's clavicles never turn, so an angle prior does not model them; on a person's body (``for_body``) they are
+    that person's: a walk with other shoulders decodes to its own joints (exactly, the root removed), where the
+    training's posture puts the shoulders centimetres off."""
+    angles = AngleSpace.fit(walks)
+    names = walks[0].skeleton.channel_names
+    clavicles = [names.index(n) for n in ("lclavicle.ry", "lclavicle.rz", "rclavicle.ry", "rclavicle.rz")]
+    assert not set(clavicles) & set(angles.channels.tolist())          # the training never moves them
+    channels = walks[0].channels.copy()
+    channels[:, clavicles] += np.radians([12.0, -8.0, -10.0, 6.0])
+    person = Motion(walks[0].skeleton, channels, walks[0].fps, "other shoulders")
+    unrooted = person.channels.copy()
+    root = [c for c in (*person.skeleton.rot_channels[0], *person.skeleton.trans_channels[0]) if c >= 0]
+    unrooted[:, root] = 0.0
+    truth = joint_positions(Motion(person.skeleton, unrooted, person.fps, "unrooted"), "eval15")
+    truth = truth - truth[:, :1]
+    body = angles.for_body(person)
+    own = body.joints(body.encode(person)).numpy()
+    np.testing.assert_allclose(own - own[:, :1], truth, atol=1e-9)
+    training = angles.joints(angles.encode(person)).numpy()
+    shoulders = np.linalg.norm((training - training[:, :1] - truth)[:, [3, 6]], axis=-1)
+    assert shoulders.min() > 0.01

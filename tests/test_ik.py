@@ -267,6 +267,33 @@ def test_the_pull_to_a_priors_poses():
         PoseSpread.of([walks[0], Motion(renamed, walks[1].channels, walks[1].fps, walks[1].name)])
 
 
+def test_a_persons_own_posture_where_the_priors_motions_have_none():
+    """CMU 35's walks never turn its clavicles. A walker of 35's body with the clavicles turned 12°, −8°, −10°,
+    6° (every joint seen) gets those from :func:`own_posture` to 2° (the pull at 0.2 rad shrinks 12° to 10.3°),
+    the other channels' spread and means untouched; where no 8 consecutive ticks see every joint, the motions'
+    posture stays (the clavicles at 0)."""
+    from priortrack.body.ik import PoseSpread, own_posture
+    from priortrack.data.motion import Motion
+
+    skeleton = cmu_skeleton("35")
+    walks = [Motion(skeleton, m.channels, m.fps, m.name)
+             for m in (load_motion("cmu:35_01"), load_motion("walkjog:35_02"))]
+    pose = PoseSpread.of(walks)
+    names = ("lclavicle.ry", "lclavicle.rz", "rclavicle.ry", "rclavicle.rz")
+    clavicles = [skeleton.channel_names.index(n) for n in names]
+    channels = load_motion("walkjog:35_29").resample(30).channels[:40].copy()
+    channels[:, clavicles] = np.radians([12.0, -8.0, -10.0, 6.0])
+    X = joint_positions(Motion(skeleton, channels, 30.0, "other shoulders"))
+    own = own_posture(X, 30.0, skeleton, pose)
+    np.testing.assert_allclose(np.degrees(own.mean[clavicles]), [12.0, -8.0, -10.0, 6.0], atol=2.0)
+    others = np.setdiff1d(np.arange(skeleton.num_channels), clavicles)
+    np.testing.assert_array_equal(own.mean[others], pose.mean[others])
+    np.testing.assert_array_equal(own.std, pose.std)
+    gappy = X.copy()
+    gappy[::7, 5] = np.nan                                          # a wrist unseen every 7th tick
+    assert own_posture(gappy, 30.0, skeleton, pose) is pose
+
+
 def test_one_cameras_depth_from_the_least_foreshortened_length():
     """depth / f from a body's image: neck to mid-ankles where shown; without the legs, each frame's least ratio
     L / ℓ over the upper body's lengths, which foreshortening can only raise (a length turned away from the image

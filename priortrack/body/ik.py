@@ -24,7 +24,8 @@ m_tj = 0 where X_tj is NaN, λ = ``REGULARISATION`` a small pull to rest over th
 the root does not jump where a frame lacks a limb). The pull fixes the dofs the 15 joints do not see
 (wrist and foot twists, fingers) and chooses among the poses that fit them equally: w_c = 1, θ̄_c = 0;
 or, given a prior's pose spread (:class:`PoseSpread`), below the root w_c = 1 / max(σ_c, ``SPREAD_FLOOR``)²
-and θ̄_c its training motions' mean. A tracker's start takes the latter wherever its preset names
+and θ̄_c its training motions' mean (on the channels they never move, CMU 35's clavicles, the person's own where
+measured: :func:`own_posture`). A tracker's start takes the latter wherever its preset names
 training motions: on a prior of joint angles a converged fit otherwise traded a back twist for clavicle
 angles of a radian, which the walking priors' state leaves out (CMU 35's clavicles never move), and a
 walk's track went from 6 to 22 mm; from one camera it chooses a limb's depth branch
@@ -61,7 +62,7 @@ import torch
 from priortrack.body.fk import ForwardKinematics
 from priortrack.body.layout import eval15_indices
 from priortrack.data.eval15 import EVAL15_PARENTS
-from priortrack.data.motion import Motion
+from priortrack.data.motion import CONSTANT_CHANNEL_STD, Motion
 from priortrack.data.skeleton import Skeleton
 from priortrack.errors import PriortrackError
 from priortrack.geometry.depth_branches import LIMBS, limb_branches
@@ -74,6 +75,11 @@ REGULARISATION = 1e-4
 #: The least spread σ_c (radians) of a channel in the pull to a prior's poses: the channels its training motions
 #: never move (CMU 35's clavicles) are held there, not fixed.
 SPREAD_FLOOR = 0.05
+#: The spread σ_c (radians) of a person's own posture on the channels a prior's motions never move (CMU 35's
+#: clavicles), in :func:`own_posture`'s fits: people's shoulder girdles rest some 10° apart.
+OWN_POSTURE_SPREAD = 0.2
+#: :func:`own_posture` fits at most this many windows of this many consecutive ticks.
+POSTURE_WINDOWS, POSTURE_TICKS = 8, 8
 #: μ, the weight (m² per unit of channel change) of the difference between consecutive frames.
 SMOOTHNESS = 1e-2
 #: Root headings tried for the start.
@@ -469,6 +475,42 @@ class PoseSpread:
             raise PriortrackError(f"pose spread: the motions have {len(layouts)} channel layouts; expected one")
         channels = np.concatenate([m.channels for m in motions])
         return cls(channels.mean(axis=0), channels.std(axis=0))
+
+
+def own_posture(X: np.ndarray, fps: float, skeleton: Skeleton, pose: PoseSpread,
+                joint_map: np.ndarray | None = None) -> PoseSpread:
+    """``pose`` with the person's own posture where its motions have none: on the channels they never move (σ_c
+    below :data:`~priortrack.data.motion.CONSTANT_CHANNEL_STD`: CMU 35's clavicles), the median over the fitted
+    frames of those channels, fitted by :func:`inverse_kinematics` to the joints X (T, 15, 3) (through
+    ``joint_map``) with them pulled only at :data:`OWN_POSTURE_SPREAD`, over at most :data:`POSTURE_WINDOWS`
+    windows of :data:`POSTURE_TICKS` consecutive ticks that see every joint, spread over the trial. The start's
+    fit then holds them there, as it holds the others near the motions' mean; an angle prior keeps them as the
+    start leaves them (:meth:`~priortrack.priors.spaces.AngleSpace.for_body`). Held at CMU 35's, subject 39's
+    shoulders were out of reach: the angle presets tracked their walk at 1.2–1.7× per-frame triangulation,
+    flagged on every tick. From one window's fit (the start's) rather than the median over the trial's, Shelf's
+    people came out with clavicles turned 60–130°. ``pose`` itself where no window sees every joint (logged)."""
+    never = np.zeros(skeleton.num_channels, dtype=bool)
+    never[moving_channels(skeleton, eval15_indices(skeleton))] = True          # those a fit can measure …
+    never &= pose.std < CONSTANT_CHANNEL_STD                                    # … that the motions never move
+    never[skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0]] = False
+    never[skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0]] = False
+    every = np.isfinite(X).all(axis=-1).all(axis=-1)
+    runs = np.convolve(every, np.ones(POSTURE_TICKS), mode="valid") == POSTURE_TICKS     # a window from tick t
+    starts = np.flatnonzero(runs)
+    if not never.any() or not len(starts):
+        log.info("own posture: %s", "no channel to measure" if not never.any() else
+                 f"no {POSTURE_TICKS} consecutive ticks see every joint; the motions' posture kept")
+        return pose
+    starts = starts[np.unique(np.linspace(0, len(starts) - 1, POSTURE_WINDOWS).round().astype(int))]
+    loose = replace(pose, std=np.where(never, OWN_POSTURE_SPREAD, pose.std))
+    values = np.concatenate([inverse_kinematics(X[t:t + POSTURE_TICKS], fps, joint_map=joint_map, skeleton=skeleton,
+                                                pose=loose).channels[:, never] for t in starts])
+    own = np.median(values, axis=0)
+    log.info("own posture over %d ticks: %s", len(values), ", ".join(
+        f"{name} {np.degrees(v):+.0f}°" for name, v in zip(np.asarray(skeleton.channel_names)[never], own)))
+    mean = pose.mean.copy()
+    mean[never] = own
+    return replace(pose, mean=mean)
 
 
 def pull(skeleton: Skeleton, pose: PoseSpread | None) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,10 @@ import numpy as np
 from priortrack.data.skeleton import Skeleton, check_channels
 from priortrack.errors import PriortrackError
 
+#: A channel whose spread over a set of motions is below this (radians) never moves in them: CMU's finger and thumb
+#: bones carry no data, and CMU 35's clavicles (the template's and the walking priors') never turn.
+CONSTANT_CHANNEL_STD = 1e-6
+
 
 @dataclass(frozen=True, eq=False)
 class Motion:

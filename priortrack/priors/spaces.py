@@ -26,7 +26,7 @@ from priortrack.body.fk import ForwardKinematics
 from priortrack.body.layout import EVAL15_NAMES, eval15_indices
 from priortrack.body.normalise import BONE_CHILDREN, body_positions, normalise
 from priortrack.data.skeleton import Skeleton
-from priortrack.data.motion import Motion
+from priortrack.data.motion import CONSTANT_CHANNEL_STD, Motion
 from priortrack.errors import PriortrackError
 from priortrack.geometry import so3
 from priortrack.geometry.manifold_mean import signed_mean
@@ -40,11 +40,6 @@ from priortrack.body.fk import FK_FRAMES, joint_positions
 UNIT_TOLERANCE = 1e-3
 #: Rows per block of that check.
 CHECK_BLOCK = 32768
-
-#: Channels of a CMU angle whose training spread is below this (radians) are constants
-#: (CMU's finger and thumb bones carry no data) and are not modelled.
-CONSTANT_CHANNEL_STD = 1e-6
-
 
 class StateSpace(ABC):
     """The contract every state space keeps. Shapes: states (..., S), joints (..., 15, 3)."""
@@ -176,7 +171,8 @@ class AngleSpace(EuclideanSpace):
 
     ``channels`` (D,) indexes the skeleton's channel vector: every non-root channel that
     moves in training. The rest are fixed: root channels at zero (pelvis at the origin,
-    identity orientation), constant channels at their training value (``reference``, (C,)).
+    identity orientation), constant channels at their training value (``reference``, (C,)),
+    or, on a person's body (:meth:`for_body`), at that person's own.
     """
 
     def __init__(self, skeleton: Skeleton, channels: np.ndarray, reference: np.ndarray):
@@ -201,8 +197,7 @@ class AngleSpace(EuclideanSpace):
                 raise PriortrackError(f"motion {m.name!r} has other channels than {motions[0].name!r}: "
                                       f"an angle prior needs one skeleton layout (same ASF bones and dofs)")
         values = np.concatenate([m.channels for m in motions])
-        root = set(skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0]) | \
-            set(skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0])
+        root = _root_channels(skeleton)
         spread = np.array([_unwrapped(values[:, c]).std() for c in range(skeleton.num_channels)])
         channels = [c for c in range(skeleton.num_channels) if c not in root and spread[c] > CONSTANT_CHANNEL_STD]
         reference = np.where(spread > CONSTANT_CHANNEL_STD, 0.0, values.mean(axis=0))
@@ -246,11 +241,19 @@ class AngleSpace(EuclideanSpace):
         return torch.cat([t, so3.log(torch.as_tensor(motion.skeleton.local_rotations(motion.channels, joints=[0])[:, 0]))], dim=-1)
 
     def for_body(self, motion: Motion) -> AngleSpace:
-        """The same channels and reference pose on ``motion``'s skeleton (same channel layout)."""
+        """The same channels on ``motion``'s skeleton (same channel layout), the constant ones (neither modelled nor
+        the root's) at the motion's own values (their mean over its frames): the person's posture where the training
+        motions have none (a tracker's start holds it at the one measured over the trial:
+        :func:`~priortrack.body.ik.own_posture`)."""
         if motion.skeleton.channel_names != self.skeleton.channel_names:
             raise PriortrackError(f"motion {motion.name!r}: its skeleton's channels differ from the prior's "
                                   f"({self.skeleton.name!r}); angle priors need the same layout")
-        return AngleSpace(motion.skeleton, self.channels, self.reference)
+        constant = np.ones(len(self.reference), dtype=bool)
+        constant[self.channels] = False
+        constant[list(_root_channels(motion.skeleton))] = False
+        reference = self.reference.copy()
+        reference[constant] = _unwrapped(motion.channels[:, constant]).mean(axis=0)
+        return AngleSpace(motion.skeleton, self.channels, reference)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {**self.skeleton.to_arrays(), "space.channels": self.channels, "space.reference": self.reference}
@@ -389,6 +392,12 @@ def _driven_by_state(skeleton: Skeleton, channels: np.ndarray, reference: np.nda
                              rot_axes=np.where((rot_channels >= 0)[..., None], skeleton.rot_axes, 0.0),
                              channel_names=names)
     return state_skeleton, reference[fixed]
+
+
+def _root_channels(skeleton: Skeleton) -> set[int]:
+    """The root's rotation and translation channels."""
+    return set(skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0].tolist()) | \
+        set(skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0].tolist())
 
 
 def _unwrapped(angles: np.ndarray) -> np.ndarray:

@@ -73,7 +73,7 @@ import torch
 
 from priortrack.body.fk import joint_positions
 from priortrack.body.ik import (PoseSpread, body_measures, check_height, fitted_skeleton, inverse_kinematics,
-                                REWEIGHTS, inverse_kinematics_2d, limb_sides, scaled_to_height, stature,
+                                own_posture, REWEIGHTS, inverse_kinematics_2d, limb_sides, scaled_to_height, stature,
                                 unmeasured_measures)
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
@@ -737,6 +737,8 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
             log.warning("%s: the body measured over the trial is no adult's (%s): a false positive, two people's "
                         "detections taken for one, or a wrong keypoint layout?", detections.source, unlikely)
     pose = pose_spread(preset, skeleton)
+    if pose is not None and not single:
+        pose = own_posture(X, prior.fps, skeleton, pose, M)
     if single:
         ticks = z[first:window][:, 0]
         fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
