@@ -534,8 +534,7 @@ def own_posture(X: np.ndarray, fps: float, skeleton: Skeleton, pose: PoseSpread,
     never = np.zeros(skeleton.num_channels, dtype=bool)
     never[moving_channels(skeleton, eval15_indices(skeleton))] = True          # those a fit can measure …
     never &= pose.std < CONSTANT_CHANNEL_STD                                    # … that the motions never move
-    never[skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0]] = False
-    never[skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0]] = False
+    never[skeleton.root_channels] = False
     every = np.isfinite(X).all(axis=-1).all(axis=-1)
     runs = np.convolve(every, np.ones(POSTURE_TICKS), mode="valid") == POSTURE_TICKS     # a window from tick t
     starts = np.flatnonzero(runs)

@@ -128,6 +128,12 @@ class Skeleton:
     def num_channels(self) -> int:
         return len(self.channel_names)
 
+    @property
+    def root_channels(self) -> np.ndarray:
+        """(K,) the root's rotation and translation channels, ascending."""
+        root = np.concatenate([self.rot_channels[0], self.trans_channels[0]])
+        return np.unique(root[root >= 0])
+
     def index(self, joint: str) -> int:
         """Index of a joint by name; a clear error listing the names if absent."""
         try:

@@ -197,7 +197,7 @@ class AngleSpace(EuclideanSpace):
                 raise PriortrackError(f"motion {m.name!r} has other channels than {motions[0].name!r}: "
                                       f"an angle prior needs one skeleton layout (same ASF bones and dofs)")
         values = np.concatenate([m.channels for m in motions])
-        root = _root_channels(skeleton)
+        root = set(skeleton.root_channels.tolist())
         spread = np.array([_unwrapped(values[:, c]).std() for c in range(skeleton.num_channels)])
         channels = [c for c in range(skeleton.num_channels) if c not in root and spread[c] > CONSTANT_CHANNEL_STD]
         reference = np.where(spread > CONSTANT_CHANNEL_STD, 0.0, values.mean(axis=0))
@@ -250,7 +250,7 @@ class AngleSpace(EuclideanSpace):
                                   f"({self.skeleton.name!r}); angle priors need the same layout")
         constant = np.ones(len(self.reference), dtype=bool)
         constant[self.channels] = False
-        constant[list(_root_channels(motion.skeleton))] = False
+        constant[motion.skeleton.root_channels] = False
         reference = self.reference.copy()
         reference[constant] = _unwrapped(motion.channels[:, constant]).mean(axis=0)
         return AngleSpace(motion.skeleton, self.channels, reference)
@@ -392,12 +392,6 @@ def _driven_by_state(skeleton: Skeleton, channels: np.ndarray, reference: np.nda
                              rot_axes=np.where((rot_channels >= 0)[..., None], skeleton.rot_axes, 0.0),
                              channel_names=names)
     return state_skeleton, reference[fixed]
-
-
-def _root_channels(skeleton: Skeleton) -> set[int]:
-    """The root's rotation and translation channels."""
-    return set(skeleton.rot_channels[0][skeleton.rot_channels[0] >= 0].tolist()) | \
-        set(skeleton.trans_channels[0][skeleton.trans_channels[0] >= 0].tolist())
 
 
 def _unwrapped(angles: np.ndarray) -> np.ndarray:
