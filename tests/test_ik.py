@@ -447,33 +447,3 @@ def test_bad_pixels_for_one_camera_are_named(one_camera):
     weights[2, 5:] = 0.0
     with pytest.raises(PriortrackError, match=r"frames \[2\] have fewer than 6 detected joints"):
         OneCameraFit(uv, weights, cameras[0], skeleton, pose=spread)
-
-
-def test_the_start_pins_a_limb_one_camera_alone_sees_to_its_rays(one_camera):
-    """A walker's left leg seen by one camera of four (the others' views of it lost, as at the edge of their
-    images): no triangulation places its knee and ankle, and the start fitted them from the pose prior alone, 311 mm
-    off; on that camera's rays (``one_view_points``: pixel errors times depth / f, from the prior's fit) 12 mm, and
-    the start's other joints stay where the triangulation put them (11 mm)."""
-    from priortrack.geometry.triangulation import triangulate
-    from priortrack.tracking.person import one_view_points, robust_start
-
-    X, cameras, _, spread = one_camera
-    uv = np.stack([c.project(X)[0] for c in cameras])                              # (C, T, 15, 2), exact
-    z = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], -1).transpose(1, 0, 2, 3).copy()     # (T, C, 15, 3)
-    leg = [10, 11]
-    z[:, 1:, leg] = np.nan                                                          # only camera 0 sees the leg
-    T = triangulate(cameras, z[..., :2].transpose(1, 0, 2, 3), np.nan_to_num(z[..., 2]).transpose(1, 0, 2))
-    assert np.isnan(T[:, leg]).all() and np.isfinite(np.delete(T, leg, axis=1)).all()
-    views = one_view_points(T, z, cameras)
-    assert views.weights[:, 0][:, leg].all() and views.weights.sum() == 2 * len(X)
-    skeleton = fitted_skeleton(cmu_skeleton("35"), X)
-    M, noise = np.eye(15), (5.0, 4.0)
-
-    def leg_mm(motion):
-        return 1000 * np.linalg.norm(joint_positions(motion)[:, leg] - X[:, leg], axis=-1).mean()
-
-    assert leg_mm(inverse_kinematics(T, 30.0, skeleton=skeleton, pose=spread)) > 100
-    start = robust_start(T, z, cameras, 30.0, M, skeleton, spread, noise)
-    assert leg_mm(start) < 30
-    others = np.setdiff1d(np.arange(15), leg)
-    assert 1000 * np.linalg.norm(joint_positions(start)[:, others] - X[:, others], axis=-1).mean() < 15

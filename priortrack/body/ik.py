@@ -250,47 +250,13 @@ def fitted_skeleton(template: Skeleton, X: np.ndarray, joint_map: np.ndarray | N
     return replace(template, offsets=offsets, name=f"{template.name}-fitted")
 
 
-@dataclass(frozen=True)
-class OneViewPoints:
-    """Joints one camera alone sees (no triangulation places them), as data of :func:`inverse_kinematics`: each
-    pins its joint to its ray. ``uv`` (T, C, 15, 2) pixels and ``weights`` (T, C, 15) (0: no such point) in the
-    ``cameras`` (C,) of the targets' world; ``depth`` (T, C) metres from each camera to the body, so that a pixel
-    error times depth / f is metres at the subject, as the targets' errors are (the one-camera fit's scale)."""
-
-    cameras: tuple
-    uv: np.ndarray
-    weights: np.ndarray
-    depth: np.ndarray
-
-    def __getitem__(self, frames: slice) -> "OneViewPoints":
-        return replace(self, uv=self.uv[frames], weights=self.weights[frames], depth=self.depth[frames])
-
-    def residuals(self):
-        """The residual closure (joints, frames) → r (…, F, C · 30): camera c's pixel errors of joints (…, F, 15, 3)
-        times √w · depth / f (0 where no point, or behind the camera)."""
-        scale = torch.as_tensor(np.sqrt(self.weights) * (self.depth / np.array([c.fx for c in self.cameras]))[..., None])
-        scale = torch.nan_to_num(scale)[..., None]                                    # (T, C, 15, 1)
-        target = torch.as_tensor(np.nan_to_num(self.uv))
-
-        def residuals(joints: torch.Tensor, frames: slice) -> torch.Tensor:
-            errors = []
-            for c, camera in enumerate(self.cameras):
-                projected, _ = camera.project(joints)
-                error = torch.where(torch.isfinite(projected), projected - target[frames, c], 0.0)
-                errors.append((error * scale[frames, c]).flatten(-2))
-            return torch.cat(errors, dim=-1)
-        return residuals
-
-
 def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = None, name: str = "ik",
                        joint_map: np.ndarray | None = None, skeleton: Skeleton | None = None,
-                       pose: PoseSpread | None = None, weights: np.ndarray | None = None,
-                       views: OneViewPoints | None = None, theta: np.ndarray | None = None) -> Motion:
+                       pose: PoseSpread | None = None, weights: np.ndarray | None = None) -> Motion:
     """A Motion whose eval15 joints (through ``joint_map`` M, if given) best match X (T, 15, 3) metres in
     a Y-up world (NaN = unknown), each joint's squared error times its weight (``weights`` (T, 15), None: 1; m_tj of
-    the module docstring), and the joints one camera alone sees (``views``) their rays, on ``skeleton``, or else
-    the template (default: CMU subject 35) scaled to X (:func:`fitted_skeleton`); the pull to rest is ``pose``'s, if
-    given (module docstring); from the channels ``theta`` (T, C) if given, else from rest at the best heading."""
+    the module docstring), on ``skeleton``, or else the template (default: CMU subject 35)
+    scaled to X (:func:`fitted_skeleton`); the pull to rest is ``pose``'s, if given (module docstring)."""
     if template is None:
         from priortrack.data.bundled import cmu_skeleton
 
@@ -315,11 +281,8 @@ def inverse_kinematics(X: np.ndarray, fps: float, template: Skeleton | None = No
     channels = np.empty((len(X), skeleton.num_channels))
     for start in range(0, len(X), CHUNK):
         part = slice(start, min(start + CHUNK, len(X)))
-        residuals = _joint_residuals(X[part], None if weights is None else weights[part])
-        if views is not None:
-            residuals = _together(residuals, views[part].residuals())
-        channels[part] = _fit(skeleton, part.stop - part.start, residuals, pelvis[part], M, pose,
-                              None if theta is None else theta[part])
+        channels[part] = _fit(skeleton, part.stop - part.start,
+                              _joint_residuals(X[part], None if weights is None else weights[part]), pelvis[part], M, pose)
     return Motion(skeleton, channels, float(fps), name)
 
 
@@ -340,11 +303,6 @@ def _joint_residuals(X: np.ndarray, weights: np.ndarray | None = None):
     target = torch.as_tensor(np.where(seen[..., None], X, 0.0))
     mask = torch.as_tensor(np.where(seen, 1.0 if weights is None else np.sqrt(weights), 0.0))[..., None]
     return lambda joints, frames: ((joints - target[frames]) * mask[frames]).flatten(-2)
-
-
-def _together(*closures):
-    """The residual closure (joints, frames) → r of several, their residuals side by side."""
-    return lambda joints, frames: torch.cat([r(joints, frames) for r in closures], dim=-1)
 
 
 def check_height(height: float) -> None:

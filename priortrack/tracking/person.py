@@ -72,9 +72,9 @@ import numpy as np
 import torch
 
 from priortrack.body.fk import joint_positions
-from priortrack.body.ik import (OneViewPoints, PoseSpread, body_measures, check_height, fitted_skeleton,
-                                inverse_kinematics, own_posture, REWEIGHTS, inverse_kinematics_2d, limb_sides,
-                                scaled_to_height, stature, unmeasured_measures)
+from priortrack.body.ik import (PoseSpread, body_measures, check_height, fitted_skeleton, inverse_kinematics,
+                                own_posture, REWEIGHTS, inverse_kinematics_2d, limb_sides, scaled_to_height, stature,
+                                unmeasured_measures)
 from priortrack.data.bundled import cmu_skeleton
 from priortrack.data.calibration import UP_AXES, Calibration, CameraCalibration
 from priortrack.data.detections import Detections
@@ -507,59 +507,27 @@ def _whole_trial(cameras: list[PinholeCamera], z: TickObservations, names: tuple
 
 def robust_start(X: np.ndarray, z: np.ndarray, cameras: list[PinholeCamera], fps: float, M: np.ndarray,
                  skeleton: Skeleton, pose: PoseSpread | None, noise: tuple[float, float]) -> Motion:
-    """The start's inverse kinematics of the triangulated ticks X (T, 15, 3), then, from there, of those and the joints
-    one camera alone sees on their rays (observations z (T, C, 15, 3): :func:`one_view_points`), reweighted
+    """The start's inverse kinematics of the triangulated ticks X (T, 15, 3) (observations z (T, C, 15, 3)), reweighted
     :data:`~priortrack.body.ik.REWEIGHTS` times: each point's weight the least over its cameras of the Student-t's
     ρ = (ν + 2) / (ν + d² / σ²) at the fit's reprojection (``noise`` = (σ px, ν)), over the median such weight, at most
     1. A detector's outlier that only two cameras see is triangulated wherever their rays pass, and no camera can be
     left out; the body's other joints hold the fit away from it, its reprojection is far from the outlying pixel, and
     its weight falls. On real detections, whose every point is a few pixels off, the weights stay near 1."""
     fitted = inverse_kinematics(X, fps, joint_map=M, skeleton=skeleton, pose=pose)
-    views = one_view_points(X, z, cameras)
-    if views is not None:          # the pose prior chose each such limb's depth branch; its ray now pins it there
-        fitted = inverse_kinematics(X, fps, joint_map=M, skeleton=skeleton, pose=pose, views=views,
-                                    theta=fitted.channels)
     sigma, nu = noise
     for _ in range(REWEIGHTS):
         J = np.einsum("jk,tkd->tjd", M, joint_positions(fitted))
-        rho = np.full(z.shape[:3], np.inf)                                            # (T, C, 15)
+        rho = np.full(X.shape[:2], np.inf)
         for c, camera in enumerate(cameras):
             d2 = ((camera.project(J)[0] - z[:, c, :, :2]) ** 2).sum(-1)
             seen = np.isfinite(d2) & (np.nan_to_num(z[:, c, :, 2]) > 0)
-            rho[:, c] = np.where(seen, (nu + 2) / (nu + d2 / sigma ** 2), np.inf)
-        least = rho.min(axis=1)                                                       # (T, 15)
-        measured = np.isfinite(least)
+            rho = np.where(seen, np.minimum(rho, (nu + 2) / (nu + d2 / sigma ** 2)), rho)
+        measured = np.isfinite(rho)
         if not measured.any():
             break
-        typical = np.median(least[measured])
-        weights = np.where(measured, np.minimum(least / typical, 1.0), 1.0)
-        if views is not None:
-            views = replace(views, weights=np.where(views.weights > 0, np.minimum(rho / typical, 1.0), 0.0))
-        fitted = inverse_kinematics(X, fps, joint_map=M, skeleton=skeleton, pose=pose, weights=weights, views=views,
-                                    theta=None if views is None else fitted.channels)
+        weights = np.where(measured, np.minimum(rho / np.median(rho[measured]), 1.0), 1.0)
+        fitted = inverse_kinematics(X, fps, joint_map=M, skeleton=skeleton, pose=pose, weights=weights)
     return fitted
-
-
-def one_view_points(X: np.ndarray, z: np.ndarray, cameras: list[PinholeCamera]) -> OneViewPoints | None:
-    """The joints of the ticks X (T, 15, 3) that no triangulation places and one camera alone detects (z (T, C, 15, 3)),
-    as data of the start's fit (weight 1; None where there are none), each camera's pixel error scaled to metres at
-    the body's median depth from it. At a walk's first ticks a leg or an arm is often at one camera's edge of view:
-    fitted from the pose prior alone, held-out walks started 34–57 mm off (their triangulated joints 7–13) and the
-    filters took 3–4 ticks to recover; pinned to the ray, 19–24 mm. A ray fixes a joint only up to its limb's two depth
-    branches: :func:`robust_start` fits them from the prior's fit, so that the prior chooses the branch (fitted from
-    rest, Shelf's actor 2 started with the left arm through the chest from cameras 2 and 4: PCP 96.5 → 81.0 %)."""
-    detected = np.isfinite(z[..., :2]).all(axis=-1) & (np.nan_to_num(z[..., 2]) > 0)             # (T, C, 15)
-    alone = detected & (detected.sum(axis=1, keepdims=True) == 1) & ~np.isfinite(X).all(axis=-1)[:, None]
-    if not alone.any():
-        return None
-    depth = np.zeros(alone.shape[:2])
-    for c, camera in enumerate(cameras):
-        R, t = camera.R.double().numpy(), camera.t.double().numpy()
-        Z = (X @ R.T + t)[..., 2]                                                                # (T, 15)
-        has = np.isfinite(Z).any(axis=1)
-        depth[has, c] = np.nanmedian(Z[has], axis=1)
-    return OneViewPoints(tuple(cameras), np.where(alone[..., None], z[..., :2], np.nan), alone.astype(np.float64),
-                         depth)
 
 
 def triangulated(cameras: list[PinholeCamera], block: np.ndarray, noise: tuple[float, float] | None = None) -> np.ndarray:
