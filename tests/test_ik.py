@@ -267,7 +267,7 @@ def test_the_pull_to_a_priors_poses():
         PoseSpread.of([walks[0], Motion(renamed, walks[1].channels, walks[1].fps, walks[1].name)])
 
 
-def test_a_persons_own_posture_where_the_priors_motions_have_none():
+def test_a_persons_own_posture_where_the_priors_motions_have_none(caplog):
     """CMU 35's walks never turn its clavicles. A walker of 35's body with the clavicles turned 12°, −8°, −10°,
     6° (every joint seen) gets those from :func:`own_posture` to 2° (the pull at 0.2 rad shrinks 12° to 10.3°),
     the other channels' spread and means untouched; where no 8 consecutive ticks see every joint, the motions'
@@ -284,7 +284,9 @@ def test_a_persons_own_posture_where_the_priors_motions_have_none():
     channels = load_motion("walkjog:35_29").resample(30).channels[:40].copy()
     channels[:, clavicles] = np.radians([12.0, -8.0, -10.0, 6.0])
     X = joint_positions(Motion(skeleton, channels, 30.0, "other shoulders"))
-    own = own_posture(X, 30.0, skeleton, pose)
+    with caplog.at_level("INFO", logger="priortrack.body.ik"):
+        own = own_posture(X, 30.0, skeleton, pose, source="walk.npz (person 3)")
+    assert "walk.npz (person 3): its own posture over 40 ticks: lclavicle.ry +10°" in caplog.text   # whose, in words
     np.testing.assert_allclose(np.degrees(own.mean[clavicles]), [12.0, -8.0, -10.0, 6.0], atol=2.0)
     others = np.setdiff1d(np.arange(skeleton.num_channels), clavicles)
     np.testing.assert_array_equal(own.mean[others], pose.mean[others])

@@ -478,7 +478,7 @@ class PoseSpread:
 
 
 def own_posture(X: np.ndarray, fps: float, skeleton: Skeleton, pose: PoseSpread,
-                joint_map: np.ndarray | None = None) -> PoseSpread:
+                joint_map: np.ndarray | None = None, source: str = "own posture") -> PoseSpread:
     """``pose`` with the person's own posture where its motions have none: on the channels they never move (σ_c
     below :data:`~priortrack.data.motion.CONSTANT_CHANNEL_STD`: CMU 35's clavicles), the median over the fitted
     frames of those channels, fitted by :func:`inverse_kinematics` to the joints X (T, 15, 3) (through
@@ -488,7 +488,8 @@ def own_posture(X: np.ndarray, fps: float, skeleton: Skeleton, pose: PoseSpread,
     start leaves them (:meth:`~priortrack.priors.spaces.AngleSpace.for_body`). Held at CMU 35's, subject 39's
     shoulders were out of reach: the angle presets tracked their walk at 1.2–1.7× per-frame triangulation,
     flagged on every tick. From one window's fit (the start's) rather than the median over the trial's, Shelf's
-    people came out with clavicles turned 60–130°. ``pose`` itself where no window sees every joint (logged)."""
+    people came out with clavicles turned 60–130°. ``pose`` itself where no window sees every joint. Logged under
+    ``source`` (whose person it is)."""
     never = np.zeros(skeleton.num_channels, dtype=bool)
     never[moving_channels(skeleton, eval15_indices(skeleton))] = True          # those a fit can measure …
     never &= pose.std < CONSTANT_CHANNEL_STD                                    # … that the motions never move
@@ -497,7 +498,7 @@ def own_posture(X: np.ndarray, fps: float, skeleton: Skeleton, pose: PoseSpread,
     runs = np.convolve(every, np.ones(POSTURE_TICKS), mode="valid") == POSTURE_TICKS     # a window from tick t
     starts = np.flatnonzero(runs)
     if not never.any() or not len(starts):
-        log.info("own posture: %s", "no channel to measure" if not never.any() else
+        log.info("%s: %s", source, "no posture of its own to measure" if not never.any() else
                  f"no {POSTURE_TICKS} consecutive ticks see every joint; the motions' posture kept")
         return pose
     starts = starts[np.unique(np.linspace(0, len(starts) - 1, POSTURE_WINDOWS).round().astype(int))]
@@ -505,7 +506,8 @@ def own_posture(X: np.ndarray, fps: float, skeleton: Skeleton, pose: PoseSpread,
     values = np.concatenate([inverse_kinematics(X[t:t + POSTURE_TICKS], fps, joint_map=joint_map, skeleton=skeleton,
                                                 pose=loose).channels[:, never] for t in starts])
     own = np.median(values, axis=0)
-    log.info("own posture over %d ticks: %s", len(values), ", ".join(
+    ticks = len(np.unique(starts[:, None] + np.arange(POSTURE_TICKS)))
+    log.info("%s: its own posture over %d ticks: %s", source, ticks, ", ".join(
         f"{name} {np.degrees(v):+.0f}°" for name, v in zip(np.asarray(skeleton.channel_names)[never], own)))
     mean = pose.mean.copy()
     mean[never] = own

@@ -738,7 +738,7 @@ def prepared(detections: Detections, calibration: Calibration, preset: Preset | 
                         "detections taken for one, or a wrong keypoint layout?", detections.source, unlikely)
     pose = pose_spread(preset, skeleton)
     if pose is not None and not single:
-        pose = own_posture(X, prior.fps, skeleton, pose, M)
+        pose = own_posture(X, prior.fps, skeleton, pose, M, detections.source)
     if single:
         ticks = z[first:window][:, 0]
         fitted = inverse_kinematics_2d(ticks[..., :2], np.nan_to_num(ticks[..., 2]), cameras[0], prior.fps, skeleton, M,
