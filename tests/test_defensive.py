@@ -14,7 +14,7 @@ from priortrack.experiments.pace import at_pace
 from priortrack.tracking.presets import load_preset, parse_preset
 from priortrack.experiments.tracking import track
 from priortrack.models.protocols import GaussianTransition, TransitionModel
-from priortrack.priors.defensive import DefensiveMixture
+from priortrack.priors.defensive import DefensiveMixture, DefensivePair
 
 
 @pytest.fixture(scope="module")
@@ -67,6 +67,35 @@ def test_the_step_components_are_the_mixtures_density(mixture):
         np.testing.assert_allclose(got.numpy(), full.numpy(), atol=1e-12)
 
 
+def test_the_pair_is_the_learned_prior_moment_matched_beside_the_diffusion(mixture):
+    """The two Gaussian steps: (ū_L, Σ_L) the learned prior's moment-matched step (its mean and covariance), (0, Σ_D)
+    the diffusion's, weighted 1 − ε and ε; moment-matched in turn they are the mixture's one Gaussian, mean (1 − ε) ū_L
+    and covariance (1 − ε) Σ_L + ε Σ_D + ε (1 − ε) ū_L ū_Lᵀ (:meth:`DefensiveMixture.transition_covariance`)."""
+    x = mixture.encode(load_motion("cmu:07_10"))[:30].double()
+    pair = DefensivePair(mixture)
+    assert pair.space is mixture.space and pair.kind == "lie"
+    log_pi, means, covariances = pair.step_components(x)
+    np.testing.assert_allclose(log_pi.exp().numpy(), np.tile([0.9, 0.1], (len(x), 1)), atol=1e-12)
+    u = mixture.space.local(mixture.learned.mean(x), x)
+    np.testing.assert_allclose(means[:, 0].numpy(), u.numpy(), atol=1e-12)
+    assert float(means[:, 1].abs().max()) == 0.0
+    np.testing.assert_allclose(covariances[:, 0].numpy(), mixture.learned.transition_covariance(x).numpy(), atol=1e-12)
+    np.testing.assert_allclose(covariances[:, 1].numpy(), mixture.fallback.transition_covariance(x).numpy(), atol=1e-12)
+    w = log_pi.exp()[:, :, None]
+    mean = (w * means).sum(1)
+    d = means - mean[:, None]
+    cov = (w[..., None] * (covariances + d[..., :, None] * d[..., None, :])).sum(1)
+    np.testing.assert_allclose(mixture.space.retract(x, mean).numpy(), mixture.mean(x).numpy(), atol=1e-9)
+    np.testing.assert_allclose(cov.numpy(), mixture.transition_covariance(x).numpy(), atol=1e-12)
+    index = torch.tensor([[1, 0], [0, 1]]).repeat(len(x) // 2, 1)
+    rows = torch.arange(len(x))[:, None]
+    for got, full in zip(pair.step_components(x, components=index),
+                         (log_pi[rows, index], means[rows, index], covariances[rows, index])):
+        np.testing.assert_allclose(got.numpy(), full.numpy(), atol=1e-12)
+    with pytest.raises(PriortrackError, match="the 'lie' prior has no defensive share"):
+        DefensivePair(mixture.learned)
+
+
 def test_a_tenth_of_the_steps_come_from_the_diffusion(mixture):
     x = mixture.encode(load_motion("cmu:07_10"))[:1].double().expand(4000, -1).contiguous()
     g = torch.Generator().manual_seed(0)
@@ -82,7 +111,7 @@ def test_presets_check_the_defensive_fraction():
     table = {"filter": {"kind": "pf"}, "prior": {"kind": "lie", "train": ["cmu:07_01"], "defensive": 1.5}}
     with pytest.raises(PriortrackError, match="defensive must be a fraction in"):
         parse_preset(table, "bad")
-    assert load_preset("ukf-lie-defensive").defensive == 0.1       # the UKF runs it moment-matched
+    assert load_preset("ukf-lie-defensive").defensive == 0.1       # the unscented filters run it as two models
     gpdm = replace(load_preset("pf-gpdm"), defensive=0.1)
     with pytest.raises(PriortrackError, match="has none"):
         gpdm.prior()
