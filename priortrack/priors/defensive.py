@@ -62,7 +62,7 @@ class DefensiveMixture(BuiltOnPrior):
         chosen = torch.rand(len(x), generator=generator, device=x.device) < self.epsilon
         return torch.where(chosen[:, None], fallback, learned)
 
-    def _mean_step(self, x: torch.Tensor) -> torch.Tensor:
+    def learned_step(self, x: torch.Tensor) -> torch.Tensor:
         """(P, S) → (P, n) ū, the learned prior's mean step log_x(mean(x)) in the tangent coordinates of
         ``space.local`` at each row (the diffusion's mean step is 0)."""
         return self.learned.space.local(self.learned.mean(x), x)
@@ -78,9 +78,9 @@ class DefensiveMixture(BuiltOnPrior):
 
             (1 − ε) Σ_learned + ε Σ_diffusion + ε (1 − ε) ū ūᵀ,
 
-        ū the learned mean step (:meth:`_mean_step`); both parts' covariances in the coordinates of
+        ū the learned mean step (:meth:`learned_step`); both parts' covariances in the coordinates of
         ``space.local`` (the diffusion's is isotropic per joint, the same in any orthonormal basis)."""
-        u = self._mean_step(x)
+        u = self.learned_step(x)
         eps = self.epsilon
         return ((1 - eps) * self.learned.transition_covariance(x) + eps * self.fallback.transition_covariance(x).to(u)
                 + eps * (1 - eps) * u[:, :, None] * u[:, None, :])
@@ -123,8 +123,8 @@ class DefensivePair(BuiltOnPrior):
     unscented filter on these two components (``ukf-sum`` with ``moment_matched = true``) is a two-model filter
     (the generalised pseudo-Bayesian filter of order 2; Bar-Shalom, Li & Kirubarajan, *Estimation with Applications
     to Tracking*, §11.6) whose models' weights the frames' evidence sets: the diffusion carries the estimate where
-    the learned prior does not explain the data, as the defensive particles do in a particle filter. Everything else
-    (the density, a draw, the state space) is the mixture's."""
+    the learned prior does not explain the data, as the defensive particles do in a particle filter. The state space
+    and the start are the mixture's."""
 
     BASE, WHAT = "mixture", "a defensive mixture's two Gaussian steps"
 
@@ -142,11 +142,10 @@ class DefensivePair(BuiltOnPrior):
     def step_components(self, x: torch.Tensor, covariances: bool = True, components: torch.Tensor | None = None):
         """ln π (P, 2), the mean steps (P, 2, n) (ū_L, 0) and covariances (P, 2, n, n) (Σ_L, Σ_D) (None unless
         ``covariances``); with ``components`` (P, k) indices in {0, 1}, those of each row only."""
-        learned, fallback = self.mixture.learned, self.mixture.fallback
-        u = learned.space.local(learned.mean(x), x)
+        u = self.mixture.learned_step(x)
         log_pi, means = self.step_weights(x), torch.stack([u, torch.zeros_like(u)], 1)
-        cov = (torch.stack([learned.transition_covariance(x).to(u), fallback.transition_covariance(x).to(u)], 1)
-               if covariances else None)
+        cov = (torch.stack([self.mixture.learned.transition_covariance(x).to(u),
+                            self.mixture.fallback.transition_covariance(x).to(u)], 1) if covariances else None)
         if components is None:
             return log_pi, means, cov
         rows = torch.arange(len(x), device=x.device)[:, None]
